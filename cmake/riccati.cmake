@@ -1,0 +1,42 @@
+# Shared build helpers: one way to add a model plugin, one way to add a test.
+
+# Warnings for our own targets.
+function(riccati_warnings target)
+  target_compile_options(${target} PRIVATE -Wall -Wextra -Wpedantic -Wshadow -Wno-missing-field-initializers)
+endfunction()
+
+# riccati_add_model_plugin(NAME src...): a model plugin (shared module) named
+# NAME.so in the plugin directory, exporting only its entry point.
+function(riccati_add_model_plugin name)
+  add_library(model_${name} MODULE ${ARGN})
+  target_link_libraries(model_${name} PRIVATE riccati::model_sdk)
+  set_target_properties(model_${name} PROPERTIES
+    PREFIX ""
+    OUTPUT_NAME ${name}
+    LIBRARY_OUTPUT_DIRECTORY ${RICCATI_PLUGIN_DIR}
+    CXX_VISIBILITY_PRESET hidden
+    VISIBILITY_INLINES_HIDDEN ON)
+  # Math without errno lets the compiler vectorise sqrt across points; the
+  # host checks every result for NaN/Inf itself.
+  target_compile_options(model_${name} PRIVATE -fno-math-errno)
+  riccati_warnings(model_${name})
+  set_property(GLOBAL APPEND PROPERTY RICCATI_MODEL_PLUGINS model_${name})
+endfunction()
+
+# riccati_add_test(NAME SOURCES src... LIBS lib...): a GoogleTest binary whose
+# tests are registered with CTest. Tests find their data and the built-in
+# plugins through the two compile definitions below.
+function(riccati_add_test name)
+  cmake_parse_arguments(T "" "" "SOURCES;LIBS;LABELS" ${ARGN})
+  add_executable(${name} ${T_SOURCES})
+  target_link_libraries(${name} PRIVATE ${T_LIBS} GTest::gtest GTest::gtest_main)
+  target_compile_definitions(${name} PRIVATE
+    RICCATI_TEST_DATA_DIR="${PROJECT_SOURCE_DIR}/tests/data"
+    RICCATI_TEST_PLUGIN_DIR="${RICCATI_PLUGIN_DIR}")
+  riccati_warnings(${name})
+  get_property(plugins GLOBAL PROPERTY RICCATI_MODEL_PLUGINS)
+  if(plugins)
+    add_dependencies(${name} ${plugins})
+  endif()
+  gtest_discover_tests(${name} DISCOVERY_MODE PRE_TEST PROPERTIES LABELS "${T_LABELS}")
+endfunction()

@@ -1,0 +1,196 @@
+// Forward-mode dual numbers: a value and its N partial derivatives.
+//
+// Evaluating a function templated on its scalar type with Dual<N> instead of
+// double gives the exact derivatives of its result with respect to the N
+// inputs that were seeded with unit derivatives (the idea of Ceres' Jet).
+//
+// Math functions are found by argument-dependent lookup, so model code must
+// call them unqualified: write `sqrt(h)`, not `std::sqrt(h)`. Every function
+// below is also declared for double (through `using std::...`), so inside
+// namespace riccati, or after `using namespace riccati::math;`, the same line
+// compiles for both scalar types.
+#pragma once
+
+#include <array>
+#include <cmath>
+
+namespace riccati {
+
+template <int N>
+struct Dual {
+  double v = 0.0;                // value
+  std::array<double, N> d{};     // d v / d input_j
+
+  constexpr Dual() = default;
+  constexpr Dual(double value) : v(value) {}  // NOLINT(google-explicit-constructor): constants mix in freely
+  // A variable: value and a unit derivative with respect to input `index`.
+  static constexpr Dual variable(double value, int index) {
+    Dual r(value);
+    r.d[index] = 1.0;
+    return r;
+  }
+
+  constexpr Dual& operator+=(const Dual& o) { v += o.v; for (int i = 0; i < N; ++i) d[i] += o.d[i]; return *this; }
+  constexpr Dual& operator-=(const Dual& o) { v -= o.v; for (int i = 0; i < N; ++i) d[i] -= o.d[i]; return *this; }
+  constexpr Dual& operator*=(const Dual& o) { *this = *this * o; return *this; }
+  constexpr Dual& operator/=(const Dual& o) { *this = *this / o; return *this; }
+  constexpr Dual& operator+=(double o) { v += o; return *this; }
+  constexpr Dual& operator-=(double o) { v -= o; return *this; }
+  constexpr Dual& operator*=(double o) { v *= o; for (auto& x : d) x *= o; return *this; }
+  constexpr Dual& operator/=(double o) { return *this *= (1.0 / o); }
+
+  // The chain rule for a scalar function: value fv, derivative dfdv at v.
+  constexpr Dual chain(double fv, double dfdv) const {
+    Dual r(fv);
+    for (int i = 0; i < N; ++i) r.d[i] = dfdv * d[i];
+    return r;
+  }
+
+  friend constexpr Dual operator+(Dual a) { return a; }
+  friend constexpr Dual operator-(const Dual& a) { return a.chain(-a.v, -1.0); }
+  friend constexpr Dual operator+(Dual a, const Dual& b) { return a += b; }
+  friend constexpr Dual operator-(Dual a, const Dual& b) { return a -= b; }
+  friend constexpr Dual operator*(const Dual& a, const Dual& b) {
+    Dual r(a.v * b.v);
+    for (int i = 0; i < N; ++i) r.d[i] = a.d[i] * b.v + a.v * b.d[i];
+    return r;
+  }
+  friend constexpr Dual operator/(const Dual& a, const Dual& b) {
+    const double inv = 1.0 / b.v;
+    const double q = a.v * inv;
+    Dual r(q);
+    for (int i = 0; i < N; ++i) r.d[i] = (a.d[i] - q * b.d[i]) * inv;
+    return r;
+  }
+  friend constexpr Dual operator+(Dual a, double b) { return a += b; }
+  friend constexpr Dual operator+(double a, Dual b) { return b += a; }
+  friend constexpr Dual operator-(Dual a, double b) { return a -= b; }
+  friend constexpr Dual operator-(double a, const Dual& b) { return b.chain(a - b.v, -1.0); }
+  friend constexpr Dual operator*(Dual a, double b) { return a *= b; }
+  friend constexpr Dual operator*(double a, Dual b) { return b *= a; }
+  friend constexpr Dual operator/(Dual a, double b) { return a /= b; }
+  friend constexpr Dual operator/(double a, const Dual& b) {
+    const double q = a / b.v;
+    return b.chain(q, -q / b.v);
+  }
+
+  // Comparisons look at values only (for branches such as a saturation).
+  friend constexpr bool operator<(const Dual& a, const Dual& b) { return a.v < b.v; }
+  friend constexpr bool operator>(const Dual& a, const Dual& b) { return a.v > b.v; }
+  friend constexpr bool operator<=(const Dual& a, const Dual& b) { return a.v <= b.v; }
+  friend constexpr bool operator>=(const Dual& a, const Dual& b) { return a.v >= b.v; }
+  friend constexpr bool operator==(const Dual& a, const Dual& b) { return a.v == b.v; }
+  friend constexpr bool operator<(const Dual& a, double b) { return a.v < b; }
+  friend constexpr bool operator>(const Dual& a, double b) { return a.v > b; }
+  friend constexpr bool operator<=(const Dual& a, double b) { return a.v <= b; }
+  friend constexpr bool operator>=(const Dual& a, double b) { return a.v >= b; }
+  friend constexpr bool operator<(double a, const Dual& b) { return a < b.v; }
+  friend constexpr bool operator>(double a, const Dual& b) { return a > b.v; }
+  friend constexpr bool operator<=(double a, const Dual& b) { return a <= b.v; }
+  friend constexpr bool operator>=(double a, const Dual& b) { return a >= b.v; }
+
+  // Elementary functions (derivatives in the comments where not obvious).
+  friend Dual sqrt(const Dual& a) { const double s = std::sqrt(a.v); return a.chain(s, 0.5 / s); }
+  friend Dual cbrt(const Dual& a) { const double c = std::cbrt(a.v); return a.chain(c, 1.0 / (3.0 * c * c)); }
+  friend Dual exp(const Dual& a) { const double e = std::exp(a.v); return a.chain(e, e); }
+  friend Dual log(const Dual& a) { return a.chain(std::log(a.v), 1.0 / a.v); }
+  friend Dual sin(const Dual& a) { return a.chain(std::sin(a.v), std::cos(a.v)); }
+  friend Dual cos(const Dual& a) { return a.chain(std::cos(a.v), -std::sin(a.v)); }
+  friend Dual tan(const Dual& a) { const double t = std::tan(a.v); return a.chain(t, 1.0 + t * t); }
+  friend Dual asin(const Dual& a) { return a.chain(std::asin(a.v), 1.0 / std::sqrt(1.0 - a.v * a.v)); }
+  friend Dual acos(const Dual& a) { return a.chain(std::acos(a.v), -1.0 / std::sqrt(1.0 - a.v * a.v)); }
+  friend Dual atan(const Dual& a) { return a.chain(std::atan(a.v), 1.0 / (1.0 + a.v * a.v)); }
+  friend Dual sinh(const Dual& a) { return a.chain(std::sinh(a.v), std::cosh(a.v)); }
+  friend Dual cosh(const Dual& a) { return a.chain(std::cosh(a.v), std::sinh(a.v)); }
+  friend Dual tanh(const Dual& a) { const double t = std::tanh(a.v); return a.chain(t, 1.0 - t * t); }
+  // |a|: derivative sign(a), taken as 0 at a = 0.
+  friend Dual abs(const Dual& a) { return a.chain(std::abs(a.v), a.v > 0 ? 1.0 : (a.v < 0 ? -1.0 : 0.0)); }
+  friend Dual fabs(const Dual& a) { return abs(a); }
+  friend Dual pow(const Dual& a, double p) { return a.chain(std::pow(a.v, p), p * std::pow(a.v, p - 1.0)); }
+  // a^b = exp(b log a): d = b a^(b-1) da + a^b log(a) db
+  friend Dual pow(const Dual& a, const Dual& b) {
+    const double r = std::pow(a.v, b.v);
+    Dual out(r);
+    const double da = b.v * std::pow(a.v, b.v - 1.0);
+    const double db = a.v > 0 ? r * std::log(a.v) : 0.0;
+    for (int i = 0; i < N; ++i) out.d[i] = da * a.d[i] + db * b.d[i];
+    return out;
+  }
+  friend Dual pow(double a, const Dual& b) { const double r = std::pow(a, b.v); return b.chain(r, r * std::log(a)); }
+  // atan2(y, x): d = (x dy - y dx) / (x^2 + y^2)
+  friend Dual atan2(const Dual& y, const Dual& x) {
+    const double den = x.v * x.v + y.v * y.v;
+    Dual out(std::atan2(y.v, x.v));
+    for (int i = 0; i < N; ++i) out.d[i] = (x.v * y.d[i] - y.v * x.d[i]) / den;
+    return out;
+  }
+  friend bool isfinite(const Dual& a) { return std::isfinite(a.v); }
+};
+
+using std::abs;
+using std::acos;
+using std::asin;
+using std::atan;
+using std::atan2;
+using std::cbrt;
+using std::cos;
+using std::cosh;
+using std::exp;
+using std::fabs;
+using std::isfinite;
+using std::log;
+using std::pow;
+using std::sin;
+using std::sinh;
+using std::sqrt;
+using std::tan;
+using std::tanh;
+
+inline double value_of(double a) { return a; }
+template <int N>
+double value_of(const Dual<N>& a) { return a.v; }
+
+// min/max by value, keeping the derivative of the chosen argument.
+template <typename T>
+T min(const T& a, const T& b) { return b < a ? b : a; }
+template <typename T>
+T max(const T& a, const T& b) { return a < b ? b : a; }
+
+// Saturation: a clamped to [-1, 1] (derivative 0 outside), as in c*sat(v/vg).
+template <typename T>
+T sat(const T& a) {
+  if (a > 1.0) return T(1.0);
+  if (a < -1.0) return T(-1.0);
+  return a;
+}
+
+// Square, which reads better than pow(a, 2) and costs one product.
+template <typename T>
+T square(const T& a) { return a * a; }
+
+namespace math {
+using riccati::abs;
+using riccati::acos;
+using riccati::asin;
+using riccati::atan;
+using riccati::atan2;
+using riccati::cbrt;
+using riccati::cos;
+using riccati::cosh;
+using riccati::exp;
+using riccati::fabs;
+using riccati::isfinite;
+using riccati::log;
+using riccati::max;
+using riccati::min;
+using riccati::pow;
+using riccati::sat;
+using riccati::sin;
+using riccati::sinh;
+using riccati::sqrt;
+using riccati::square;
+using riccati::tan;
+using riccati::tanh;
+}  // namespace math
+
+}  // namespace riccati

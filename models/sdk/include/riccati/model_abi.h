@@ -1,0 +1,95 @@
+/*
+ * riccati model plugin ABI, version 1 (plain C; stable across compilers).
+ *
+ * A model plugin is a shared library exporting one function,
+ *
+ *     const riccati_model_v1* riccati_model_entry(uint32_t host_abi_version);
+ *
+ * which returns a table that lives as long as the library stays loaded. The
+ * table describes the model
+ *
+ *     x' = f(x, theta, u, t)      states x [nx], parameters theta [ntheta],
+ *     y  = g(x, theta, u, t)      inputs u [nu], outputs y [ny]
+ *
+ * and gives function pointers to evaluate f and g. Most authors never write
+ * this table by hand: model.hpp builds it from a templated C++ model and adds
+ * exact Jacobians by automatic differentiation.
+ *
+ * Rules of the boundary
+ *  - No C++ type and no exception crosses it. Every function returns 0 on
+ *    success or non-zero on failure, with a NUL-terminated message written into
+ *    `err` (at most `err_len` bytes, truncated if longer).
+ *  - Functions are reentrant: the host calls them from several threads at once.
+ *  - Batched evaluation: f and g evaluate `n` points in one call so a plugin
+ *    can vectorise across points (the UKF's sigma points). Point arrays are
+ *    stored variable-major ("structure of arrays"): value i of point p is
+ *    at `a[i * ld + p]`, with ld >= n. x, theta and the result share one ld.
+ *    u and t are the same for all points of a call.
+ *  - Jacobians are with respect to the augmented state [x; theta], stored
+ *    column-major: d out_i / d z_j at `jac[i + j * rows]`, z = [x; theta].
+ *    They are optional (NULL): the host falls back to central finite
+ *    differences.
+ *  - The host checks results for NaN and Inf; a plugin need not.
+ */
+#ifndef RICCATI_MODEL_ABI_H_
+#define RICCATI_MODEL_ABI_H_
+
+#include <stddef.h>
+#include <stdint.h>
+
+#ifdef __cplusplus
+extern "C" {
+#endif
+
+#define RICCATI_MODEL_ABI_VERSION 1u
+#define RICCATI_MODEL_ENTRY_SYMBOL "riccati_model_entry"
+
+#if defined(_WIN32)
+#define RICCATI_PLUGIN_EXPORT __declspec(dllexport)
+#else
+#define RICCATI_PLUGIN_EXPORT __attribute__((visibility("default")))
+#endif
+
+/* Batched evaluation of f (out: nx values per point) or g (out: ny per point). */
+typedef int (*riccati_eval_fn)(uint32_t n, size_t ld, double t, const double* u, const double* x,
+                               const double* theta, double* out, char* err, size_t err_len);
+
+/* One point: the value (out, rows values) and the Jacobian with respect to
+ * [x; theta] (jac, rows x (nx + ntheta), column-major). */
+typedef int (*riccati_jac_fn)(double t, const double* u, const double* x, const double* theta,
+                              double* out, double* jac, char* err, size_t err_len);
+
+typedef struct riccati_model_v1 {
+  uint32_t abi_version; /* RICCATI_MODEL_ABI_VERSION the plugin was built with */
+  uint32_t struct_size; /* sizeof(riccati_model_v1) in the plugin: later versions only append */
+
+  const char* name;        /* unique model name, [a-z0-9_]+ */
+  const char* version;     /* the model's own version, free text */
+  const char* description; /* one line */
+
+  uint32_t nx, ntheta, nu, ny;
+
+  const char* const* state_names;  /* [nx] */
+  const char* const* param_names;  /* [ntheta] */
+  const char* const* input_names;  /* [nu] (may be NULL when nu == 0) */
+  const char* const* output_names; /* [ny] */
+
+  const double* theta_default; /* [ntheta] default (typical) parameter values */
+  const double* theta_lower;   /* [ntheta] or NULL: lower bounds, -HUGE_VAL for none */
+  const double* theta_upper;   /* [ntheta] or NULL: upper bounds, +HUGE_VAL for none */
+
+  riccati_eval_fn f; /* required */
+  riccati_eval_fn g; /* required */
+  riccati_jac_fn f_jac; /* optional: f value and d f / d [x; theta] (nx rows) */
+  riccati_jac_fn g_jac; /* optional: g value and d g / d [x; theta] (ny rows) */
+} riccati_model_v1;
+
+/* The one symbol a plugin exports. The host passes its own ABI version; a
+ * plugin may return NULL if it cannot serve that version. */
+typedef const riccati_model_v1* (*riccati_model_entry_fn)(uint32_t host_abi_version);
+
+#ifdef __cplusplus
+} /* extern "C" */
+#endif
+
+#endif /* RICCATI_MODEL_ABI_H_ */

@@ -1,0 +1,29 @@
+#!/usr/bin/env bash
+# Installs the Debian 12 packages riccati needs to build and test, and only
+# those that are missing (so a machine that has them all is left alone).
+set -euo pipefail
+
+packages=(
+  build-essential cmake ninja-build ccache pkg-config   # toolchain, one cached build
+  libeigen3-dev                                         # linear algebra
+  libsundials-dev                                       # CVODE / ARKODE integrators
+  libspdlog-dev                                         # logging
+  libmatio-dev                                          # MAT files (the 1999 toolbox's T/U/Y layout)
+  libcli11-dev                                          # command-line parsing
+  nlohmann-json3-dev                                    # JSON (dataset metadata in tests)
+  libgtest-dev libgmock-dev                             # GoogleTest
+  libbenchmark-dev                                      # Google Benchmark
+)
+
+missing=()
+for p in "${packages[@]}"; do
+  dpkg-query -W -f='${Status}' "$p" 2>/dev/null | grep -q "install ok installed" || missing+=("$p")
+done
+[ ${#missing[@]} -eq 0 ] && exit 0
+
+echo "install-deps: installing ${missing[*]}"
+sudo_cmd=()
+[ "$(id -u)" -eq 0 ] || sudo_cmd=(sudo)
+export DEBIAN_FRONTEND=noninteractive
+"${sudo_cmd[@]}" apt-get update -qq
+"${sudo_cmd[@]}" apt-get install -y -qq --no-install-recommends "${missing[@]}" >/dev/null

@@ -1,0 +1,54 @@
+// Datasets: sampled inputs and outputs of a rig, read from CSV or MAT files.
+//
+// Layout follows the 1999 toolbox: time t [N], inputs U [nu x N] and outputs
+// Y [ny x N], one column per sample, so a sample's values are contiguous.
+#pragma once
+
+#include <Eigen/Core>
+#include <string>
+#include <string_view>
+#include <vector>
+
+#include "engine/status.hpp"
+
+namespace riccati {
+
+struct Dataset {
+  std::string name;                       // file name or upload name, for messages
+  std::vector<std::string> input_names;   // nu
+  std::vector<std::string> output_names;  // ny
+  Eigen::VectorXd t;                      // [N] seconds, strictly increasing
+  Eigen::MatrixXd u;                      // [nu x N]
+  Eigen::MatrixXd y;                      // [ny x N]
+
+  Eigen::Index size() const { return t.size(); }
+  Eigen::Index num_inputs() const { return u.rows(); }
+  Eigen::Index num_outputs() const { return y.rows(); }
+};
+
+// Which columns of a file are time, inputs and outputs, by name.
+struct ColumnMapping {
+  std::string time = "t";
+  std::vector<std::string> inputs;
+  std::vector<std::string> outputs;
+};
+
+// Checks what every filter relies on: at least two samples, every value
+// finite, time strictly increasing, sizes consistent. The message names the
+// dataset, the column and the sample (1-based row as a user counts it).
+Status validate_dataset(const Dataset& data);
+
+// CSV with a header row; values separated by commas; the columns named in
+// `mapping` are taken, others ignored. Errors name the line and column.
+Result<Dataset> parse_csv(std::string_view text, const ColumnMapping& mapping, std::string source_name);
+Result<Dataset> read_csv_file(const std::string& path, const ColumnMapping& mapping);
+
+// MAT file (v5/v7.3 via matio) holding T [1 x N], U [nu x N], Y [ny x N].
+// Names are taken from `mapping` when given, else "u1".., "y1"...; U may be
+// absent or empty (no inputs); mapping.time is not used (time is always T).
+Result<Dataset> read_mat_file(const std::string& path, const ColumnMapping& mapping);
+
+// Reads a CSV or MAT file, chosen by its extension (.csv, .mat).
+Result<Dataset> read_dataset_file(const std::string& path, const ColumnMapping& mapping);
+
+}  // namespace riccati

@@ -1,0 +1,183 @@
+#include "engine/filter.hpp"
+
+#include <Eigen/Cholesky>
+#include <Eigen/QR>
+#include <cmath>
+#include <string>
+
+namespace riccati {
+
+// Defined in ekf.cpp and ukf.cpp.
+std::unique_ptr<Filter> make_ekf(ModelPtr model, const FilterSettings& settings,
+                                 std::unique_ptr<Integrator> integrator);
+std::unique_ptr<Filter> make_ukf(ModelPtr model, const FilterSettings& settings,
+                                 std::unique_ptr<Integrator> integrator);
+
+const char* filter_kind_name(FilterKind kind) {
+  switch (kind) {
+    case FilterKind::kEkf: return "ekf";
+    case FilterKind::kUkf: return "ukf";
+  }
+  return "unknown";
+}
+
+Result<FilterKind> parse_filter_kind(std::string_view name) {
+  if (name == "ekf") return FilterKind::kEkf;
+  if (name == "ukf") return FilterKind::kUkf;
+  return invalid_argument("unknown filter \"" + std::string(name) + "\" (expected ekf or ukf)");
+}
+
+const char* hold_order_name(HoldOrder hold) { return hold == HoldOrder::kZero ? "zoh" : "foh"; }
+
+Result<HoldOrder> parse_hold_order(std::string_view name) {
+  if (name == "zoh" || name == "0") return HoldOrder::kZero;
+  if (name == "foh" || name == "1") return HoldOrder::kFirst;
+  return invalid_argument("unknown input hold \"" + std::string(name) + "\" (expected zoh or foh)");
+}
+
+Result<GainInversion> parse_gain_inversion(std::string_view name) {
+  if (name == "cholesky" || name == "normal") return GainInversion::kCholesky;
+  if (name == "pinv" || name == "pseudo-inverse") return GainInversion::kPseudoInverse;
+  return invalid_argument("unknown gain inversion \"" + std::string(name) + "\" (expected cholesky or pinv)");
+}
+
+Result<SigmaWeights> parse_sigma_weights(std::string_view name) {
+  if (name == "julier") return SigmaWeights::kJulier;
+  if (name == "scaled") return SigmaWeights::kScaled;
+  return invalid_argument("unknown sigma-point weights \"" + std::string(name) + "\" (expected julier or scaled)");
+}
+
+namespace {
+
+// A covariance-like matrix: right size, finite, symmetric, no negative
+// eigenvalue beyond rounding. `what` names it in messages.
+Status check_covariance(const Eigen::MatrixXd& M, Eigen::Index n, const std::string& what) {
+  if (M.rows() != n || M.cols() != n) {
+    return invalid_argument(what + " must be " + std::to_string(n) + " x " + std::to_string(n) + ", got " +
+                            std::to_string(M.rows()) + " x " + std::to_string(M.cols()));
+  }
+  if (!M.allFinite()) return invalid_argument(what + " has a NaN or infinite entry");
+  const double scale = std::max(1.0, M.cwiseAbs().maxCoeff());
+  if ((M - M.transpose()).cwiseAbs().maxCoeff() > 1e-12 * scale) {
+    return invalid_argument(what + " is not symmetric");
+  }
+  for (Eigen::Index i = 0; i < n; ++i) {
+    if (M(i, i) < 0.0) {
+      return invalid_argument(what + " has a negative variance " + std::to_string(M(i, i)) + " at " +
+                              std::to_string(i));
+    }
+  }
+  Eigen::LDLT<Eigen::MatrixXd> ldlt(M);
+  if (ldlt.info() != Eigen::Success || (ldlt.vectorD().array() < -1e-10 * scale).any()) {
+    return invalid_argument(what + " is not positive semi-definite");
+  }
+  return Status::ok();
+}
+
+}  // namespace
+
+Status validate(const FilterSettings& s, const Model& model) {
+  RICCATI_RETURN_IF_ERROR(validate(s.integrator));
+  RICCATI_RETURN_IF_ERROR(check_covariance(s.Q, model.nz(), "process noise Q"));
+  RICCATI_RETURN_IF_ERROR(check_covariance(s.R, model.ny(), "measurement noise R"));
+  if (s.kind == FilterKind::kUkf) {
+    const double n = model.nz();
+    const bool scaled = s.ukf.weights == SigmaWeights::kScaled;
+    const double kappa = std::isnan(s.ukf.kappa) ? (scaled ? 0.0 : 3.0 - n) : s.ukf.kappa;
+    if (!std::isfinite(kappa)) return invalid_argument("UKF kappa must be finite");
+    if (scaled && !(s.ukf.alpha > 0.0 && s.ukf.alpha <= 1.0)) return invalid_argument("UKF alpha must be in (0, 1]");
+    if (scaled && !std::isfinite(s.ukf.beta)) return invalid_argument("UKF beta must be finite");
+    const double lambda = scaled ? s.ukf.alpha * s.ukf.alpha * (n + kappa) - n : kappa;
+    if (!(n + lambda > 0.0)) {
+      return invalid_argument("UKF spread n + lambda = " + std::to_string(n + lambda) +
+                              " must be positive (n = " + std::to_string(model.nz()) + "): raise kappa");
+    }
+  }
+  return Status::ok();
+}
+
+Filter::Filter(ModelPtr model, FilterSettings settings)
+    : model_(std::move(model)), settings_(std::move(settings)) {
+  const Eigen::Index nz = model_->nz(), ny = model_->ny();
+  z_ = Eigen::VectorXd::Zero(nz);
+  P_ = Eigen::MatrixXd::Zero(nz, nz);
+  y_pred_ = Eigen::VectorXd::Zero(ny);
+  innovation_ = Eigen::VectorXd::Zero(ny);
+  S_ = Eigen::MatrixXd::Zero(ny, ny);
+  K_ = Eigen::MatrixXd::Zero(nz, ny);
+  u_hold_ = Eigen::VectorXd::Zero(model_->nu());
+}
+
+Status Filter::reset(double t, const Eigen::VectorXd& z, const Eigen::MatrixXd& P) {
+  if (!std::isfinite(t)) return invalid_argument("initial time is not finite");
+  if (z.size() != model_->nz()) {
+    return invalid_argument("initial state has " + std::to_string(z.size()) + " entries, model " + model_->name() +
+                            " has nx + ntheta = " + std::to_string(model_->nz()));
+  }
+  if (!z.allFinite()) return invalid_argument("initial state has a NaN or infinite entry");
+  RICCATI_RETURN_IF_ERROR(check_covariance(P, model_->nz(), "initial covariance P0"));
+  t_ = t;
+  z_ = z;
+  P_ = P;
+  return Status::ok();
+}
+
+void Filter::hold_input(double t, double t0, double t1, const double* u0, const double* u1) {
+  const Eigen::Index nu = u_hold_.size();
+  if (settings_.hold == HoldOrder::kZero || u1 == nullptr) {
+    for (Eigen::Index i = 0; i < nu; ++i) u_hold_[i] = u0[i];
+    return;
+  }
+  const double a = (t - t0) / (t1 - t0);
+  for (Eigen::Index i = 0; i < nu; ++i) u_hold_[i] = u0[i] + a * (u1[i] - u0[i]);
+}
+
+Status Filter::gain_and_nis(const Eigen::MatrixXd& C) {
+  // K = C S^-1 is computed as K^T = S^-1 C^T (S symmetric): a solve, never an inverse.
+  if (settings_.inversion == GainInversion::kCholesky) {
+    Eigen::LLT<Eigen::MatrixXd> llt(S_);
+    if (llt.info() != Eigen::Success) {
+      return failed_precondition(
+          "innovation covariance S is not positive definite at t = " + std::to_string(t_) +
+          " (R has zero variances and the prediction is exact?): give R positive variances or use the "
+          "pseudo-inverse gain");
+    }
+    K_.transpose() = llt.solve(C.transpose());
+    nis_ = innovation_.dot(llt.solve(innovation_));
+  } else {
+    Eigen::CompleteOrthogonalDecomposition<Eigen::MatrixXd> cod(S_);
+    K_.transpose() = cod.solve(C.transpose());
+    nis_ = innovation_.dot(cod.solve(innovation_));
+  }
+  return Status::ok();
+}
+
+Status Filter::check_estimate(const char* where) const {
+  // The message is built only on failure: this runs at every sample.
+  auto diverged = [&](const std::string& what) {
+    return failed_precondition("filter diverged: " + what + " after the " + where + " at t = " + std::to_string(t_));
+  };
+  if (!z_.allFinite()) return diverged("the state is not finite");
+  if (!P_.allFinite()) return diverged("the covariance is not finite");
+  const double scale = std::max(1.0, P_.diagonal().cwiseAbs().maxCoeff());
+  for (Eigen::Index i = 0; i < P_.rows(); ++i) {
+    if (P_(i, i) < -1e-9 * scale) {
+      return diverged("the covariance lost positive semi-definiteness (variance " + std::to_string(P_(i, i)) +
+                      " of element " + std::to_string(i) + ")");
+    }
+  }
+  return Status::ok();
+}
+
+Result<std::unique_ptr<Filter>> make_filter(ModelPtr model, const FilterSettings& settings) {
+  if (model == nullptr) return invalid_argument("no model given");
+  RICCATI_RETURN_IF_ERROR(validate(settings, *model));
+  RICCATI_ASSIGN_OR_RETURN(std::unique_ptr<Integrator> integrator, make_integrator(settings.integrator));
+  switch (settings.kind) {
+    case FilterKind::kEkf: return make_ekf(std::move(model), settings, std::move(integrator));
+    case FilterKind::kUkf: return make_ukf(std::move(model), settings, std::move(integrator));
+  }
+  return invalid_argument("unknown filter kind");
+}
+
+}  // namespace riccati

@@ -1,0 +1,125 @@
+// Filters on the augmented state z = [x; theta] of a continuous-time model
+//
+//     x' = f(x, theta, u, t) + w,   theta' = 0 (+ w_theta),   w ~ N(0, Q dt)
+//     y_k = g(x, theta, u, t_k) + v_k,                       v ~ N(0, R)
+//
+// One interface for every filter kind: predict to a time with the inputs,
+// update with a measurement, read the estimate. Filters are created once per
+// session or job, then stepped with no allocation per sample.
+#pragma once
+
+#include <Eigen/Core>
+#include <memory>
+#include <string_view>
+
+#include "engine/integrator.hpp"
+#include "engine/model.hpp"
+#include "engine/status.hpp"
+
+namespace riccati {
+
+enum class FilterKind {
+  kEkf,  // continuous-discrete extended Kalman filter (Hensen 1999, ch. 2)
+  kUkf,  // continuous-discrete unscented Kalman filter (Zheng et al. 2010)
+};
+
+// How inputs are held between two samples (the toolbox's `order`).
+enum class HoldOrder {
+  kZero,   // u(t) = u_k on [t_k, t_k+1)
+  kFirst,  // u(t) linear from u_k to u_k+1
+};
+
+// How the gain solves with the innovation covariance S (the toolbox's `inverse`).
+enum class GainInversion {
+  kCholesky,       // S must be positive definite; factorised, never inverted
+  kPseudoInverse,  // minimum-norm least squares: tolerates a singular S
+};
+
+enum class SigmaWeights {
+  kJulier,  // Julier & Uhlmann: lambda = kappa, Wc = Wm
+  kScaled,  // scaled set: lambda = alpha^2 (n + kappa) - n, Wc0 += 1 - alpha^2 + beta
+};
+
+struct UkfSettings {
+  SigmaWeights weights = SigmaWeights::kJulier;
+  double alpha = 1.0;
+  double beta = 2.0;
+  // NaN selects the usual default: 3 - n for kJulier, 0 for kScaled.
+  double kappa = std::numeric_limits<double>::quiet_NaN();
+};
+
+struct FilterSettings {
+  FilterKind kind = FilterKind::kEkf;
+  HoldOrder hold = HoldOrder::kZero;
+  IntegratorSettings integrator;
+  Eigen::MatrixXd Q;  // [nz x nz] process noise intensity; zero is allowed
+  Eigen::MatrixXd R;  // [ny x ny] measurement noise covariance
+  GainInversion inversion = GainInversion::kCholesky;
+  bool joseph = true;  // EKF: Joseph-form covariance update
+  UkfSettings ukf;
+};
+
+const char* filter_kind_name(FilterKind kind);
+Result<FilterKind> parse_filter_kind(std::string_view name);  // "ekf", "ukf"
+const char* hold_order_name(HoldOrder hold);
+Result<HoldOrder> parse_hold_order(std::string_view name);    // "zoh", "foh"
+Result<GainInversion> parse_gain_inversion(std::string_view name);  // "cholesky", "pinv"
+Result<SigmaWeights> parse_sigma_weights(std::string_view name);    // "julier", "scaled"
+
+// Checks sizes, symmetry, finiteness and semi-definiteness against a model.
+Status validate(const FilterSettings& settings, const Model& model);
+
+class Filter {
+ public:
+  virtual ~Filter() = default;
+
+  // Sets the estimate at time t: z [nz], P [nz x nz] symmetric positive
+  // semi-definite (zero variances mean "known exactly").
+  Status reset(double t, const Eigen::VectorXd& z, const Eigen::MatrixXd& P);
+
+  // Propagates the estimate from time() to t1 > time(); u0 is the input at
+  // time(), u1 at t1 (used by first-order hold only). Both [nu].
+  virtual Status predict(double t1, const double* u0, const double* u1) = 0;
+
+  // Measurement update at time() with y [ny] and the input u [nu] at that time.
+  virtual Status update(const double* y, const double* u) = 0;
+
+  const Model& model() const { return *model_; }
+  const FilterSettings& settings() const { return settings_; }
+  double time() const { return t_; }
+  const Eigen::VectorXd& state() const { return z_; }             // [nz] = [x; theta]
+  const Eigen::MatrixXd& covariance() const { return P_; }        // [nz x nz]
+  // Of the last update:
+  const Eigen::VectorXd& predicted_output() const { return y_pred_; }  // g at the prior [ny]
+  const Eigen::VectorXd& innovation() const { return innovation_; }    // y - y_pred [ny]
+  const Eigen::MatrixXd& innovation_covariance() const { return S_; }  // [ny x ny]
+  double nis() const { return nis_; }  // normalised innovation squared, innovation' S^-1 innovation
+
+ protected:
+  Filter(ModelPtr model, FilterSettings settings);
+
+  // Solves K S = C for the gain K = C S^-1 ([nz x ny]) and the NIS, as the
+  // settings' inversion says. Shared by the EKF and the UKF.
+  Status gain_and_nis(const Eigen::MatrixXd& C);
+  // A diverged filter: non-finite state or a covariance that lost positive
+  // semi-definiteness. Returns kFailedPrecondition naming what went wrong.
+  Status check_estimate(const char* where) const;
+  // The input held at time t inside [t0, t1] (zero or first order) into u_hold_.
+  void hold_input(double t, double t0, double t1, const double* u0, const double* u1);
+
+  ModelPtr model_;
+  FilterSettings settings_;
+  double t_ = 0.0;
+  Eigen::VectorXd z_;
+  Eigen::MatrixXd P_;
+  Eigen::VectorXd y_pred_, innovation_;
+  Eigen::MatrixXd S_;
+  Eigen::MatrixXd K_;  // gain of the last update [nz x ny]
+  double nis_ = 0.0;
+  Eigen::VectorXd u_hold_;  // scratch: the held input [nu]
+};
+
+// Creates a filter of settings.kind for `model` (validated first).
+Result<std::unique_ptr<Filter>> make_filter(ModelPtr model, const FilterSettings& settings);
+
+}  // namespace riccati

@@ -1,0 +1,92 @@
+// Multi-pass identification, as the 1999 Eindhoven EKF toolbox runs it:
+//
+//     ekf(x0, Theta0, U, Y, T, model, R, Q, P, passes, order, s, inverse)
+//
+// Each pass filters the whole dataset. The first pass starts from
+// [x0; theta0] and P0. Every later pass restarts the states and their
+// covariance from the first pass's values and keeps theta and its covariance
+// from the end of the previous pass (Hensen 1999, ch. 2).
+#pragma once
+
+#include <Eigen/Core>
+#include <functional>
+#include <stop_token>
+#include <vector>
+
+#include "engine/dataset.hpp"
+#include "engine/filter.hpp"
+#include "engine/model.hpp"
+#include "engine/status.hpp"
+
+namespace riccati {
+
+// Where the initial states come from.
+enum class InitialState {
+  kGiven,             // x0 as given
+  kFirstMeasurement,  // the toolbox's "Y(t0)": each state that has an output of
+                      // the same name starts at its first measurement; the
+                      // others at x0 (zero if not given)
+};
+
+struct IdentificationSettings {
+  FilterSettings filter;
+  InitialState initial_state = InitialState::kGiven;
+  Eigen::VectorXd x0;      // [nx]; may be empty with kFirstMeasurement
+  Eigen::VectorXd theta0;  // [ntheta]
+  Eigen::MatrixXd P0;      // [nz x nz] initial covariance of [x; theta]
+  int passes = 1;
+  // Trial identification: filter only samples [first_sample, end_sample)
+  // (end_sample < 0 means to the end). The toolbox's "trial".
+  Eigen::Index first_sample = 0;
+  Eigen::Index end_sample = -1;
+};
+
+struct PassResult {
+  Eigen::MatrixXd theta_trace;     // [ntheta x N] estimate after each sample (the toolbox's Trace)
+  Eigen::VectorXd theta_final;     // [ntheta] at the end of the pass
+  Eigen::VectorXd theta_mean;      // [ntheta] mean over the pass
+  Eigen::VectorXd theta_std;       // [ntheta] sqrt(diag P) at the end of the pass
+  Eigen::VectorXd innovation_rms;  // [ny]
+  double nis_mean = 0.0;           // mean normalised innovation squared (about ny for a consistent filter)
+};
+
+struct IdentificationResult {
+  std::vector<std::string> param_names;
+  std::vector<PassResult> passes;
+  Eigen::VectorXd theta;        // final estimate (end of the last pass)
+  Eigen::VectorXd theta_mean;   // mean over the last pass (what the toolbox reports)
+  Eigen::VectorXd theta_std;    // standard deviations at the end
+  Eigen::MatrixXd covariance;   // [nz x nz] at the end
+  Eigen::VectorXd t;            // [N] sample times filtered
+  Eigen::MatrixXd x_trace;      // [nx x N] state estimates of the last pass
+  Eigen::MatrixXd y_model;      // [ny x N] model outputs g(x, theta) along the last pass (the toolbox's Ymod)
+  Eigen::MatrixXd innovations;  // [ny x N] innovations of the last pass
+};
+
+struct IdentificationProgress {
+  int pass = 0;              // 1-based
+  int passes = 0;
+  Eigen::Index sample = 0;   // 1-based, within the pass
+  Eigen::Index samples = 0;
+  const Eigen::VectorXd* theta = nullptr;  // current estimate
+};
+
+// Called after every sample; keep it cheap (throttle in the callback).
+using ProgressCallback = std::function<void(const IdentificationProgress&)>;
+
+// Orders a dataset's inputs and outputs as the model's (by name when the
+// names match, else by position when the counts match) and checks the sizes.
+Result<Dataset> bind_dataset(const Model& model, const Dataset& data);
+
+// The initial state [nx] for a run, from the settings and the first sample.
+Result<Eigen::VectorXd> initial_state(const Model& model, const Dataset& bound, InitialState mode,
+                                      const Eigen::VectorXd& x0, Eigen::Index first_sample);
+
+Status validate(const IdentificationSettings& settings, const Model& model);
+
+// Runs the identification. Checks `stop` between samples: a stop request ends
+// it with kCancelled.
+Result<IdentificationResult> identify(ModelPtr model, const Dataset& data, const IdentificationSettings& settings,
+                                      const ProgressCallback& progress = {}, std::stop_token stop = {});
+
+}  // namespace riccati

@@ -1,0 +1,217 @@
+#include "engine/model.hpp"
+
+#include <array>
+#include <cmath>
+#include <limits>
+#include <string>
+#include <vector>
+
+namespace riccati {
+
+namespace {
+
+constexpr std::size_t kErrorBufferSize = 512;
+
+// Copies `count` names from a plugin's table, refusing NULL entries.
+Status read_names(const char* const* names, uint32_t count, const char* what, std::vector<std::string>* out) {
+  out->clear();
+  if (count == 0) return Status::ok();
+  if (names == nullptr) return invalid_argument(std::string(what) + " names are missing (NULL)");
+  for (uint32_t i = 0; i < count; ++i) {
+    if (names[i] == nullptr || names[i][0] == '\0') {
+      return invalid_argument(std::string(what) + " name " + std::to_string(i) + " is empty");
+    }
+    out->emplace_back(names[i]);
+  }
+  for (std::size_t i = 0; i < out->size(); ++i) {
+    for (std::size_t j = i + 1; j < out->size(); ++j) {
+      if ((*out)[i] == (*out)[j]) return invalid_argument(std::string(what) + " name \"" + (*out)[i] + "\" is repeated");
+    }
+  }
+  return Status::ok();
+}
+
+bool valid_model_name(const char* name) {
+  if (name == nullptr || name[0] == '\0') return false;
+  for (const char* c = name; *c != '\0'; ++c) {
+    const bool ok = (*c >= 'a' && *c <= 'z') || (*c >= '0' && *c <= '9') || *c == '_';
+    if (!ok) return false;
+  }
+  return true;
+}
+
+int index_of(const std::vector<std::string>& names, std::string_view n) {
+  for (std::size_t i = 0; i < names.size(); ++i) {
+    if (names[i] == n) return static_cast<int>(i);
+  }
+  return -1;
+}
+
+// Scratch space for finite differences, per thread so that concurrent
+// sessions never share it and no evaluation allocates after the first.
+struct FdScratch {
+  std::vector<double> x, theta, plus, minus;
+};
+thread_local FdScratch fd_scratch;
+
+}  // namespace
+
+Result<ModelPtr> Model::create(const riccati_model_v1* t, std::shared_ptr<void> library, std::string origin) {
+  auto fail = [&](const std::string& why) -> Status {
+    return invalid_argument("plugin " + origin + " refused: " + why);
+  };
+  if (t == nullptr) return fail("its entry point returned no model table (NULL)");
+  if (t->abi_version != RICCATI_MODEL_ABI_VERSION) {
+    return fail("ABI version " + std::to_string(t->abi_version) + ", this host speaks version " +
+                std::to_string(RICCATI_MODEL_ABI_VERSION) + "; rebuild it against this riccati's model_abi.h");
+  }
+  if (t->struct_size < sizeof(riccati_model_v1)) {
+    return fail("model table is " + std::to_string(t->struct_size) + " bytes, expected at least " +
+                std::to_string(sizeof(riccati_model_v1)));
+  }
+  if (!valid_model_name(t->name)) return fail("model name must be non-empty and use only [a-z0-9_]");
+  constexpr uint32_t kMaxSize = 4096;  // far above any real model; stops absurd tables early
+  if (t->nx == 0 || t->nx > kMaxSize) return fail("model " + std::string(t->name) + " has nx = " + std::to_string(t->nx));
+  if (t->ny == 0 || t->ny > kMaxSize) return fail("model " + std::string(t->name) + " has ny = " + std::to_string(t->ny));
+  if (t->ntheta > kMaxSize || t->nu > kMaxSize) return fail("model " + std::string(t->name) + " sizes are too large");
+  if (t->f == nullptr || t->g == nullptr) return fail("model " + std::string(t->name) + " does not provide f and g");
+
+  std::shared_ptr<Model> m(new Model());
+  m->table_ = t;
+  m->library_ = std::move(library);
+  m->origin_ = origin;
+  m->name_ = t->name;
+  m->version_ = t->version != nullptr ? t->version : "";
+  m->description_ = t->description != nullptr ? t->description : "";
+  m->nx_ = static_cast<int>(t->nx);
+  m->ntheta_ = static_cast<int>(t->ntheta);
+  m->nu_ = static_cast<int>(t->nu);
+  m->ny_ = static_cast<int>(t->ny);
+
+  const std::string who = "model " + m->name_ + ": ";
+  Status s = read_names(t->state_names, t->nx, "state", &m->state_names_);
+  if (s.is_ok()) s = read_names(t->param_names, t->ntheta, "parameter", &m->param_names_);
+  if (s.is_ok()) s = read_names(t->input_names, t->nu, "input", &m->input_names_);
+  if (s.is_ok()) s = read_names(t->output_names, t->ny, "output", &m->output_names_);
+  if (!s.is_ok()) return fail(who + s.message());
+
+  const Eigen::Index nth = m->ntheta_;
+  m->theta_default_ = Eigen::VectorXd::Zero(nth);
+  m->theta_lower_ = Eigen::VectorXd::Constant(nth, -std::numeric_limits<double>::infinity());
+  m->theta_upper_ = Eigen::VectorXd::Constant(nth, std::numeric_limits<double>::infinity());
+  if (nth > 0) {
+    if (t->theta_default == nullptr) return fail(who + "parameter defaults are missing (NULL)");
+    for (Eigen::Index j = 0; j < nth; ++j) {
+      m->theta_default_[j] = t->theta_default[j];
+      if (t->theta_lower != nullptr) m->theta_lower_[j] = t->theta_lower[j];
+      if (t->theta_upper != nullptr) m->theta_upper_[j] = t->theta_upper[j];
+      const std::string& pn = m->param_names_[j];
+      if (!std::isfinite(m->theta_default_[j])) return fail(who + "default of parameter " + pn + " is not finite");
+      if (std::isnan(m->theta_lower_[j]) || std::isnan(m->theta_upper_[j]) || m->theta_lower_[j] > m->theta_upper_[j]) {
+        return fail(who + "bounds of parameter " + pn + " are inconsistent");
+      }
+    }
+  }
+  return ModelPtr(std::move(m));
+}
+
+Status Model::non_finite_error(bool is_f, double t, int row) const {
+  const std::string what = is_f ? "f returned a non-finite derivative of state " + state_names_[row]
+                                : "g returned a non-finite output " + output_names_[row];
+  return failed_precondition("model " + name_ + ": " + what + " at t = " + std::to_string(t));
+}
+
+Status Model::eval(bool is_f, double t, const double* u, int n, std::size_t ld, const double* x,
+                   const double* theta, double* out) const {
+  std::array<char, kErrorBufferSize> err;  // not zeroed: written only on failure
+  err[0] = '\0';
+  const riccati_eval_fn fn = is_f ? table_->f : table_->g;
+  if (fn(static_cast<uint32_t>(n), ld, t, u, x, theta, out, err.data(), err.size()) != 0) {
+    return internal_error("model " + name_ + ": " + (is_f ? "f" : "g") + " failed at t = " + std::to_string(t) +
+                          ": " + err.data());
+  }
+  const int rows = is_f ? nx_ : ny_;
+  for (int i = 0; i < rows; ++i) {
+    const double* r = out + i * ld;
+    for (int p = 0; p < n; ++p) {
+      if (!std::isfinite(r[p])) return non_finite_error(is_f, t, i);
+    }
+  }
+  return Status::ok();
+}
+
+Status Model::f(double t, const double* u, int n, std::size_t ld, const double* x, const double* theta,
+                double* out) const {
+  return eval(true, t, u, n, ld, x, theta, out);
+}
+
+Status Model::g(double t, const double* u, int n, std::size_t ld, const double* x, const double* theta,
+                double* out) const {
+  return eval(false, t, u, n, ld, x, theta, out);
+}
+
+Status Model::jacobian(bool is_f, double t, const double* u, const double* x, const double* theta, double* out,
+                       double* jac) const {
+  const riccati_jac_fn fn = is_f ? table_->f_jac : table_->g_jac;
+  if (fn == nullptr) return finite_difference_jacobian(is_f, t, u, x, theta, out, jac);
+  std::array<char, kErrorBufferSize> err;  // not zeroed: written only on failure
+  err[0] = '\0';
+  if (fn(t, u, x, theta, out, jac, err.data(), err.size()) != 0) {
+    return internal_error("model " + name_ + ": Jacobian of " + (is_f ? "f" : "g") + " failed at t = " +
+                          std::to_string(t) + ": " + err.data());
+  }
+  const int rows = is_f ? nx_ : ny_;
+  for (int i = 0; i < rows; ++i) {
+    if (!std::isfinite(out[i])) return non_finite_error(is_f, t, i);
+    for (int j = 0; j < nz(); ++j) {
+      if (!std::isfinite(jac[i + j * rows])) {
+        return failed_precondition("model " + name_ + ": Jacobian of " + (is_f ? "f" : "g") +
+                                   " is not finite at t = " + std::to_string(t));
+      }
+    }
+  }
+  return Status::ok();
+}
+
+// Central differences, step h_j = cbrt(eps) * max(1, |z_j|): the step that
+// balances truncation error O(h^2) against rounding error O(eps / h).
+Status Model::finite_difference_jacobian(bool is_f, double t, const double* u, const double* x,
+                                         const double* theta, double* out, double* jac) const {
+  const int rows = is_f ? nx_ : ny_;
+  FdScratch& s = fd_scratch;
+  s.x.assign(x, x + nx_);
+  s.theta.assign(theta, theta + ntheta_);
+  s.plus.resize(rows);
+  s.minus.resize(rows);
+  RICCATI_RETURN_IF_ERROR(eval(is_f, t, u, 1, 1, s.x.data(), s.theta.data(), out));
+  const double step_scale = std::cbrt(std::numeric_limits<double>::epsilon());
+  for (int j = 0; j < nz(); ++j) {
+    double& zj = j < nx_ ? s.x[j] : s.theta[j - nx_];
+    const double z0 = zj;
+    const double h = step_scale * std::max(1.0, std::abs(z0));
+    zj = z0 + h;
+    RICCATI_RETURN_IF_ERROR(eval(is_f, t, u, 1, 1, s.x.data(), s.theta.data(), s.plus.data()));
+    zj = z0 - h;
+    RICCATI_RETURN_IF_ERROR(eval(is_f, t, u, 1, 1, s.x.data(), s.theta.data(), s.minus.data()));
+    zj = z0;
+    for (int i = 0; i < rows; ++i) jac[i + j * rows] = (s.plus[i] - s.minus[i]) / (2.0 * h);
+  }
+  return Status::ok();
+}
+
+Status Model::f_jacobian(double t, const double* u, const double* x, const double* theta, double* out,
+                         double* jac) const {
+  return jacobian(true, t, u, x, theta, out, jac);
+}
+
+Status Model::g_jacobian(double t, const double* u, const double* x, const double* theta, double* out,
+                         double* jac) const {
+  return jacobian(false, t, u, x, theta, out, jac);
+}
+
+int Model::state_index(std::string_view n) const { return index_of(state_names_, n); }
+int Model::param_index(std::string_view n) const { return index_of(param_names_, n); }
+int Model::input_index(std::string_view n) const { return index_of(input_names_, n); }
+int Model::output_index(std::string_view n) const { return index_of(output_names_, n); }
+
+}  // namespace riccati

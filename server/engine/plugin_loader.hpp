@@ -1,0 +1,46 @@
+// Finding and loading model plugins (shared libraries) with dlopen.
+#pragma once
+
+#include <string>
+#include <string_view>
+#include <vector>
+
+#include "engine/model.hpp"
+#include "engine/status.hpp"
+
+namespace riccati {
+
+// Loads one plugin file. A file that is not a plugin, has the wrong ABI
+// version or an inconsistent table is refused with a message naming it; the
+// host is never brought down by a bad plugin's table.
+Result<ModelPtr> load_model_plugin(const std::string& path);
+
+struct RefusedPlugin {
+  std::string path;
+  std::string reason;
+};
+
+// The models available to a daemon or a tool: every plugin (*.so) of one
+// directory, by name.
+class ModelRegistry {
+ public:
+  // Loads every *.so in `dir` (sorted by file name). A missing directory is an
+  // error; a bad plugin is recorded in refused() and skipped, as is a second
+  // plugin with a name already taken.
+  static Result<ModelRegistry> load_directory(const std::string& dir);
+
+  ModelPtr find(std::string_view name) const;
+  const std::vector<ModelPtr>& models() const { return models_; }
+  const std::vector<RefusedPlugin>& refused() const { return refused_; }
+
+ private:
+  std::vector<ModelPtr> models_;
+  std::vector<RefusedPlugin> refused_;
+};
+
+// Where the built-in plugins sit relative to the running executable:
+// <dir of executable>/../lib/riccati/models (the same in the build tree and in
+// an install).
+std::string default_models_dir();
+
+}  // namespace riccati

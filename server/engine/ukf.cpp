@@ -1,0 +1,209 @@
+// Continuous-discrete unscented Kalman filter (Zheng, Ikeda, Shimomura 2010,
+// after Julier & Uhlmann and Wan & van der Merwe).
+//
+// Prediction: 2n+1 sigma points z_i = z, z +- sqrt(n + lambda) s_j, with s_j
+// the columns of a square root S of P (S S^T = P), are each integrated
+// through x' = f over the interval (theta constant), then
+//     z- = sum Wm_i z_i,   P- = sum Wc_i (z_i - z-)(z_i - z-)^T + Q dt.
+// Update, with sigma points drawn afresh from z-, P- (so that they carry the
+// process noise too): Y_i = g(z_i),
+//     y^ = sum Wm_i Y_i,  S = sum Wc_i (Y_i - y^)(Y_i - y^)^T + R,
+//     C = sum Wc_i (z_i - z-)(Y_i - y^)^T,  K = C S^-1,
+//     z = z- + K (y - y^),  P = P- - K S K^T.
+//
+// Covariances with zero variances are normal here (states known exactly at
+// the start): the square root comes from a Cholesky factorisation with full
+// pivoting that stops at the numerical rank (as LAPACK's dpstrf), so
+// directions without variance get exactly no spread.
+//
+// All sigma points are integrated together as one system stored variable-
+// major (column i of X holds element i of every point), so the model
+// evaluates f for every point in one batched call.
+#include <Eigen/Cholesky>
+#include <Eigen/Core>
+#include <cmath>
+#include <limits>
+#include <string>
+
+#include "engine/filter.hpp"
+
+namespace riccati {
+
+namespace {
+
+// S with S S^T = P for a symmetric positive semi-definite P, by Cholesky with
+// diagonal pivoting: each step takes the largest remaining variance; once it
+// is below n eps max(diag P) the rest is rounding noise and is set to zero.
+// Returns false if a remaining variance is clearly negative (P indefinite)
+// or P is not finite. `work` is scratch of P's size; nothing is allocated.
+bool psd_square_root(const Eigen::MatrixXd& P, Eigen::MatrixXd& work, Eigen::VectorXi& perm, Eigen::MatrixXd& S) {
+  const Eigen::Index n = P.rows();
+  if (!P.allFinite()) return false;
+  work = P;
+  S.setZero();
+  for (Eigen::Index i = 0; i < n; ++i) perm[i] = static_cast<int>(i);
+  const double max_diag = P.diagonal().cwiseAbs().maxCoeff();
+  const double negligible = static_cast<double>(n) * std::numeric_limits<double>::epsilon() * max_diag;
+  for (Eigen::Index k = 0; k < n; ++k) {
+    Eigen::Index pivot = k;
+    for (Eigen::Index j = k + 1; j < n; ++j) {
+      if (work(j, j) > work(pivot, pivot)) pivot = j;
+    }
+    if (work(pivot, pivot) <= negligible) {
+      // The rest is zero up to rounding; a clearly negative variance is not.
+      for (Eigen::Index j = k; j < n; ++j) {
+        if (work(j, j) < -1e-9 * std::max(1.0, max_diag)) return false;
+      }
+      break;
+    }
+    if (pivot != k) {
+      work.row(k).swap(work.row(pivot));
+      work.col(k).swap(work.col(pivot));
+      std::swap(perm[k], perm[pivot]);
+    }
+    const double lkk = std::sqrt(work(k, k));
+    // Column k of the factor, in pivoted order; rows < k stay zero.
+    for (Eigen::Index i = k; i < n; ++i) work(i, k) /= lkk;
+    // The whole trailing block (both triangles), so later symmetric swaps
+    // of rows and columns stay consistent.
+    for (Eigen::Index j = k + 1; j < n; ++j) {
+      for (Eigen::Index i = k + 1; i < n; ++i) work(i, j) -= work(i, k) * work(j, k);
+    }
+    for (Eigen::Index i = k; i < n; ++i) S(perm[i], k) = work(i, k);
+  }
+  return true;
+}
+
+class Ukf final : public Filter {
+ public:
+  Ukf(ModelPtr model, const FilterSettings& settings, std::unique_ptr<Integrator> integrator)
+      : Filter(std::move(model), settings), integrator_(std::move(integrator)), rhs_(this) {
+    const int nz = model_->nz(), ny = model_->ny();
+    npts_ = 2 * nz + 1;
+    const double n = nz;
+    const bool scaled = settings_.ukf.weights == SigmaWeights::kScaled;
+    const double kappa = std::isnan(settings_.ukf.kappa) ? (scaled ? 0.0 : 3.0 - n) : settings_.ukf.kappa;
+    const double alpha = settings_.ukf.alpha;
+    const double lambda = scaled ? alpha * alpha * (n + kappa) - n : kappa;
+    spread_ = std::sqrt(n + lambda);
+    wm_ = Eigen::VectorXd::Constant(npts_, 0.5 / (n + lambda));
+    wm_[0] = lambda / (n + lambda);
+    wc_ = wm_;
+    if (scaled) wc_[0] += 1.0 - alpha * alpha + settings_.ukf.beta;
+
+    X_.resize(npts_, nz);
+    Ypts_.resize(npts_, ny);
+    dX_.resize(npts_, nz);
+    dY_.resize(npts_, ny);
+    sqrtP_.resize(nz, nz);
+    work_.resize(nz, nz);
+    perm_.resize(nz);
+    C_.resize(nz, ny);
+    Pnew_.resize(nz, nz);
+    q_is_zero_ = settings_.Q.isZero(0.0);
+  }
+
+  Status predict(double t1, const double* u0, const double* u1) override {
+    if (!(t1 > t_)) {
+      return invalid_argument("predict to t = " + std::to_string(t1) + " is not after the filter's time " +
+                              std::to_string(t_));
+    }
+    RICCATI_RETURN_IF_ERROR(draw_sigma_points());
+    const int nx = model_->nx();
+    t0_ = t_;
+    t1_ = t1;
+    u0_ = u0;
+    u1_ = u1;
+    // Columns 0..nx-1 of X (the states of every point) are contiguous.
+    Status s = integrator_->integrate(rhs_, t_, t1, std::span<double>(X_.data(), std::size_t(npts_) * nx));
+    if (!s.is_ok()) return s.with_context("UKF prediction from t = " + std::to_string(t_));
+    const double dt = t1 - t_;
+    t_ = t1;
+    weighted_mean_and_covariance();
+    if (!q_is_zero_) P_ += settings_.Q * dt;
+    return check_estimate("UKF prediction");
+  }
+
+  Status update(const double* y, const double* u) override {
+    RICCATI_RETURN_IF_ERROR(draw_sigma_points());
+    const int nx = model_->nx(), ny = model_->ny();
+    RICCATI_RETURN_IF_ERROR(
+        model_->g(t_, u, npts_, npts_, X_.data(), X_.data() + std::size_t(npts_) * nx, Ypts_.data())
+            .with_context("UKF update"));
+    y_pred_.noalias() = Ypts_.transpose() * wm_;
+    dY_ = Ypts_.rowwise() - y_pred_.transpose();
+    dX_ = X_.rowwise() - z_.transpose();
+    S_.noalias() = dY_.transpose() * wc_.asDiagonal() * dY_;
+    S_ += settings_.R;
+    C_.noalias() = dX_.transpose() * wc_.asDiagonal() * dY_;
+    for (int i = 0; i < ny; ++i) innovation_[i] = y[i] - y_pred_[i];
+    RICCATI_RETURN_IF_ERROR(gain_and_nis(C_));
+    z_.noalias() += K_ * innovation_;
+    // P - K S K^T = P - K C^T (as K S = C).
+    Pnew_ = P_;
+    Pnew_.noalias() -= K_ * C_.transpose();
+    P_ = 0.5 * (Pnew_ + Pnew_.transpose());
+    return check_estimate("UKF update");
+  }
+
+ private:
+  class Rhs final : public OdeRhs {
+   public:
+    explicit Rhs(Ukf* ukf) : ukf_(ukf) {}
+    Status eval(double t, const double* y, double* ydot) override {
+      Ukf& u = *ukf_;
+      u.hold_input(t, u.t0_, u.t1_, u.u0_, u.u1_);
+      const std::size_t ld = u.npts_;
+      const double* theta = u.X_.data() + ld * u.model_->nx();  // constant over the interval
+      return u.model_->f(t, u.u_hold_.data(), u.npts_, ld, y, theta, ydot);
+    }
+
+   private:
+    Ukf* ukf_;
+  };
+
+  // X = [z, z + c s_1 .. z + c s_n, z - c s_1 .. z - c s_n] (rows), c = spread.
+  Status draw_sigma_points() {
+    const Eigen::Index nz = model_->nz();
+    if (!psd_square_root(P_, work_, perm_, sqrtP_)) {
+      return failed_precondition("UKF covariance is not positive semi-definite at t = " + std::to_string(t_) +
+                                 ": the filter diverged");
+    }
+    X_.row(0) = z_.transpose();
+    for (Eigen::Index j = 0; j < nz; ++j) {
+      X_.row(1 + j) = (z_ + spread_ * sqrtP_.col(j)).transpose();
+      X_.row(1 + nz + j) = (z_ - spread_ * sqrtP_.col(j)).transpose();
+    }
+    return Status::ok();
+  }
+
+  void weighted_mean_and_covariance() {
+    z_.noalias() = X_.transpose() * wm_;
+    dX_ = X_.rowwise() - z_.transpose();
+    P_.noalias() = dX_.transpose() * wc_.asDiagonal() * dX_;
+  }
+
+  std::unique_ptr<Integrator> integrator_;
+  Rhs rhs_;
+  int npts_ = 0;
+  double spread_ = 1.0;
+  Eigen::VectorXd wm_, wc_;
+  bool q_is_zero_ = false;
+  double t0_ = 0.0, t1_ = 0.0;
+  const double* u0_ = nullptr;
+  const double* u1_ = nullptr;
+  // Sigma points [npts x nz] and outputs [npts x ny]: one column per variable.
+  Eigen::MatrixXd X_, Ypts_, dX_, dY_;
+  Eigen::MatrixXd sqrtP_, C_, Pnew_;
+  Eigen::MatrixXd work_;
+  Eigen::VectorXi perm_;
+};
+
+}  // namespace
+
+std::unique_ptr<Filter> make_ukf(ModelPtr model, const FilterSettings& settings,
+                                 std::unique_ptr<Integrator> integrator) {
+  return std::make_unique<Ukf>(std::move(model), settings, std::move(integrator));
+}
+
+}  // namespace riccati

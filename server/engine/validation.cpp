@@ -1,0 +1,83 @@
+#include "engine/validation.hpp"
+
+#include <string>
+
+namespace riccati {
+
+namespace {
+
+// x' = f(x, theta, u(t), t) with the input held between two samples.
+class SimulationRhs final : public OdeRhs {
+ public:
+  SimulationRhs(const Model& model, const Eigen::VectorXd& theta, HoldOrder hold)
+      : model_(model), theta_(theta), hold_(hold), u_(model.nu()) {}
+
+  void set_interval(double t0, double t1, const double* u0, const double* u1) {
+    t0_ = t0;
+    t1_ = t1;
+    u0_ = u0;
+    u1_ = u1;
+  }
+
+  Status eval(double t, const double* y, double* ydot) override {
+    const double a = hold_ == HoldOrder::kFirst ? (t - t0_) / (t1_ - t0_) : 0.0;
+    for (Eigen::Index i = 0; i < u_.size(); ++i) u_[i] = u0_[i] + a * (u1_[i] - u0_[i]);
+    return model_.f(t, u_.data(), 1, 1, y, theta_.data(), ydot);
+  }
+
+ private:
+  const Model& model_;
+  const Eigen::VectorXd& theta_;
+  HoldOrder hold_;
+  Eigen::VectorXd u_;
+  double t0_ = 0.0, t1_ = 1.0;
+  const double* u0_ = nullptr;
+  const double* u1_ = nullptr;
+};
+
+}  // namespace
+
+Result<Eigen::MatrixXd> simulate(const Model& model, const Eigen::VectorXd& t, const Eigen::MatrixXd& u,
+                                 const Eigen::VectorXd& x0, const Eigen::VectorXd& theta,
+                                 const SimulationSettings& settings, Eigen::MatrixXd* states) {
+  const Eigen::Index N = t.size();
+  if (u.rows() != model.nu() || u.cols() != N) {
+    return invalid_argument("inputs must be " + std::to_string(model.nu()) + " x " + std::to_string(N));
+  }
+  if (x0.size() != model.nx() || !x0.allFinite()) {
+    return invalid_argument("x0 must hold " + std::to_string(model.nx()) + " finite values");
+  }
+  if (theta.size() != model.ntheta() || !theta.allFinite()) {
+    return invalid_argument("theta must hold " + std::to_string(model.ntheta()) + " finite values");
+  }
+  RICCATI_ASSIGN_OR_RETURN(std::unique_ptr<Integrator> integrator, make_integrator(settings.integrator));
+  SimulationRhs rhs(model, theta, settings.hold);
+  Eigen::VectorXd x = x0;
+  Eigen::MatrixXd y(model.ny(), N);
+  if (states != nullptr) states->resize(model.nx(), N);
+  for (Eigen::Index k = 0; k < N; ++k) {
+    if (k > 0) {
+      rhs.set_interval(t[k - 1], t[k], u.col(k - 1).data(), u.col(k).data());
+      Status s = integrator->integrate(rhs, t[k - 1], t[k], std::span<double>(x.data(), std::size_t(x.size())));
+      if (!s.is_ok()) return s.with_context("simulation, sample " + std::to_string(k + 1));
+    }
+    RICCATI_RETURN_IF_ERROR(model.g(t[k], u.col(k).data(), 1, 1, x.data(), theta.data(), y.col(k).data()));
+    if (states != nullptr) states->col(k) = x;
+  }
+  return y;
+}
+
+Result<ValidationResult> validate_model(const Model& model, const Dataset& data, const ValidationSettings& settings) {
+  RICCATI_ASSIGN_OR_RETURN(const Dataset bound, bind_dataset(model, data));
+  RICCATI_ASSIGN_OR_RETURN(const Eigen::VectorXd x0,
+                           initial_state(model, bound, settings.initial_state, settings.x0, 0));
+  ValidationResult result;
+  RICCATI_ASSIGN_OR_RETURN(result.y_simulated,
+                           simulate(model, bound.t, bound.u, x0, settings.theta, settings.simulation));
+  result.t = bound.t;
+  result.y_measured = bound.y;
+  RICCATI_ASSIGN_OR_RETURN(result.fits, compare_outputs(bound.y, result.y_simulated, bound.output_names));
+  return result;
+}
+
+}  // namespace riccati

@@ -1,0 +1,43 @@
+// Validation: simulate a model with given parameters over a dataset's inputs
+// and compare its outputs with the measured ones (MATLAB's compare).
+#pragma once
+
+#include <Eigen/Core>
+#include <vector>
+
+#include "engine/dataset.hpp"
+#include "engine/filter.hpp"
+#include "engine/fit_metrics.hpp"
+#include "engine/identification.hpp"
+#include "engine/model.hpp"
+
+namespace riccati {
+
+struct SimulationSettings {
+  HoldOrder hold = HoldOrder::kZero;
+  IntegratorSettings integrator;
+};
+
+// Open-loop simulation from x0 with parameters theta over the times t [N] and
+// inputs u [nu x N]: the model outputs [ny x N] (and the states, if wanted).
+Result<Eigen::MatrixXd> simulate(const Model& model, const Eigen::VectorXd& t, const Eigen::MatrixXd& u,
+                                 const Eigen::VectorXd& x0, const Eigen::VectorXd& theta,
+                                 const SimulationSettings& settings, Eigen::MatrixXd* states = nullptr);
+
+struct ValidationSettings {
+  SimulationSettings simulation;
+  InitialState initial_state = InitialState::kFirstMeasurement;
+  Eigen::VectorXd x0;     // [nx], see InitialState
+  Eigen::VectorXd theta;  // [ntheta]
+};
+
+struct ValidationResult {
+  Eigen::VectorXd t;               // [N]
+  Eigen::MatrixXd y_measured;      // [ny x N]
+  Eigen::MatrixXd y_simulated;     // [ny x N]
+  std::vector<OutputFit> fits;     // one per output
+};
+
+Result<ValidationResult> validate_model(const Model& model, const Dataset& data, const ValidationSettings& settings);
+
+}  // namespace riccati

@@ -1,0 +1,11 @@
+// Refused: no f to evaluate (f = NULL).
+#include "pendulum_table.hpp"
+
+extern "C" RICCATI_PLUGIN_EXPORT const riccati_model_v1* riccati_model_entry(uint32_t /*host_abi_version*/) {
+  static const riccati_model_v1 table = [] {
+    riccati_model_v1 t = bad_plugin::pendulum_table("missing_f");
+    t.f = nullptr;
+    return t;
+  }();
+  return &table;
+}

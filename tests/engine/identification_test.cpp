@@ -1,0 +1,221 @@
+// Multi-pass identification against the reference datasets' true parameters.
+#include <gtest/gtest.h>
+
+#include <atomic>
+#include <fstream>
+#include <nlohmann/json.hpp>
+#include <stop_token>
+
+#include "engine/identification.hpp"
+#include "engine/plugin_loader.hpp"
+
+namespace riccati {
+namespace {
+
+const std::string kData = RICCATI_TEST_DATA_DIR;
+
+nlohmann::json read_json(const std::string& name) {
+  std::ifstream in(kData + "/" + name);
+  return nlohmann::json::parse(in);
+}
+
+Eigen::VectorXd vec(const nlohmann::json& a) {
+  Eigen::VectorXd v(a.size());
+  for (std::size_t i = 0; i < a.size(); ++i) v[i] = a[i].get<double>();
+  return v;
+}
+
+// The true parameters of a reference dataset, in the model's order.
+Eigen::VectorXd true_parameters(const nlohmann::json& meta) {
+  Eigen::VectorXd v(meta["parameter_order"].size());
+  for (std::size_t i = 0; i < meta["parameter_order"].size(); ++i) {
+    v[i] = meta["parameters"][meta["parameter_order"][i].get<std::string>()].get<double>();
+  }
+  return v;
+}
+
+ModelPtr builtin(const std::string& name) {
+  auto registry = ModelRegistry::load_directory(RICCATI_TEST_PLUGIN_DIR);
+  EXPECT_TRUE(registry.is_ok()) << registry.status().to_string();
+  ModelPtr m = registry.value().find(name);
+  EXPECT_NE(m, nullptr) << name;
+  return m;
+}
+
+Dataset load(const std::string& file, std::vector<std::string> inputs, std::vector<std::string> outputs) {
+  ColumnMapping mapping;
+  mapping.inputs = std::move(inputs);
+  mapping.outputs = std::move(outputs);
+  auto data = read_csv_file(kData + "/" + file, mapping);
+  EXPECT_TRUE(data.is_ok()) << data.status().to_string();
+  return data.value();
+}
+
+// Hensen's two-tank settings, read from the dataset's JSON (10 passes, theta0
+// = [20 20 1 1], P = [0 0 10 10 10 10], Q = 0, R = 1e-3 I, x0 = Y(t0)), with
+// RK4 and 10 substeps per sample.
+IdentificationSettings hensen_two_tank(FilterKind kind) {
+  const auto h = read_json("two_tank.json")["hensen_settings"];
+  IdentificationSettings s;
+  s.filter.kind = kind;
+  s.filter.integrator.kind = IntegratorKind::kRk4;
+  s.filter.integrator.substeps = 10;
+  s.filter.Q = vec(h["Q"]).asDiagonal();
+  s.filter.R = vec(h["R"]).asDiagonal();
+  s.initial_state = InitialState::kFirstMeasurement;
+  s.theta0 = vec(h["theta0"]);
+  Eigen::VectorXd p0(6);
+  p0 << vec(h["P_x0"]), vec(h["P_theta0"]);
+  s.P0 = p0.asDiagonal();
+  s.passes = h["passes"].get<int>();
+  return s;
+}
+
+class TwoTankHensen : public ::testing::TestWithParam<FilterKind> {};
+
+TEST_P(TwoTankHensen, LastPassMeanWithinOnePointFivePercentOfTruth) {
+  const auto meta = read_json("two_tank.json");
+  const Dataset data = load("two_tank.csv", {"F1", "F2"}, {"h1", "h2"});
+  const Eigen::VectorXd truth = true_parameters(meta);
+
+  int last_pass_seen = 0;
+  Eigen::Index samples_seen = 0;
+  auto result = identify(builtin("two_tank"), data, hensen_two_tank(GetParam()),
+                         [&](const IdentificationProgress& p) {
+                           last_pass_seen = p.pass;
+                           samples_seen = p.sample;
+                         });
+  ASSERT_TRUE(result.is_ok()) << result.status().to_string();
+  const IdentificationResult& r = result.value();
+
+  ASSERT_EQ(r.passes.size(), 10u);
+  EXPECT_EQ(last_pass_seen, 10);
+  EXPECT_EQ(samples_seen, 2000);
+  for (int i = 0; i < 4; ++i) {
+    const double rel = std::abs(r.theta_mean[i] - truth[i]) / truth[i];
+    EXPECT_LT(rel, 0.015) << r.param_names[i] << ": mean over pass 10 = " << r.theta_mean[i] << ", truth "
+                          << truth[i];
+    // The first pass starts from theta0 = [20 20 1 1]: far off.
+    EXPECT_GT(std::abs(r.passes[0].theta_trace(i, 0) - truth[i]) / truth[i], 0.5);
+  }
+  // Multi-pass bookkeeping: pass k+1 starts where pass k ended.
+  EXPECT_EQ(r.passes[9].theta_final, r.theta);
+  EXPECT_TRUE(r.theta_std.allFinite());
+  EXPECT_TRUE((r.theta_std.array() > 0).all());
+  // Ymod follows the noise-free data closely once the parameters are found.
+  EXPECT_LT((r.y_model - data.y).cwiseAbs().maxCoeff(), 0.01);
+}
+
+INSTANTIATE_TEST_SUITE_P(Filters, TwoTankHensen, ::testing::Values(FilterKind::kEkf, FilterKind::kUkf),
+                         [](const auto& info) { return std::string(filter_kind_name(info.param)); });
+
+TEST(RotaryPendulum, UkfRecoversParametersFromThirtyPercentOff) {
+  const auto meta = read_json("rotary_pendulum.json");
+  const Dataset data = load("rotary_pendulum.csv", {"v"}, {"phi", "alpha"});
+  const Eigen::VectorXd truth = true_parameters(meta);
+
+  IdentificationSettings s;
+  s.filter.kind = FilterKind::kUkf;
+  s.filter.integrator.kind = IntegratorKind::kRk4;
+  s.filter.integrator.substeps = 10;
+  s.filter.Q = Eigen::MatrixXd::Zero(7, 7);
+  s.filter.R = Eigen::Vector2d(1e-8, 1e-8).asDiagonal();
+  s.initial_state = InitialState::kGiven;
+  s.x0 = vec(meta["true_initial_state"]);
+  s.theta0 = truth.cwiseProduct(Eigen::Vector3d(1.3, 0.7, 1.3));
+  Eigen::VectorXd p0(7);
+  p0 << 0, 0, 0, 0, (0.3 * truth).cwiseAbs2();
+  s.P0 = p0.asDiagonal();
+  s.passes = 3;
+
+  auto result = identify(builtin("rotary_pendulum"), data, s);
+  ASSERT_TRUE(result.is_ok()) << result.status().to_string();
+  for (int i = 0; i < 3; ++i) {
+    const double rel = std::abs(result.value().theta[i] - truth[i]) / truth[i];
+    EXPECT_LT(rel, 1e-4) << result.value().param_names[i] << " = " << result.value().theta[i] << ", truth "
+                         << truth[i];
+  }
+}
+
+TEST(Identification, CancelsBetweenSamples) {
+  const Dataset data = load("two_tank.csv", {"F1", "F2"}, {"h1", "h2"});
+  std::stop_source stop;
+  Eigen::Index stopped_at = 0;
+  auto result = identify(builtin("two_tank"), data, hensen_two_tank(FilterKind::kEkf),
+                         [&](const IdentificationProgress& p) {
+                           if (p.pass == 2 && p.sample == 500) {
+                             stopped_at = p.sample;
+                             stop.request_stop();
+                           }
+                         },
+                         stop.get_token());
+  ASSERT_FALSE(result.is_ok());
+  EXPECT_EQ(result.status().code(), StatusCode::kCancelled);
+  EXPECT_EQ(stopped_at, 500);
+  EXPECT_NE(result.status().message().find("pass 2 at sample 501"), std::string::npos) << result.status().message();
+}
+
+TEST(Identification, TrialOnASliceOfTheData) {
+  const Dataset data = load("two_tank.csv", {"F1", "F2"}, {"h1", "h2"});
+  IdentificationSettings s = hensen_two_tank(FilterKind::kEkf);
+  s.passes = 1;
+  s.first_sample = 100;
+  s.end_sample = 400;
+  auto result = identify(builtin("two_tank"), data, s);
+  ASSERT_TRUE(result.is_ok()) << result.status().to_string();
+  EXPECT_EQ(result.value().t.size(), 300);
+  EXPECT_EQ(result.value().t[0], data.t[100]);
+  // x0 = first measurement of the slice.
+  EXPECT_NEAR(result.value().x_trace(0, 0), data.y(0, 100), 1e-12);
+}
+
+TEST(Identification, ModelFailureIsReportedWithWhereItHappened) {
+  // A zero cross section A1 makes h1' infinite: the run stops with
+  // FAILED_PRECONDITION naming the pass, the sample and the state.
+  const Dataset data = load("two_tank.csv", {"F1", "F2"}, {"h1", "h2"});
+  IdentificationSettings s = hensen_two_tank(FilterKind::kEkf);
+  s.theta0[0] = 0.0;
+  auto result = identify(builtin("two_tank"), data, s);
+  ASSERT_FALSE(result.is_ok());
+  EXPECT_EQ(result.status().code(), StatusCode::kFailedPrecondition);
+  const std::string& m = result.status().message();
+  EXPECT_NE(m.find("pass 1, sample 2"), std::string::npos) << m;
+  EXPECT_NE(m.find("h1"), std::string::npos) << m;
+}
+
+TEST(Identification, RejectsMismatchedDatasetAndSettings) {
+  const Dataset data = load("two_tank.csv", {"F1"}, {"h1", "h2"});
+  auto result = identify(builtin("two_tank"), data, hensen_two_tank(FilterKind::kEkf));
+  ASSERT_FALSE(result.is_ok());
+  EXPECT_EQ(result.status().code(), StatusCode::kInvalidArgument);
+  EXPECT_NE(result.status().message().find("model two_tank has 2 inputs (F1, F2)"), std::string::npos)
+      << result.status().message();
+
+  const Dataset full = load("two_tank.csv", {"F1", "F2"}, {"h1", "h2"});
+  IdentificationSettings s = hensen_two_tank(FilterKind::kEkf);
+  s.theta0 = Eigen::Vector3d(1, 2, 3);
+  result = identify(builtin("two_tank"), full, s);
+  ASSERT_FALSE(result.is_ok());
+  EXPECT_NE(result.status().message().find("theta0 has 3 entries"), std::string::npos) << result.status().message();
+
+  s = hensen_two_tank(FilterKind::kEkf);
+  s.passes = 0;
+  result = identify(builtin("two_tank"), full, s);
+  ASSERT_FALSE(result.is_ok());
+  EXPECT_NE(result.status().message().find("passes must be"), std::string::npos);
+}
+
+TEST(Identification, DatasetColumnsAreMatchedToModelByName) {
+  // Outputs given in the other order are reordered by name: same result.
+  const Dataset a = load("two_tank.csv", {"F1", "F2"}, {"h1", "h2"});
+  const Dataset b = load("two_tank.csv", {"F2", "F1"}, {"h2", "h1"});
+  IdentificationSettings s = hensen_two_tank(FilterKind::kEkf);
+  s.passes = 1;
+  auto ra = identify(builtin("two_tank"), a, s);
+  auto rb = identify(builtin("two_tank"), b, s);
+  ASSERT_TRUE(ra.is_ok() && rb.is_ok());
+  EXPECT_EQ(ra.value().theta, rb.value().theta);
+}
+
+}  // namespace
+}  // namespace riccati

@@ -1,0 +1,273 @@
+// Loading model plugins: every deliberately broken plugin of
+// tests/engine/bad_plugins is refused with a message naming the file and the
+// fault, faults at evaluation time come back as Status, and the built-in
+// models directory loads cleanly.
+#include <gtest/gtest.h>
+#include <unistd.h>
+
+#include <cmath>
+#include <filesystem>
+#include <set>
+#include <string>
+#include <vector>
+
+#include "engine/model.hpp"
+#include "engine/plugin_loader.hpp"
+
+namespace riccati {
+namespace {
+
+namespace fs = std::filesystem;
+
+std::string bad_plugin(const std::string& file) { return std::string(RICCATI_TEST_BAD_PLUGIN_DIR) + "/" + file; }
+std::string builtin_plugin(const std::string& file) { return std::string(RICCATI_TEST_PLUGIN_DIR) + "/" + file; }
+
+ModelPtr load_or_fail(const std::string& path) {
+  auto loaded = load_model_plugin(path);
+  EXPECT_TRUE(loaded.is_ok()) << loaded.status().to_string();
+  return loaded.is_ok() ? std::move(loaded).value() : nullptr;
+}
+
+// ---------------------------------------------------------------------------
+// Plugins refused at load time
+
+struct RefusedCase {
+  std::string file;
+  std::string reason;  // must appear in the message
+};
+
+std::ostream& operator<<(std::ostream& os, const RefusedCase& c) { return os << c.file; }
+
+const std::vector<RefusedCase>& refused_cases() {
+  static const std::vector<RefusedCase> cases = {
+      {"bad_abi_version.so", "ABI version 999"},
+      {"zero_states.so", "nx = 0"},
+      {"zero_outputs.so", "ny = 0"},
+      {"missing_f.so", "does not provide f and g"},
+      {"null_state_name.so", "state name 1"},
+      {"duplicate_param_names.so", "parameter name \"k\" is repeated"},
+      {"nonfinite_default.so", "default of parameter k is not finite"},
+      {"lower_above_upper.so", "bounds of parameter c are inconsistent"},
+      {"entry_returns_null.so", "cannot serve model ABI version 1"},
+      {"no_entry_symbol.so", "does not export riccati_model_entry"},
+      {"junk.so", "cannot load it"},
+  };
+  return cases;
+}
+
+class RefusedPluginTest : public testing::TestWithParam<RefusedCase> {};
+
+TEST_P(RefusedPluginTest, RefusedWithFileAndReason) {
+  const RefusedCase& c = GetParam();
+  const std::string path = bad_plugin(c.file);
+  ASSERT_TRUE(fs::exists(path)) << path;
+  auto loaded = load_model_plugin(path);
+  ASSERT_FALSE(loaded.is_ok());
+  EXPECT_EQ(loaded.status().code(), StatusCode::kInvalidArgument) << loaded.status().to_string();
+  EXPECT_NE(loaded.status().message().find(path), std::string::npos) << loaded.status().message();
+  EXPECT_NE(loaded.status().message().find(c.reason), std::string::npos) << loaded.status().message();
+}
+
+INSTANTIATE_TEST_SUITE_P(BadPlugins, RefusedPluginTest, testing::ValuesIn(refused_cases()),
+                         [](const testing::TestParamInfo<RefusedCase>& param_info) {
+                           return param_info.param.file.substr(0, param_info.param.file.find('.'));
+                         });
+
+TEST(PluginLoaderTest, MissingFileIsRefused) {
+  const std::string path = bad_plugin("does_not_exist.so");
+  auto loaded = load_model_plugin(path);
+  ASSERT_FALSE(loaded.is_ok());
+  EXPECT_EQ(loaded.status().code(), StatusCode::kInvalidArgument);
+  EXPECT_NE(loaded.status().message().find(path), std::string::npos) << loaded.status().message();
+}
+
+// ---------------------------------------------------------------------------
+// Plugins that load but fail (or degrade) when evaluated
+
+TEST(PluginLoaderTest, ExceptionInFBecomesInternalError) {
+  const ModelPtr m = load_or_fail(bad_plugin("throwing_f.so"));
+  ASSERT_NE(m, nullptr);
+  const double x[] = {1.0}, theta[] = {1.0};
+  double out[1], jac[2];
+
+  const Status f = m->f(0.0, nullptr, 1, 1, x, theta, out);
+  EXPECT_EQ(f.code(), StatusCode::kInternal) << f.to_string();
+  EXPECT_NE(f.message().find("deliberate exception from throwing_f's f"), std::string::npos) << f.message();
+
+  const Status g = m->g(0.0, nullptr, 1, 1, x, theta, out);
+  EXPECT_EQ(g.code(), StatusCode::kInternal) << g.to_string();
+  EXPECT_NE(g.message().find("deliberate exception from throwing_f's g"), std::string::npos) << g.message();
+
+  // The Jacobian goes through the dual-number instantiation: caught as well.
+  const Status fj = m->f_jacobian(0.0, nullptr, x, theta, out, jac);
+  EXPECT_EQ(fj.code(), StatusCode::kInternal) << fj.to_string();
+  EXPECT_NE(fj.message().find("deliberate exception from throwing_f's f"), std::string::npos) << fj.message();
+}
+
+TEST(PluginLoaderTest, NanFromFIsFailedPreconditionNamingTheState) {
+  const ModelPtr m = load_or_fail(bad_plugin("nan_f.so"));
+  ASSERT_NE(m, nullptr);
+  const double x[] = {0.5, 0.25}, theta[] = {1.0};
+  double out[2], jac[2 * 3];
+
+  const Status f = m->f(2.0, nullptr, 1, 1, x, theta, out);
+  EXPECT_EQ(f.code(), StatusCode::kFailedPrecondition) << f.to_string();
+  EXPECT_NE(f.message().find("state velocity"), std::string::npos) << f.message();
+
+  const Status fj = m->f_jacobian(2.0, nullptr, x, theta, out, jac);
+  EXPECT_EQ(fj.code(), StatusCode::kFailedPrecondition) << fj.to_string();
+  EXPECT_NE(fj.message().find("state velocity"), std::string::npos) << fj.message();
+
+  // g is fine.
+  EXPECT_TRUE(m->g(2.0, nullptr, 1, 1, x, theta, out).is_ok());
+}
+
+// The plain pendulum of bad_plugins/pendulum_table.hpp gives no Jacobians; the
+// host's central differences must match the exact ones. Their error is about
+// eps^(2/3) ~ 1e-11 relative to O(1) entries, so 1e-7 is a wide margin.
+TEST(PluginLoaderTest, MissingJacobiansFallBackToFiniteDifferences) {
+  const ModelPtr m = load_or_fail(bad_plugin("no_jacobians.so"));
+  ASSERT_NE(m, nullptr);
+  EXPECT_FALSE(m->has_f_jacobian());
+  EXPECT_FALSE(m->has_g_jacobian());
+
+  const double angle = 0.7, velocity = -1.3, k = 9.0, c = 0.5, torque = 0.2;
+  const double x[] = {angle, velocity}, theta[] = {k, c}, u[] = {torque};
+  double value[2], jac[2 * 4];
+  ASSERT_TRUE(m->f_jacobian(0.0, u, x, theta, value, jac).is_ok());
+
+  EXPECT_DOUBLE_EQ(value[0], velocity);
+  EXPECT_DOUBLE_EQ(value[1], -k * std::sin(angle) - c * velocity + torque);
+  // d f / d [angle, velocity, k, c], column-major, 2 rows.
+  const double exact[2 * 4] = {0.0, -k * std::cos(angle), 1.0, -c, 0.0, -std::sin(angle), 0.0, -velocity};
+  for (int e = 0; e < 2 * 4; ++e) EXPECT_NEAR(jac[e], exact[e], 1e-7) << "entry " << e;
+
+  double y[1], gjac[1 * 4];
+  ASSERT_TRUE(m->g_jacobian(0.0, u, x, theta, y, gjac).is_ok());
+  EXPECT_DOUBLE_EQ(y[0], angle);
+  const double gexact[4] = {1.0, 0.0, 0.0, 0.0};
+  for (int j = 0; j < 4; ++j) EXPECT_NEAR(gjac[j], gexact[j], 1e-7) << "column " << j;
+}
+
+// ---------------------------------------------------------------------------
+// Directories
+
+TEST(ModelRegistryTest, BadDirectoryLoadsTheValidAndListsTheRefused) {
+  auto registry = ModelRegistry::load_directory(RICCATI_TEST_BAD_PLUGIN_DIR);
+  ASSERT_TRUE(registry.is_ok()) << registry.status().to_string();
+
+  std::set<std::string> loaded;
+  for (const ModelPtr& m : registry->models()) loaded.insert(m->name());
+  EXPECT_EQ(loaded, (std::set<std::string>{"nan_f", "no_jacobians", "throwing_f"}));
+
+  std::set<std::string> refused_files;
+  for (const RefusedPlugin& r : registry->refused()) {
+    refused_files.insert(fs::path(r.path).filename().string());
+    EXPECT_NE(r.reason.find(r.path), std::string::npos) << r.reason;
+  }
+  std::set<std::string> expected_files;
+  for (const RefusedCase& c : refused_cases()) {
+    expected_files.insert(c.file);
+    for (const RefusedPlugin& r : registry->refused()) {
+      if (fs::path(r.path).filename() == c.file) {
+        EXPECT_NE(r.reason.find(c.reason), std::string::npos) << r.reason;
+      }
+    }
+  }
+  EXPECT_EQ(refused_files, expected_files);
+}
+
+struct BuiltinSizes {
+  std::string name;
+  int nx, ntheta, nu, ny;
+};
+
+TEST(ModelRegistryTest, BuiltinDirectoryHasExactlyTheFourModels) {
+  auto registry = ModelRegistry::load_directory(RICCATI_TEST_PLUGIN_DIR);
+  ASSERT_TRUE(registry.is_ok()) << registry.status().to_string();
+  for (const RefusedPlugin& r : registry->refused()) ADD_FAILURE() << r.reason;
+
+  const std::vector<BuiltinSizes> expected = {
+      {"flexible_manipulator", 4, 6, 1, 2},
+      {"rotary_pendulum", 4, 3, 1, 2},
+      {"rotating_arm", 2, 8, 1, 2},
+      {"two_tank", 2, 4, 2, 2},
+  };
+  ASSERT_EQ(registry->models().size(), expected.size());
+  for (const BuiltinSizes& e : expected) {
+    const ModelPtr m = registry->find(e.name);
+    ASSERT_NE(m, nullptr) << e.name;
+    EXPECT_EQ(m->nx(), e.nx) << e.name;
+    EXPECT_EQ(m->ntheta(), e.ntheta) << e.name;
+    EXPECT_EQ(m->nu(), e.nu) << e.name;
+    EXPECT_EQ(m->ny(), e.ny) << e.name;
+    EXPECT_TRUE(m->has_f_jacobian()) << e.name;
+    EXPECT_TRUE(m->has_g_jacobian()) << e.name;
+  }
+  EXPECT_EQ(registry->find("no_such_model"), nullptr);
+}
+
+TEST(ModelRegistryTest, MissingDirectoryIsNotFound) {
+  auto registry = ModelRegistry::load_directory(bad_plugin("no_such_directory"));
+  ASSERT_FALSE(registry.is_ok());
+  EXPECT_EQ(registry.status().code(), StatusCode::kNotFound) << registry.status().to_string();
+}
+
+// A scratch directory removed at the end of the test.
+class ScratchDir {
+ public:
+  ScratchDir()
+      : path_(fs::temp_directory_path() /
+              ("riccati_plugin_loader_test_" + std::to_string(::getpid()) + "_" +
+               testing::UnitTest::GetInstance()->current_test_info()->name())) {
+    fs::remove_all(path_);
+    fs::create_directories(path_);
+  }
+  ~ScratchDir() {
+    std::error_code ec;
+    fs::remove_all(path_, ec);
+  }
+  const fs::path& path() const { return path_; }
+
+ private:
+  fs::path path_;
+};
+
+TEST(ModelRegistryTest, SecondPluginWithTheSameModelNameIsRefused) {
+  const ScratchDir dir;
+  fs::copy_file(builtin_plugin("two_tank.so"), dir.path() / "a_two_tank.so");
+  fs::copy_file(builtin_plugin("two_tank.so"), dir.path() / "b_two_tank.so");
+
+  auto registry = ModelRegistry::load_directory(dir.path().string());
+  ASSERT_TRUE(registry.is_ok()) << registry.status().to_string();
+  ASSERT_EQ(registry->models().size(), 1u);
+  EXPECT_EQ(registry->models()[0]->origin(), (dir.path() / "a_two_tank.so").string());
+  ASSERT_EQ(registry->refused().size(), 1u);
+  const RefusedPlugin& refused = registry->refused()[0];
+  EXPECT_EQ(refused.path, (dir.path() / "b_two_tank.so").string());
+  EXPECT_NE(refused.reason.find("\"two_tank\" is already provided by"), std::string::npos) << refused.reason;
+  EXPECT_NE(refused.reason.find("a_two_tank.so"), std::string::npos) << refused.reason;
+}
+
+// The shared_ptr<const Model> keeps the plugin's library loaded: calling f
+// after the registry (and every other holder) is gone must still work.
+TEST(ModelRegistryTest, ModelOutlivesItsRegistry) {
+  ModelPtr two_tank;
+  {
+    auto registry = ModelRegistry::load_directory(RICCATI_TEST_PLUGIN_DIR);
+    ASSERT_TRUE(registry.is_ok()) << registry.status().to_string();
+    two_tank = registry->find("two_tank");
+    ASSERT_NE(two_tank, nullptr);
+  }
+  const double x[] = {0.4, 0.15}, theta[] = {10.0, 5.0, 0.0791, 0.1342}, u[] = {0.1, 0.03};
+  double dx[2], jac[2 * 6];
+  ASSERT_TRUE(two_tank->f(0.0, u, 1, 1, x, theta, dx).is_ok());
+  EXPECT_DOUBLE_EQ(dx[0], (0.1 - 0.0791 * std::sqrt(0.4)) / 10.0);
+  EXPECT_DOUBLE_EQ(dx[1], (0.03 + 0.0791 * std::sqrt(0.4) - 0.1342 * std::sqrt(0.15)) / 5.0);
+  EXPECT_TRUE(two_tank->f_jacobian(0.0, u, x, theta, dx, jac).is_ok());
+  EXPECT_EQ(two_tank->name(), "two_tank");
+  EXPECT_EQ(two_tank->state_names()[1], "h2");
+}
+
+}  // namespace
+}  // namespace riccati
