@@ -16,6 +16,58 @@ namespace riccati {
 
 namespace {
 
+// P' = F P + P F^T + Q with F = [J; 0] (theta' = 0): F P has only nx non-zero
+// rows, so P' = Q + (F P placed in the top rows) + (its transpose in the left
+// columns). J is nx x nz, P and P' nz x nz, FP nx x nz scratch, all
+// column-major; Q may be null (zero). NZ > 0 fixes nz at compile time so the
+// inner loops unroll; NZ = 0 is the general case.
+template <int NZ>
+void covariance_derivative(int nx, int nz_runtime, const double* J, const double* P, const double* Q, double* FP,
+                           double* Pdot) {
+  const int nz = NZ > 0 ? NZ : nz_runtime;
+  for (int j = 0; j < nz; ++j) {
+    const double* Pj = P + j * nz;
+    for (int i = 0; i < nx; ++i) {
+      double acc = 0.0;
+      for (int k = 0; k < nz; ++k) acc += J[i + k * nx] * Pj[k];
+      FP[i + j * nx] = acc;
+    }
+  }
+  // Every entry written once (no zero-fill pass): Q + F P + (F P)^T.
+  for (int j = 0; j < nz; ++j) {
+    double* Pdot_j = Pdot + j * nz;
+    const double* Q_j = Q != nullptr ? Q + j * nz : nullptr;
+    for (int i = 0; i < nz; ++i) {
+      double v = Q_j != nullptr ? Q_j[i] : 0.0;
+      if (i < nx) v += FP[i + j * nx];  // F P
+      if (j < nx) v += FP[j + i * nx];  // P F^T = (F P)^T
+      Pdot_j[i] = v;
+    }
+  }
+}
+
+using CovarianceDerivativeFn = void (*)(int, int, const double*, const double*, const double*, double*, double*);
+
+// The kernel for a given nz: unrolled for the sizes of typical grey-box
+// models, general beyond.
+CovarianceDerivativeFn covariance_derivative_for(int nz) {
+  switch (nz) {
+    case 1: return &covariance_derivative<1>;
+    case 2: return &covariance_derivative<2>;
+    case 3: return &covariance_derivative<3>;
+    case 4: return &covariance_derivative<4>;
+    case 5: return &covariance_derivative<5>;
+    case 6: return &covariance_derivative<6>;
+    case 7: return &covariance_derivative<7>;
+    case 8: return &covariance_derivative<8>;
+    case 9: return &covariance_derivative<9>;
+    case 10: return &covariance_derivative<10>;
+    case 11: return &covariance_derivative<11>;
+    case 12: return &covariance_derivative<12>;
+    default: return &covariance_derivative<0>;
+  }
+}
+
 class Ekf final : public Filter {
  public:
   Ekf(ModelPtr model, const FilterSettings& settings, std::unique_ptr<Integrator> integrator)
@@ -29,6 +81,7 @@ class Ekf final : public Filter {
     IKG_.resize(nz, nz);
     Pnew_.resize(nz, nz);
     q_is_zero_ = settings_.Q.isZero(0.0);
+    covariance_derivative_ = covariance_derivative_for(nz);
   }
 
   Status predict(double t1, const double* u0, const double* u1) override {
@@ -92,38 +145,15 @@ class Ekf final : public Filter {
     hold_input(t, t0_, t1_, u0_, u1_);
     const double* theta = z_.data() + nx;  // constant over the interval
     RICCATI_RETURN_IF_ERROR(model_->f_jacobian(t, u_hold_.data(), y, theta, ydot, jac_f_.data()));
-    // F = [J; 0], so F P has only nx non-zero rows: P' = F P + (F P)^T + Q.
-    // Plain loops: for the small sizes of real models they beat Eigen's
-    // dynamic-size product dispatch by a wide margin.
-    const double* P = y + nx;
-    double* Pdot = ydot + nx;
-    const double* J = jac_f_.data();
-    double* FP = FP_.data();
-    for (int j = 0; j < nz; ++j) {
-      const double* Pj = P + j * nz;
-      for (int i = 0; i < nx; ++i) {
-        double acc = 0.0;
-        for (int k = 0; k < nz; ++k) acc += J[i + k * nx] * Pj[k];
-        FP[i + j * nx] = acc;
-      }
-    }
-    if (q_is_zero_) {
-      std::fill(Pdot, Pdot + nz * nz, 0.0);
-    } else {
-      std::copy(settings_.Q.data(), settings_.Q.data() + nz * nz, Pdot);
-    }
-    for (int j = 0; j < nz; ++j) {
-      for (int i = 0; i < nx; ++i) {
-        Pdot[i + j * nz] += FP[i + j * nx];  // F P
-        Pdot[j + i * nz] += FP[i + j * nx];  // P F^T = (F P)^T
-      }
-    }
+    covariance_derivative_(nx, nz, jac_f_.data(), y + nx, q_is_zero_ ? nullptr : settings_.Q.data(), FP_.data(),
+                           ydot + nx);
     return Status::ok();
   }
 
   std::unique_ptr<Integrator> integrator_;
   Rhs rhs_;
   bool q_is_zero_ = false;
+  CovarianceDerivativeFn covariance_derivative_ = nullptr;
   // The interval being integrated and its inputs (valid during predict()).
   double t0_ = 0.0, t1_ = 0.0;
   const double* u0_ = nullptr;

@@ -1,6 +1,7 @@
 #include "engine/integrator.hpp"
 
 #include <cmath>
+#include <cstdio>
 #include <string>
 #include <vector>
 
@@ -41,6 +42,41 @@ Status validate(const IntegratorSettings& s) {
 
 namespace {
 
+std::string format_number(double value) {
+  char buffer[32];
+  std::snprintf(buffer, sizeof buffer, "%.9g", value);
+  return buffer;
+}
+
+}  // namespace
+
+Status check_integration_arguments(double t0, double t1, std::span<const double> y) {
+  if (!std::isfinite(t0) || !std::isfinite(t1) || !(t1 > t0)) {
+    return invalid_argument("integration interval must be finite and increasing, got t0 = " + format_number(t0) +
+                            ", t1 = " + format_number(t1));
+  }
+  if (y.empty()) return invalid_argument("cannot integrate an empty state vector");
+  for (std::size_t i = 0; i < y.size(); ++i) {
+    if (!std::isfinite(y[i])) {
+      return failed_precondition("initial state y[" + std::to_string(i) + "] = " + format_number(y[i]) +
+                                 " at t = " + format_number(t0) + " is not finite");
+    }
+  }
+  return Status::ok();
+}
+
+Status check_integration_result(const char* integrator_name, double t1, std::span<const double> y) {
+  for (std::size_t i = 0; i < y.size(); ++i) {
+    if (!std::isfinite(y[i])) {
+      return failed_precondition(std::string(integrator_name) + " produced a non-finite state y[" +
+                                 std::to_string(i) + "] at t = " + format_number(t1));
+    }
+  }
+  return Status::ok();
+}
+
+namespace {
+
 // Explicit Runge-Kutta with a fixed number of equal substeps per interval.
 // Work vectors are allocated for a system size once and reused.
 class FixedStepRungeKutta final : public Integrator {
@@ -48,10 +84,7 @@ class FixedStepRungeKutta final : public Integrator {
   FixedStepRungeKutta(int order, int substeps) : order_(order), substeps_(substeps) {}
 
   Status integrate(OdeRhs& rhs, double t0, double t1, std::span<double> y) override {
-    if (!(t1 > t0)) {
-      return invalid_argument("integration interval must be increasing, got t0 = " + std::to_string(t0) +
-                              ", t1 = " + std::to_string(t1));
-    }
+    RICCATI_RETURN_IF_ERROR(check_integration_arguments(t0, t1, y));
     const std::size_t n = y.size();
     if (k1_.size() != n) {
       for (auto* v : {&k1_, &k2_, &k3_, &k4_, &tmp_}) v->assign(n, 0.0);
@@ -66,7 +99,7 @@ class FixedStepRungeKutta final : public Integrator {
         RICCATI_RETURN_IF_ERROR(rk3_step(rhs, t, h, yv, n));
       }
     }
-    return Status::ok();
+    return check_integration_result(order_ == 4 ? "rk4" : "rk3", t1, y);
   }
 
  private:

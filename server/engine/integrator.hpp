@@ -54,6 +54,12 @@ class Integrator {
 // and reused while the size stays the same.
 Result<std::unique_ptr<Integrator>> make_integrator(const IntegratorSettings& settings);
 
+// For Integrator implementations, the checks every kind makes: a finite,
+// increasing interval and a non-empty, finite y before; a finite y after
+// (a NaN is never reported as a successful step).
+Status check_integration_arguments(double t0, double t1, std::span<const double> y);
+Status check_integration_result(const char* integrator_name, double t1, std::span<const double> y);
+
 // Implemented in sundials_integrators.cpp.
 std::unique_ptr<Integrator> make_cvode_integrator(const IntegratorSettings& settings);
 std::unique_ptr<Integrator> make_arkode_integrator(const IntegratorSettings& settings);

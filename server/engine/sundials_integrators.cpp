@@ -121,21 +121,6 @@ std::string flag_name(FlagNameFn get_name, int flag) {
   return name ? std::string(name.get()) : "flag " + std::to_string(flag);
 }
 
-Status check_arguments(double t0, double t1, std::span<const double> y) {
-  if (!std::isfinite(t0) || !std::isfinite(t1) || !(t1 > t0)) {
-    return invalid_argument("integration interval must be finite and increasing, got t0 = " + format_number(t0) +
-                            ", t1 = " + format_number(t1));
-  }
-  if (y.empty()) return invalid_argument("cannot integrate an empty state vector");
-  for (std::size_t i = 0; i < y.size(); ++i) {
-    if (!std::isfinite(y[i])) {
-      return failed_precondition("initial state y[" + std::to_string(i) + "] = " + format_number(y[i]) +
-                                 " at t = " + format_number(t0) + " is not finite");
-    }
-  }
-  return Status::ok();
-}
-
 // The part both SUNDIALS packages share: context, state vector, callbacks,
 // argument checks, the allocate-once / re-initialise-after policy and error
 // reporting. A subclass builds, re-initialises and runs its own solver.
@@ -146,7 +131,7 @@ class SundialsIntegrator : public Integrator {
 
   Status integrate(OdeRhs& rhs, double t0, double t1, std::span<double> y) final {
     RICCATI_RETURN_IF_ERROR(settings_status_);
-    RICCATI_RETURN_IF_ERROR(check_arguments(t0, t1, y));
+    RICCATI_RETURN_IF_ERROR(check_integration_arguments(t0, t1, y));
     callbacks_.begin(rhs);
     RICCATI_RETURN_IF_ERROR(prepare(t0, y));
 
@@ -156,13 +141,7 @@ class SundialsIntegrator : public Integrator {
 
     const double* result = N_VGetArrayPointer(y_.get());
     std::copy(result, result + y.size(), y.begin());
-    for (std::size_t i = 0; i < y.size(); ++i) {
-      if (!std::isfinite(y[i])) {
-        return failed_precondition(std::string(name_) + " produced a non-finite state y[" + std::to_string(i) +
-                                   "] at t = " + format_number(t1));
-      }
-    }
-    return Status::ok();
+    return check_integration_result(name_, t1, y);
   }
 
  protected:

@@ -1,9 +1,9 @@
 // riccati-engine: the estimation engine on the command line, without a daemon.
 //
 //   riccati-engine models
-//   riccati-engine identify --model two_tank --data two_tank.csv --inputs F1,F2 --outputs h1,h2 \
+//   riccati-engine identify --model two_tank --data two_tank.csv --inputs F1,F2 --outputs h1,h2
 //       --theta0 20,20,1,1 --p0 0,0,10,10,10,10 --r 1e-3,1e-3 --passes 10 --x0 first --validate
-//   riccati-engine validate --model two_tank --data two_tank.csv --inputs F1,F2 --outputs h1,h2 \
+//   riccati-engine validate --model two_tank --data two_tank.csv --inputs F1,F2 --outputs h1,h2
 //       --theta 10,5,0.0791,0.1342
 //
 // Exit codes: 0 success, 1 the run failed (bad data, divergence, ...), 2 usage.

@@ -107,7 +107,7 @@ TEST_P(TwoTankHensen, LastPassMeanWithinOnePointFivePercentOfTruth) {
 }
 
 INSTANTIATE_TEST_SUITE_P(Filters, TwoTankHensen, ::testing::Values(FilterKind::kEkf, FilterKind::kUkf),
-                         [](const auto& info) { return std::string(filter_kind_name(info.param)); });
+                         [](const auto& test_info) { return std::string(filter_kind_name(test_info.param)); });
 
 TEST(RotaryPendulum, UkfRecoversParametersFromThirtyPercentOff) {
   const auto meta = read_json("rotary_pendulum.json");

@@ -179,7 +179,7 @@ INSTANTIATE_TEST_SUITE_P(
                       Case{"ukf_rk4_zero_noise", FilterKind::kUkf, IntegratorKind::kRk4, true, 1e-9},
                       Case{"ekf_cvode_bdf", FilterKind::kEkf, IntegratorKind::kCvodeBdf, false, 1e-7},
                       Case{"ukf_arkode", FilterKind::kUkf, IntegratorKind::kArkodeErk, false, 1e-7}),
-    [](const auto& info) { return std::string(info.param.name); });
+    [](const auto& test_info) { return std::string(test_info.param.name); });
 
 TEST(LinearKalman, GainInversionAndJosephFormAgree) {
   // With a positive definite S the pseudo-inverse gain and the Cholesky
