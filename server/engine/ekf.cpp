@@ -16,32 +16,38 @@ namespace riccati {
 
 namespace {
 
-// P' = F P + P F^T + Q with F = [J; 0] (theta' = 0): F P has only nx non-zero
-// rows, so P' = Q + (F P placed in the top rows) + (its transpose in the left
-// columns). J is nx x nz, P and P' nz x nz, FP nx x nz scratch, all
-// column-major; Q may be null (zero). NZ > 0 fixes nz at compile time so the
-// inner loops unroll; NZ = 0 is the general case.
+// P' = F P + P F^T + Q with F = [J; 0] (theta' = 0). With G = P J^T
+// (nz x nx), F P = [G^T; 0] and P F^T = [G 0]: only the first nx rows and
+// columns of P' differ from Q. G is built column by column as a sum of
+// columns of P (contiguous, vectorisable axpys). J is nx x nz; P, P' and Q
+// nz x nz; G nz x nx scratch; all column-major. NZ > 0 fixes nz at compile
+// time so the inner loops unroll; NZ = 0 is the general case.
 template <int NZ>
-void covariance_derivative(int nx, int nz_runtime, const double* J, const double* P, const double* Q, double* FP,
-                           double* Pdot) {
+void covariance_derivative(int nx, int nz_runtime, const double* __restrict J, const double* __restrict P,
+                           const double* __restrict Q, double* __restrict G, double* __restrict Pdot) {
   const int nz = NZ > 0 ? NZ : nz_runtime;
-  for (int j = 0; j < nz; ++j) {
-    const double* Pj = P + j * nz;
-    for (int i = 0; i < nx; ++i) {
-      double acc = 0.0;
-      for (int k = 0; k < nz; ++k) acc += J[i + k * nx] * Pj[k];
-      FP[i + j * nx] = acc;
+  for (int i = 0; i < nx; ++i) {
+    double* __restrict g = G + i * nz;
+    for (int r = 0; r < nz; ++r) g[r] = J[i] * P[r];
+    for (int k = 1; k < nz; ++k) {
+      const double a = J[i + k * nx];
+      const double* Pk = P + k * nz;
+      for (int r = 0; r < nz; ++r) g[r] += a * Pk[r];
     }
   }
-  // Every entry written once (no zero-fill pass): Q + F P + (F P)^T.
+  // Each entry written once, block by block: [x x] gets both terms, [x th]
+  // and [th x] one each, [th th] only Q. (A zero fill first compiles to a
+  // `rep stos` whose start-up cost dominated this kernel.)
   for (int j = 0; j < nz; ++j) {
+    const double* Qj = Q + j * nz;
     double* Pdot_j = Pdot + j * nz;
-    const double* Q_j = Q != nullptr ? Q + j * nz : nullptr;
-    for (int i = 0; i < nz; ++i) {
-      double v = Q_j != nullptr ? Q_j[i] : 0.0;
-      if (i < nx) v += FP[i + j * nx];  // F P
-      if (j < nx) v += FP[j + i * nx];  // P F^T = (F P)^T
-      Pdot_j[i] = v;
+    if (j < nx) {
+      const double* g = G + j * nz;  // column j of P F^T
+      for (int r = 0; r < nx; ++r) Pdot_j[r] = Qj[r] + g[r] + G[j + r * nz];
+      for (int r = nx; r < nz; ++r) Pdot_j[r] = Qj[r] + g[r];
+    } else {
+      for (int r = 0; r < nx; ++r) Pdot_j[r] = Qj[r] + G[j + r * nz];  // row r of F P
+      for (int r = nx; r < nz; ++r) Pdot_j[r] = Qj[r];
     }
   }
 }
@@ -75,12 +81,11 @@ class Ekf final : public Filter {
     const int nx = model_->nx(), nz = model_->nz(), ny = model_->ny();
     y_.resize(nx + nz * nz);
     jac_f_.resize(nx, nz);
-    FP_.resize(nx, nz);
+    PJt_.resize(nz, nx);
     G_.resize(ny, nz);
     PGt_.resize(nz, ny);
     IKG_.resize(nz, nz);
     Pnew_.resize(nz, nz);
-    q_is_zero_ = settings_.Q.isZero(0.0);
     covariance_derivative_ = covariance_derivative_for(nz);
   }
 
@@ -145,14 +150,13 @@ class Ekf final : public Filter {
     hold_input(t, t0_, t1_, u0_, u1_);
     const double* theta = z_.data() + nx;  // constant over the interval
     RICCATI_RETURN_IF_ERROR(model_->f_jacobian(t, u_hold_.data(), y, theta, ydot, jac_f_.data()));
-    covariance_derivative_(nx, nz, jac_f_.data(), y + nx, q_is_zero_ ? nullptr : settings_.Q.data(), FP_.data(),
+    covariance_derivative_(nx, nz, jac_f_.data(), y + nx, settings_.Q.data(), PJt_.data(),
                            ydot + nx);
     return Status::ok();
   }
 
   std::unique_ptr<Integrator> integrator_;
   Rhs rhs_;
-  bool q_is_zero_ = false;
   CovarianceDerivativeFn covariance_derivative_ = nullptr;
   // The interval being integrated and its inputs (valid during predict()).
   double t0_ = 0.0, t1_ = 0.0;
@@ -160,7 +164,7 @@ class Ekf final : public Filter {
   const double* u1_ = nullptr;
   // Work space, sized once.
   std::vector<double> y_;
-  Eigen::MatrixXd jac_f_, FP_, G_, PGt_, IKG_, Pnew_;
+  Eigen::MatrixXd jac_f_, PJt_, G_, PGt_, IKG_, Pnew_;
 };
 
 }  // namespace

@@ -104,31 +104,38 @@ class FixedStepRungeKutta final : public Integrator {
 
  private:
   // Classic RK4: y += h/6 (k1 + 2 k2 + 2 k3 + k4).
-  Status rk4_step(OdeRhs& rhs, double t, double h, double* y, std::size_t n) {
-    double* tmp = tmp_.data();
-    RICCATI_RETURN_IF_ERROR(rhs.eval(t, y, k1_.data()));
-    for (std::size_t i = 0; i < n; ++i) tmp[i] = y[i] + 0.5 * h * k1_[i];
-    RICCATI_RETURN_IF_ERROR(rhs.eval(t + 0.5 * h, tmp, k2_.data()));
-    for (std::size_t i = 0; i < n; ++i) tmp[i] = y[i] + 0.5 * h * k2_[i];
-    RICCATI_RETURN_IF_ERROR(rhs.eval(t + 0.5 * h, tmp, k3_.data()));
-    for (std::size_t i = 0; i < n; ++i) tmp[i] = y[i] + h * k3_[i];
-    RICCATI_RETURN_IF_ERROR(rhs.eval(t + h, tmp, k4_.data()));
+  Status rk4_step(OdeRhs& rhs, double t, double h, double* __restrict y, std::size_t n) {
+    double* __restrict tmp = tmp_.data();
+    double* __restrict k1 = k1_.data();
+    double* __restrict k2 = k2_.data();
+    double* __restrict k3 = k3_.data();
+    double* __restrict k4 = k4_.data();
+    RICCATI_RETURN_IF_ERROR(rhs.eval(t, y, k1));
+    for (std::size_t i = 0; i < n; ++i) tmp[i] = y[i] + 0.5 * h * k1[i];
+    RICCATI_RETURN_IF_ERROR(rhs.eval(t + 0.5 * h, tmp, k2));
+    for (std::size_t i = 0; i < n; ++i) tmp[i] = y[i] + 0.5 * h * k2[i];
+    RICCATI_RETURN_IF_ERROR(rhs.eval(t + 0.5 * h, tmp, k3));
+    for (std::size_t i = 0; i < n; ++i) tmp[i] = y[i] + h * k3[i];
+    RICCATI_RETURN_IF_ERROR(rhs.eval(t + h, tmp, k4));
     const double h6 = h / 6.0;
-    for (std::size_t i = 0; i < n; ++i) y[i] += h6 * (k1_[i] + 2.0 * (k2_[i] + k3_[i]) + k4_[i]);
+    for (std::size_t i = 0; i < n; ++i) y[i] += h6 * (k1[i] + 2.0 * (k2[i] + k3[i]) + k4[i]);
     return Status::ok();
   }
 
   // Kutta's third-order method: y += h/6 (k1 + 4 k2 + k3),
   // k2 at (t + h/2, y + h/2 k1), k3 at (t + h, y - h k1 + 2 h k2).
-  Status rk3_step(OdeRhs& rhs, double t, double h, double* y, std::size_t n) {
-    double* tmp = tmp_.data();
-    RICCATI_RETURN_IF_ERROR(rhs.eval(t, y, k1_.data()));
-    for (std::size_t i = 0; i < n; ++i) tmp[i] = y[i] + 0.5 * h * k1_[i];
-    RICCATI_RETURN_IF_ERROR(rhs.eval(t + 0.5 * h, tmp, k2_.data()));
-    for (std::size_t i = 0; i < n; ++i) tmp[i] = y[i] - h * k1_[i] + 2.0 * h * k2_[i];
-    RICCATI_RETURN_IF_ERROR(rhs.eval(t + h, tmp, k3_.data()));
+  Status rk3_step(OdeRhs& rhs, double t, double h, double* __restrict y, std::size_t n) {
+    double* __restrict tmp = tmp_.data();
+    double* __restrict k1 = k1_.data();
+    double* __restrict k2 = k2_.data();
+    double* __restrict k3 = k3_.data();
+    RICCATI_RETURN_IF_ERROR(rhs.eval(t, y, k1));
+    for (std::size_t i = 0; i < n; ++i) tmp[i] = y[i] + 0.5 * h * k1[i];
+    RICCATI_RETURN_IF_ERROR(rhs.eval(t + 0.5 * h, tmp, k2));
+    for (std::size_t i = 0; i < n; ++i) tmp[i] = y[i] - h * k1[i] + 2.0 * h * k2[i];
+    RICCATI_RETURN_IF_ERROR(rhs.eval(t + h, tmp, k3));
     const double h6 = h / 6.0;
-    for (std::size_t i = 0; i < n; ++i) y[i] += h6 * (k1_[i] + 4.0 * k2_[i] + k3_[i]);
+    for (std::size_t i = 0; i < n; ++i) y[i] += h6 * (k1[i] + 4.0 * k2[i] + k3[i]);
     return Status::ok();
   }
 

@@ -169,10 +169,16 @@ class Ukf final : public Filter {
       return failed_precondition("UKF covariance is not positive semi-definite at t = " + std::to_string(t_) +
                                  ": the filter diverged");
     }
-    X_.row(0) = z_.transpose();
-    for (Eigen::Index j = 0; j < nz; ++j) {
-      X_.row(1 + j) = (z_ + spread_ * sqrtP_.col(j)).transpose();
-      X_.row(1 + nz + j) = (z_ - spread_ * sqrtP_.col(j)).transpose();
+    // Column i of X holds variable i of every point (contiguous).
+    for (Eigen::Index i = 0; i < nz; ++i) {
+      double* column = X_.col(i).data();
+      const double zi = z_[i];
+      column[0] = zi;
+      for (Eigen::Index j = 0; j < nz; ++j) {
+        const double d = spread_ * sqrtP_(i, j);
+        column[1 + j] = zi + d;
+        column[1 + nz + j] = zi - d;
+      }
     }
     return Status::ok();
   }

@@ -166,11 +166,19 @@ struct Plugin {
                  char* err, size_t err_len) {
     constexpr int rows = which_f ? nx : ny;
     return guarded(err, err_len, [&] {
-      std::array<Jet, nx> xj;
-      std::array<Jet, (ntheta > 0 ? ntheta : 1)> tj;
+      // Seeded in place (zero derivatives, then one unit each): building
+      // whole Jets as temporaries costs store-forwarding stalls here.
+      std::array<Jet, nx> xj{};
+      std::array<Jet, (ntheta > 0 ? ntheta : 1)> tj{};
       std::array<Jet, rows> oj;
-      for (int i = 0; i < nx; ++i) xj[i] = Jet::variable(x[i], i);
-      for (int j = 0; j < ntheta; ++j) tj[j] = Jet::variable(theta[j], nx + j);
+      for (int i = 0; i < nx; ++i) {
+        xj[i].v = x[i];
+        xj[i].d[i] = 1.0;
+      }
+      for (int j = 0; j < ntheta; ++j) {
+        tj[j].v = theta[j];
+        tj[j].d[nx + j] = 1.0;
+      }
       call<which_f, Jet>(xj.data(), tj.data(), u, t, oj.data());
       for (int i = 0; i < rows; ++i) {
         out[i] = oj[i].v;
