@@ -2,7 +2,13 @@
 //
 // Between samples the state and its covariance are integrated together:
 //     x' = f(x, theta, u, t),   theta' = 0
-//     P' = F P + P F^T + Q,     F = d[f; 0] / d[x; theta]
+//     P' = F P + P F^T + Q,     F = d[f; 0] / d[x; theta] = [Jx Jth; 0 0]
+// Because theta' = 0, the blocks of P' are
+//     Pxx'   = Jx Pxx + Jth Pthx + (Jx Pxx + Jth Pthx)^T + Qxx
+//     Pxth'  = Jx Pxth + Jth Pthth + Qxth
+//     Pthth' = Qthth, so Pthth(t) = Pthth(t0) + Qthth (t - t0) exactly,
+// and only [x; Pxx; Pxth] (nx + nx^2 + nx ntheta values, against nx + nz^2
+// for the whole P) go through the integrator. The result is the same P.
 // At a sample, with G = dg/d[x; theta] at the prior:
 //     S = G P G^T + R,  K = P G^T S^-1,  z += K (y - g),
 //     P = (I - K G) P (I - K G)^T + K R K^T   (Joseph form, or (I - K G) P)
@@ -16,60 +22,64 @@ namespace riccati {
 
 namespace {
 
-// P' = F P + P F^T + Q with F = [J; 0] (theta' = 0). With G = P J^T
-// (nz x nx), F P = [G^T; 0] and P F^T = [G 0]: only the first nx rows and
-// columns of P' differ from Q. G is built column by column as a sum of
-// columns of P (contiguous, vectorisable axpys). J is nx x nz; P, P' and Q
-// nz x nz; G nz x nx scratch; all column-major. NZ > 0 fixes nz at compile
-// time so the inner loops unroll; NZ = 0 is the general case.
-template <int NZ>
-void covariance_derivative(int nx, int nz_runtime, const double* __restrict J, const double* __restrict P,
-                           const double* __restrict Q, double* __restrict G, double* __restrict Pdot) {
-  const int nz = NZ > 0 ? NZ : nz_runtime;
-  for (int i = 0; i < nx; ++i) {
-    double* __restrict g = G + i * nz;
-    for (int r = 0; r < nz; ++r) g[r] = J[i] * P[r];
-    for (int k = 1; k < nz; ++k) {
-      const double a = J[i + k * nx];
-      const double* Pk = P + k * nz;
-      for (int r = 0; r < nz; ++r) g[r] += a * Pk[r];
+// The derivatives of Pxx and Pxth (see above) at one point. J = [Jx Jth] is
+// nx x nz; Pxx nx x nx, Pxth nx x nth and Pthth nth x nth (at time t); Q
+// nz x nz; A nx x nx scratch; all column-major. This runs at every stage of
+// every integration step: NX > 0 fixes nx at compile time so the innermost
+// loops (over a column of nx values) unroll instead of carrying the
+// vectoriser's run-time checks, which cost more than the arithmetic at these
+// sizes. NX = 0 is the general case.
+template <int NX>
+void covariance_derivative(int nx_runtime, int nth, const double* __restrict J, const double* __restrict Pxx,
+                           const double* __restrict Pxth, const double* __restrict Pthth,
+                           const double* __restrict Q, double* __restrict A, double* __restrict dPxx,
+                           double* __restrict dPxth) {
+  const int nx = NX > 0 ? NX : nx_runtime;
+  const int nz = nx + nth;
+  const double* Jth = J + nx * nx;
+  // A = Jx Pxx + Jth Pthx, built column by column (Pthx(m, c) = Pxth(c, m)).
+  for (int c = 0; c < nx; ++c) {
+    double* a = A + c * nx;
+    for (int i = 0; i < nx; ++i) a[i] = 0.0;
+    for (int k = 0; k < nx; ++k) {
+      const double p = Pxx[k + c * nx];
+      for (int i = 0; i < nx; ++i) a[i] += J[i + k * nx] * p;
+    }
+    for (int m = 0; m < nth; ++m) {
+      const double p = Pxth[c + m * nx];
+      for (int i = 0; i < nx; ++i) a[i] += Jth[i + m * nx] * p;
     }
   }
-  // Each entry written once, block by block: [x x] gets both terms, [x th]
-  // and [th x] one each, [th th] only Q. (A zero fill first compiles to a
-  // `rep stos` whose start-up cost dominated this kernel.)
-  for (int j = 0; j < nz; ++j) {
-    const double* Qj = Q + j * nz;
-    double* Pdot_j = Pdot + j * nz;
-    if (j < nx) {
-      const double* g = G + j * nz;  // column j of P F^T
-      for (int r = 0; r < nx; ++r) Pdot_j[r] = Qj[r] + g[r] + G[j + r * nz];
-      for (int r = nx; r < nz; ++r) Pdot_j[r] = Qj[r] + g[r];
-    } else {
-      for (int r = 0; r < nx; ++r) Pdot_j[r] = Qj[r] + G[j + r * nz];  // row r of F P
-      for (int r = nx; r < nz; ++r) Pdot_j[r] = Qj[r];
+  for (int c = 0; c < nx; ++c) {
+    for (int r = 0; r < nx; ++r) dPxx[r + c * nx] = A[r + c * nx] + A[c + r * nx] + Q[r + c * nz];
+  }
+  // dPxth = Jx Pxth + Jth Pthth + Qxth, column by column.
+  for (int c = 0; c < nth; ++c) {
+    double* d = dPxth + c * nx;
+    const double* q = Q + (nx + c) * nz;
+    for (int i = 0; i < nx; ++i) d[i] = q[i];
+    for (int k = 0; k < nx; ++k) {
+      const double p = Pxth[k + c * nx];
+      for (int i = 0; i < nx; ++i) d[i] += J[i + k * nx] * p;
+    }
+    for (int m = 0; m < nth; ++m) {
+      const double p = Pthth[m + c * nth];
+      for (int i = 0; i < nx; ++i) d[i] += Jth[i + m * nx] * p;
     }
   }
 }
 
-using CovarianceDerivativeFn = void (*)(int, int, const double*, const double*, const double*, double*, double*);
+using CovarianceDerivativeFn = void (*)(int, int, const double*, const double*, const double*, const double*,
+                                        const double*, double*, double*, double*);
 
-// The kernel for a given nz: unrolled for the sizes of typical grey-box
-// models, general beyond.
-CovarianceDerivativeFn covariance_derivative_for(int nz) {
-  switch (nz) {
+CovarianceDerivativeFn covariance_derivative_for(int nx) {
+  switch (nx) {
     case 1: return &covariance_derivative<1>;
     case 2: return &covariance_derivative<2>;
     case 3: return &covariance_derivative<3>;
     case 4: return &covariance_derivative<4>;
     case 5: return &covariance_derivative<5>;
     case 6: return &covariance_derivative<6>;
-    case 7: return &covariance_derivative<7>;
-    case 8: return &covariance_derivative<8>;
-    case 9: return &covariance_derivative<9>;
-    case 10: return &covariance_derivative<10>;
-    case 11: return &covariance_derivative<11>;
-    case 12: return &covariance_derivative<12>;
     default: return &covariance_derivative<0>;
   }
 }
@@ -79,14 +89,18 @@ class Ekf final : public Filter {
   Ekf(ModelPtr model, const FilterSettings& settings, std::unique_ptr<Integrator> integrator)
       : Filter(std::move(model), settings), integrator_(std::move(integrator)), rhs_(this) {
     const int nx = model_->nx(), nz = model_->nz(), ny = model_->ny();
-    y_.resize(nx + nz * nz);
+    const int nth = nz - nx;
+    y_.resize(nx + nx * nx + nx * nth);
     jac_f_.resize(nx, nz);
-    PJt_.resize(nz, nx);
+    A_.resize(nx, nx);
+    Pthth0_.resize(nth, nth);
+    Pthth_.resize(nth, nth);
+    q_thth_is_zero_ = settings_.Q.bottomRightCorner(nth, nth).isZero(0.0);
+    covariance_derivative_ = covariance_derivative_for(nx);
     G_.resize(ny, nz);
     PGt_.resize(nz, ny);
     IKG_.resize(nz, nz);
     Pnew_.resize(nz, nz);
-    covariance_derivative_ = covariance_derivative_for(nz);
   }
 
   Status predict(double t1, const double* u0, const double* u1) override {
@@ -94,18 +108,25 @@ class Ekf final : public Filter {
       return invalid_argument("predict to t = " + std::to_string(t1) + " is not after the filter's time " +
                               std::to_string(t_));
     }
-    const int nx = model_->nx(), nz = model_->nz();
-    Eigen::Map<Eigen::VectorXd>(y_.data(), nx) = z_.head(nx);
-    Eigen::Map<Eigen::MatrixXd>(y_.data() + nx, nz, nz) = P_;
+    const int nx = model_->nx(), nz = model_->nz(), nth = nz - nx;
+    double* y = y_.data();
+    Eigen::Map<Eigen::VectorXd>(y, nx) = z_.head(nx);
+    Eigen::Map<Eigen::MatrixXd>(y + nx, nx, nx) = P_.topLeftCorner(nx, nx);
+    Eigen::Map<Eigen::MatrixXd>(y + nx + nx * nx, nx, nth) = P_.topRightCorner(nx, nth);
+    Pthth0_ = P_.bottomRightCorner(nth, nth);
+    Pthth_ = Pthth0_;
     t0_ = t_;
     t1_ = t1;
     u0_ = u0;
     u1_ = u1;
     Status s = integrator_->integrate(rhs_, t_, t1, y_);
     if (!s.is_ok()) return s.with_context("EKF prediction from t = " + std::to_string(t_));
-    z_.head(nx) = Eigen::Map<const Eigen::VectorXd>(y_.data(), nx);
-    const Eigen::Map<const Eigen::MatrixXd> P(y_.data() + nx, nz, nz);
-    P_ = 0.5 * (P + P.transpose());
+    z_.head(nx) = Eigen::Map<const Eigen::VectorXd>(y, nx);
+    const Eigen::Map<const Eigen::MatrixXd> Pxx(y + nx, nx, nx);
+    P_.topLeftCorner(nx, nx) = 0.5 * (Pxx + Pxx.transpose());
+    P_.topRightCorner(nx, nth) = Eigen::Map<const Eigen::MatrixXd>(y + nx + nx * nx, nx, nth);
+    P_.bottomLeftCorner(nth, nx) = P_.topRightCorner(nx, nth).transpose();
+    P_.bottomRightCorner(nth, nth) = Pthth0_ + settings_.Q.bottomRightCorner(nth, nth) * (t1 - t_);
     t_ = t1;
     return check_estimate("EKF prediction");
   }
@@ -135,7 +156,7 @@ class Ekf final : public Filter {
   }
 
  private:
-  // The joint system [x; vec(P)] integrated between two samples.
+  // The joint system [x; vec(Pxx); vec(Pxth)] integrated between two samples.
   class Rhs final : public OdeRhs {
    public:
     explicit Rhs(Ekf* ekf) : ekf_(ekf) {}
@@ -146,17 +167,21 @@ class Ekf final : public Filter {
   };
 
   Status derivatives(double t, const double* y, double* ydot) {
-    const int nx = model_->nx(), nz = model_->nz();
+    const int nx = model_->nx(), nth = model_->ntheta();
     hold_input(t, t0_, t1_, u0_, u1_);
     const double* theta = z_.data() + nx;  // constant over the interval
     RICCATI_RETURN_IF_ERROR(model_->f_jacobian(t, u_hold_.data(), y, theta, ydot, jac_f_.data()));
-    covariance_derivative_(nx, nz, jac_f_.data(), y + nx, settings_.Q.data(), PJt_.data(),
-                           ydot + nx);
+    if (!q_thth_is_zero_) Pthth_ = Pthth0_ + settings_.Q.bottomRightCorner(nth, nth) * (t - t0_);
+    const double* Pxx = y + nx;
+    const double* Pxth = Pxx + nx * nx;
+    covariance_derivative_(nx, nth, jac_f_.data(), Pxx, Pxth, Pthth_.data(), settings_.Q.data(), A_.data(),
+                          ydot + nx, ydot + nx + nx * nx);
     return Status::ok();
   }
 
   std::unique_ptr<Integrator> integrator_;
   Rhs rhs_;
+  bool q_thth_is_zero_ = true;
   CovarianceDerivativeFn covariance_derivative_ = nullptr;
   // The interval being integrated and its inputs (valid during predict()).
   double t0_ = 0.0, t1_ = 0.0;
@@ -164,7 +189,8 @@ class Ekf final : public Filter {
   const double* u1_ = nullptr;
   // Work space, sized once.
   std::vector<double> y_;
-  Eigen::MatrixXd jac_f_, PJt_, G_, PGt_, IKG_, Pnew_;
+  Eigen::MatrixXd jac_f_, A_, G_, PGt_, IKG_, Pnew_;
+  Eigen::MatrixXd Pthth0_, Pthth_;  // parameter covariance at the start of the interval, and at time t
 };
 
 }  // namespace

@@ -41,35 +41,41 @@ bool psd_square_root(const Eigen::MatrixXd& P, Eigen::MatrixXd& work, Eigen::Vec
   if (!P.allFinite()) return false;
   work = P;
   S.setZero();
-  for (Eigen::Index i = 0; i < n; ++i) perm[i] = static_cast<int>(i);
-  const double max_diag = P.diagonal().cwiseAbs().maxCoeff();
+  double* w = work.data();  // column-major: w[i + j * n]
+  double* s = S.data();
+  int* p = perm.data();
+  for (Eigen::Index i = 0; i < n; ++i) p[i] = static_cast<int>(i);
+  double max_diag = 0.0;
+  for (Eigen::Index i = 0; i < n; ++i) max_diag = std::max(max_diag, std::abs(w[i + i * n]));
   const double negligible = static_cast<double>(n) * std::numeric_limits<double>::epsilon() * max_diag;
   for (Eigen::Index k = 0; k < n; ++k) {
     Eigen::Index pivot = k;
     for (Eigen::Index j = k + 1; j < n; ++j) {
-      if (work(j, j) > work(pivot, pivot)) pivot = j;
+      if (w[j + j * n] > w[pivot + pivot * n]) pivot = j;
     }
-    if (work(pivot, pivot) <= negligible) {
+    if (w[pivot + pivot * n] <= negligible) {
       // The rest is zero up to rounding; a clearly negative variance is not.
       for (Eigen::Index j = k; j < n; ++j) {
-        if (work(j, j) < -1e-9 * std::max(1.0, max_diag)) return false;
+        if (w[j + j * n] < -1e-9 * std::max(1.0, max_diag)) return false;
       }
       break;
     }
     if (pivot != k) {
       work.row(k).swap(work.row(pivot));
       work.col(k).swap(work.col(pivot));
-      std::swap(perm[k], perm[pivot]);
+      std::swap(p[k], p[pivot]);
     }
-    const double lkk = std::sqrt(work(k, k));
-    // Column k of the factor, in pivoted order; rows < k stay zero.
-    for (Eigen::Index i = k; i < n; ++i) work(i, k) /= lkk;
+    const double lkk = std::sqrt(w[k + k * n]);
+    double* lk = w + k * n;  // column k of the factor, in pivoted order; rows < k unused
+    for (Eigen::Index i = k; i < n; ++i) lk[i] /= lkk;
     // The whole trailing block (both triangles), so later symmetric swaps
     // of rows and columns stay consistent.
     for (Eigen::Index j = k + 1; j < n; ++j) {
-      for (Eigen::Index i = k + 1; i < n; ++i) work(i, j) -= work(i, k) * work(j, k);
+      double* wj = w + j * n;
+      const double ljk = lk[j];
+      for (Eigen::Index i = k + 1; i < n; ++i) wj[i] -= lk[i] * ljk;
     }
-    for (Eigen::Index i = k; i < n; ++i) S(perm[i], k) = work(i, k);
+    for (Eigen::Index i = k; i < n; ++i) s[p[i] + k * n] = lk[i];
   }
   return true;
 }
