@@ -10,6 +10,10 @@ packages=(
   libspdlog-dev                                         # logging
   libmatio-dev                                          # MAT files (the 1999 toolbox's T/U/Y layout)
   libcli11-dev                                          # command-line parsing
+  libgrpc++-dev protobuf-compiler-grpc                  # gRPC (server, client, code generator)
+  libprotobuf-dev protobuf-compiler                     # Protocol Buffers
+  libsqlite3-dev                                        # the embedded store
+  libyaml-cpp-dev                                       # config and job files
   nlohmann-json3-dev                                    # JSON (dataset metadata in tests)
   libgtest-dev libgmock-dev                             # GoogleTest
   libbenchmark-dev                                      # Google Benchmark

@@ -1,0 +1,75 @@
+// riccatid: the riccati daemon.
+//
+//   riccatid [--config riccatid.yaml] [--listen 127.0.0.1:7531] [--data-dir DIR] [--models-dir DIR] ...
+//
+// Flags override the config file. SIGTERM or SIGINT: stop accepting calls,
+// let running calls finish (a few seconds), leave running jobs stored to run
+// again at the next start, exit 0.
+#include <CLI/CLI.hpp>
+#include <csignal>
+#include <cstdio>
+#include <fstream>
+#include <spdlog/sinks/stdout_color_sinks.h>
+#include <spdlog/spdlog.h>
+
+#include "service/daemon.hpp"
+
+int main(int argc, char** argv) {
+  using riccati::service::DaemonConfig;
+  CLI::App app{"riccatid: the riccati estimation daemon"};
+  std::string config_file, port_file;
+  DaemonConfig flags;
+  long idle_timeout_s = -1;
+  app.add_option("--config", config_file, "YAML config file (keys as the long flags, with _)");
+  auto* listen = app.add_option("--listen", flags.listen, "Address to listen on (host:port; port 0: any free)");
+  auto* data_dir = app.add_option("--data-dir", flags.data_dir, "Directory of the database");
+  auto* models_dir = app.add_option("--models-dir", flags.models_dir, "Directory of model plugins");
+  auto* workers = app.add_option("--workers", flags.workers, "Job worker threads (0: one per core)");
+  app.add_option("--session-idle-timeout", idle_timeout_s, "Seconds before an idle session expires");
+  auto* log_level = app.add_option("--log-level", flags.log_level, "trace, debug, info, warn, error, off");
+  app.add_option("--port-file", port_file, "Write the bound port to this file once listening");
+  CLI11_PARSE(app, argc, argv);
+
+  DaemonConfig config;
+  if (!config_file.empty()) {
+    const auto status = riccati::service::load_config_file(config_file, &config);
+    if (!status.is_ok()) {
+      std::fprintf(stderr, "riccatid: %s\n", status.message().c_str());
+      return 2;
+    }
+  }
+  if (*listen) config.listen = flags.listen;
+  if (*data_dir) config.data_dir = flags.data_dir;
+  if (*models_dir) config.models_dir = flags.models_dir;
+  if (*workers) config.workers = flags.workers;
+  if (*log_level) config.log_level = flags.log_level;
+  if (idle_timeout_s >= 0) config.session_idle_timeout = std::chrono::seconds(idle_timeout_s);
+
+  auto logger = spdlog::stderr_color_mt("riccatid");
+  logger->set_pattern("%Y-%m-%dT%H:%M:%S.%e %^%l%$ %v");
+  logger->set_level(spdlog::level::from_str(config.log_level));
+  spdlog::set_default_logger(logger);
+
+  // Signals are taken by one thread with sigwait, so every other thread
+  // (gRPC's, the workers) must block them: block before any starts.
+  sigset_t signals;
+  sigemptyset(&signals);
+  sigaddset(&signals, SIGTERM);
+  sigaddset(&signals, SIGINT);
+  pthread_sigmask(SIG_BLOCK, &signals, nullptr);
+
+  riccati::service::Daemon daemon(config);
+  const auto started = daemon.start();
+  if (!started.is_ok()) {
+    spdlog::error("riccatid cannot start: {}", started.message());
+    return 1;
+  }
+  if (!port_file.empty()) {
+    std::ofstream(port_file) << daemon.port() << "\n";
+  }
+  int signal_number = 0;
+  sigwait(&signals, &signal_number);
+  spdlog::info("signal received signal={}", signal_number == SIGTERM ? "SIGTERM" : "SIGINT");
+  daemon.shutdown(std::chrono::seconds(5));
+  return 0;
+}

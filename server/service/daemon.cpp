@@ -1,0 +1,121 @@
+#include "service/daemon.hpp"
+
+#include <grpcpp/ext/proto_server_reflection_plugin.h>
+#include <grpcpp/health_check_service_interface.h>
+#include <spdlog/spdlog.h>
+#include <yaml-cpp/yaml.h>
+
+#include <filesystem>
+#include <thread>
+
+namespace riccati::service {
+
+namespace {
+
+bool is_loopback(const std::string& listen) {
+  return listen.rfind("127.", 0) == 0 || listen.rfind("localhost:", 0) == 0 || listen.rfind("[::1]:", 0) == 0;
+}
+
+}  // namespace
+
+Status load_config_file(const std::string& path, DaemonConfig* c) {
+  try {
+    const YAML::Node root = YAML::LoadFile(path);
+    if (!root.IsMap()) return invalid_argument("config " + path + ": expected a map of settings");
+    for (const auto& entry : root) {
+      const std::string key = entry.first.as<std::string>();
+      const YAML::Node& v = entry.second;
+      if (key == "listen") {
+        c->listen = v.as<std::string>();
+      } else if (key == "data_dir") {
+        c->data_dir = v.as<std::string>();
+      } else if (key == "models_dir") {
+        c->models_dir = v.as<std::string>();
+      } else if (key == "workers") {
+        c->workers = v.as<int>();
+      } else if (key == "session_idle_timeout_s") {
+        c->session_idle_timeout = std::chrono::seconds(v.as<long>());
+      } else if (key == "max_message_bytes") {
+        c->max_message_bytes = v.as<int>();
+      } else if (key == "max_dataset_bytes") {
+        c->limits.max_dataset_bytes = v.as<std::int64_t>();
+      } else if (key == "max_batch") {
+        c->limits.max_batch = v.as<int>();
+      } else if (key == "log_level") {
+        c->log_level = v.as<std::string>();
+      } else {
+        return invalid_argument("config " + path + ": unknown key \"" + key + "\" (line " +
+                                std::to_string(entry.first.Mark().line + 1) + ")");
+      }
+    }
+  } catch (const YAML::Exception& e) {
+    return invalid_argument("config " + path + ": " + e.what());
+  }
+  return Status::ok();
+}
+
+Daemon::Daemon(DaemonConfig config) : config_(std::move(config)) {}
+
+Daemon::~Daemon() { shutdown(std::chrono::milliseconds(0)); }
+
+Status Daemon::start() {
+  std::error_code ec;
+  std::filesystem::create_directories(config_.data_dir, ec);
+  if (ec) return failed_precondition("cannot create data directory " + config_.data_dir + ": " + ec.message());
+  const std::string models_dir = config_.models_dir.empty() ? default_models_dir() : config_.models_dir;
+  RICCATI_ASSIGN_OR_RETURN(models_, ModelRegistry::load_directory(models_dir));
+  for (const auto& m : models_.models()) {
+    spdlog::info("model loaded name={} version={} path={}", m->name(), m->version(), m->origin());
+  }
+  for (const auto& r : models_.refused()) spdlog::warn("model refused path={} reason=\"{}\"", r.path, r.reason);
+
+  const std::string db = config_.data_dir + "/riccati.db";
+  RICCATI_ASSIGN_OR_RETURN(store_, open_sqlite_store(db));
+  spdlog::info("store opened kind=sqlite path={}", db);
+
+  const int workers = config_.workers > 0 ? config_.workers
+                                          : static_cast<int>(std::max(1u, std::thread::hardware_concurrency()));
+  jobs_ = std::make_unique<JobManager>(*store_, models_, workers);
+  RICCATI_RETURN_IF_ERROR(jobs_->start());
+  sessions_ = std::make_unique<SessionManager>(models_, config_.session_idle_timeout);
+
+  model_service_ = std::make_unique<ModelServiceImpl>(models_);
+  dataset_service_ = std::make_unique<DatasetServiceImpl>(*store_, config_.data_dir, config_.limits);
+  job_service_ = std::make_unique<JobServiceImpl>(*jobs_, *store_);
+  session_service_ = std::make_unique<SessionServiceImpl>(*sessions_, config_.limits);
+
+  grpc::EnableDefaultHealthCheckService(true);
+  grpc::reflection::InitProtoReflectionServerBuilderPlugin();
+  grpc::ServerBuilder builder;
+  if (!is_loopback(config_.listen)) {
+    spdlog::warn("listening on {} without TLS: only for a trusted network", config_.listen);
+  }
+  builder.AddListeningPort(config_.listen, grpc::InsecureServerCredentials(), &port_);
+  builder.SetMaxReceiveMessageSize(config_.max_message_bytes);
+  builder.RegisterService(model_service_.get());
+  builder.RegisterService(dataset_service_.get());
+  builder.RegisterService(job_service_.get());
+  builder.RegisterService(session_service_.get());
+  server_ = builder.BuildAndStart();
+  if (server_ == nullptr || port_ == 0) {
+    return {StatusCode::kUnavailable, "cannot listen on " + config_.listen + " (address in use or invalid?)"};
+  }
+  spdlog::info("riccatid listening address={} port={} workers={} models={}", config_.listen, port_, workers,
+               models_.models().size());
+  return Status::ok();
+}
+
+void Daemon::shutdown(std::chrono::milliseconds grace) {
+  if (server_ != nullptr) {
+    spdlog::info("riccatid shutting down grace_ms={}", grace.count());
+    server_->Shutdown(std::chrono::system_clock::now() + grace);
+    server_.reset();
+  }
+  if (jobs_ != nullptr) jobs_->shutdown();
+}
+
+void Daemon::wait() {
+  if (server_ != nullptr) server_->Wait();
+}
+
+}  // namespace riccati::service

@@ -1,0 +1,60 @@
+// The daemon: models, store, job and session managers and the gRPC server,
+// started and stopped together.
+#pragma once
+
+#include <grpcpp/grpcpp.h>
+
+#include <chrono>
+#include <memory>
+#include <string>
+
+#include "engine/plugin_loader.hpp"
+#include "service/job_manager.hpp"
+#include "service/services.hpp"
+#include "service/session_manager.hpp"
+#include "store/store.hpp"
+
+namespace riccati::service {
+
+struct DaemonConfig {
+  std::string listen = "127.0.0.1:7531";  // host:port; port 0 picks a free one
+  std::string data_dir = "riccati-data";  // the SQLite database and scratch files
+  std::string models_dir;                 // empty: next to the binary (default_models_dir())
+  int workers = 0;                        // job worker threads; 0: one per core
+  std::chrono::seconds session_idle_timeout{600};
+  int max_message_bytes = 64 << 20;  // largest gRPC message received
+  ServiceLimits limits;
+  std::string log_level = "info";
+};
+
+// Reads a YAML config file into `config` (keys as in DaemonConfig; unknown
+// keys are an error, so a typo is not silently ignored).
+Status load_config_file(const std::string& path, DaemonConfig* config);
+
+class Daemon {
+ public:
+  explicit Daemon(DaemonConfig config);
+  ~Daemon();
+
+  Status start();
+  int port() const { return port_; }  // the bound port, after start()
+  // Stops accepting calls, gives running calls `grace` to finish, then stops
+  // the workers (running jobs stay queued in the store for the next start).
+  void shutdown(std::chrono::milliseconds grace);
+  void wait();
+
+ private:
+  DaemonConfig config_;
+  ModelRegistry models_;
+  std::unique_ptr<Store> store_;
+  std::unique_ptr<JobManager> jobs_;
+  std::unique_ptr<SessionManager> sessions_;
+  std::unique_ptr<ModelServiceImpl> model_service_;
+  std::unique_ptr<DatasetServiceImpl> dataset_service_;
+  std::unique_ptr<JobServiceImpl> job_service_;
+  std::unique_ptr<SessionServiceImpl> session_service_;
+  std::unique_ptr<grpc::Server> server_;
+  int port_ = 0;
+};
+
+}  // namespace riccati::service

@@ -1,0 +1,362 @@
+#include "service/services.hpp"
+
+#include <spdlog/spdlog.h>
+
+#include <chrono>
+#include <cstdio>
+#include <filesystem>
+#include <fstream>
+
+#include "engine/validation.hpp"
+#include "service/convert.hpp"
+
+namespace riccati::service {
+
+namespace {
+
+// Until authentication exists, every caller is this tenant.
+const std::string kTenant = "default";
+
+std::string tenant_of(const grpc::ServerContext* /*context*/) { return kTenant; }
+
+}  // namespace
+
+// ---- ModelService ---------------------------------------------------------
+
+grpc::Status ModelServiceImpl::ListModels(grpc::ServerContext*, const v1::ListModelsRequest*,
+                                          v1::ListModelsResponse* response) {
+  for (const auto& m : models_.models()) *response->add_models() = to_proto(*m);
+  return grpc::Status::OK;
+}
+
+grpc::Status ModelServiceImpl::GetModel(grpc::ServerContext*, const v1::GetModelRequest* request,
+                                        v1::ModelInfo* response) {
+  const ModelPtr m = models_.find(request->name());
+  if (m == nullptr) return to_grpc(not_found("no model \"" + request->name() + "\" is loaded"));
+  *response = to_proto(*m);
+  return grpc::Status::OK;
+}
+
+grpc::Status ModelServiceImpl::Simulate(grpc::ServerContext*, const v1::SimulateRequest* request,
+                                        v1::SimulateResponse* response) {
+  const ModelPtr m = models_.find(request->model());
+  if (m == nullptr) return to_grpc(not_found("no model \"" + request->model() + "\" is loaded"));
+  auto run = [&]() -> Status {
+    const Eigen::Index n = request->t_size();
+    if (n < 2) return invalid_argument("t needs at least two sample times");
+    RICCATI_ASSIGN_OR_RETURN(const Eigen::VectorXd t, from_values(request->t(), n, "t"));
+    for (Eigen::Index k = 1; k < n; ++k) {
+      if (!(t[k] > t[k - 1])) return invalid_argument("t is not strictly increasing at index " + std::to_string(k));
+    }
+    RICCATI_ASSIGN_OR_RETURN(const Eigen::MatrixXd u, from_matrix(request->u(), "u"));
+    if (u.rows() != m->nu() || u.cols() != n) {
+      return invalid_argument("u must be " + std::to_string(m->nu()) + " x " + std::to_string(n));
+    }
+    Eigen::VectorXd theta = m->theta_default();
+    if (request->theta_size() != 0) {
+      RICCATI_ASSIGN_OR_RETURN(theta, from_values(request->theta(), m->ntheta(), "theta"));
+    }
+    RICCATI_ASSIGN_OR_RETURN(const Eigen::VectorXd x0, from_values(request->x0(), m->nx(), "x0"));
+    SimulationSettings settings;
+    settings.hold = from_proto(request->hold());
+    RICCATI_ASSIGN_OR_RETURN(settings.integrator, from_proto(request->integrator()));
+    Eigen::MatrixXd x;
+    RICCATI_ASSIGN_OR_RETURN(const Eigen::MatrixXd y, simulate(*m, t, u, x0, theta, settings, &x));
+    *response->mutable_y() = to_matrix(y);
+    *response->mutable_x() = to_matrix(x);
+    return Status::ok();
+  };
+  return to_grpc(run());
+}
+
+// ---- DatasetService -------------------------------------------------------
+
+grpc::Status DatasetServiceImpl::UploadDataset(grpc::ServerContext* context,
+                                               grpc::ServerReader<v1::UploadDatasetRequest>* reader,
+                                               v1::DatasetInfo* response) {
+  v1::UploadDatasetRequest part;
+  if (!reader->Read(&part) || !part.has_header()) {
+    return to_grpc(invalid_argument("the first message of an upload must be its header"));
+  }
+  const v1::UploadHeader header = part.header();
+  std::string bytes;
+  while (reader->Read(&part)) {
+    if (!part.has_chunk()) return to_grpc(invalid_argument("only one header per upload"));
+    if (static_cast<std::int64_t>(bytes.size() + part.chunk().size()) > limits_.max_dataset_bytes) {
+      return to_grpc({StatusCode::kResourceExhausted, "dataset larger than the limit of " +
+                                                          std::to_string(limits_.max_dataset_bytes) + " bytes"});
+    }
+    bytes += part.chunk();
+  }
+  if (bytes.empty()) return to_grpc(invalid_argument("upload of " + header.name() + " is empty"));
+
+  const std::string name = header.name().empty() ? "upload" : header.name();
+  v1::DatasetFormat format = header.format();
+  if (format == v1::DATASET_FORMAT_UNSPECIFIED) {
+    const std::string ext = std::filesystem::path(name).extension().string();
+    format = (ext == ".mat" || ext == ".MAT") ? v1::DATASET_FORMAT_MAT : v1::DATASET_FORMAT_CSV;
+  }
+  ColumnMapping mapping;
+  if (!header.time_column().empty()) mapping.time = header.time_column();
+  mapping.inputs.assign(header.input_columns().begin(), header.input_columns().end());
+  mapping.outputs.assign(header.output_columns().begin(), header.output_columns().end());
+
+  Result<Dataset> parsed = [&]() -> Result<Dataset> {
+    if (format == v1::DATASET_FORMAT_CSV) return parse_csv(bytes, mapping, name);
+    // matio reads files only: a private scratch file, removed at once.
+    const std::string path = scratch_dir_ + "/" + new_id("upload") + ".mat";
+    {
+      std::ofstream out(path, std::ios::binary);
+      out.write(bytes.data(), static_cast<std::streamsize>(bytes.size()));
+      if (!out) return internal_error("cannot write scratch file " + path);
+    }
+    Result<Dataset> data = read_mat_file(path, mapping);
+    std::filesystem::remove(path);
+    if (!data.is_ok()) {
+      // Name the upload, not the scratch file.
+      std::string message = data.status().message();
+      for (auto pos = message.find(path); pos != std::string::npos; pos = message.find(path)) {
+        message.replace(pos, path.size(), name);
+      }
+      const std::string scratch_name = std::filesystem::path(path).filename().string();
+      for (auto pos = message.find(scratch_name); pos != std::string::npos; pos = message.find(scratch_name)) {
+        message.replace(pos, scratch_name.size(), name);
+      }
+      return Status(data.status().code(), message);
+    }
+    data.value().name = name;
+    return data;
+  }();
+  if (!parsed.is_ok()) return to_grpc(parsed.status());
+  const Dataset& data = parsed.value();
+
+  DatasetRecord record;
+  record.id = new_id("ds");
+  record.tenant = tenant_of(context);
+  record.name = name;
+  record.format = format == v1::DATASET_FORMAT_MAT ? "mat" : "csv";
+  record.input_names = data.input_names;
+  record.output_names = data.output_names;
+  record.samples = data.size();
+  record.t_start = data.t[0];
+  record.t_end = data.t[data.size() - 1];
+  record.size_bytes = static_cast<std::int64_t>(bytes.size());
+  record.created_ms = now_ms();
+  const Status stored = store_.put_dataset(record, data);
+  if (!stored.is_ok()) return to_grpc(stored);
+  spdlog::info("dataset stored id={} name={} samples={} tenant={}", record.id, record.name, record.samples,
+               record.tenant);
+  *response = to_proto(record);
+  return grpc::Status::OK;
+}
+
+grpc::Status DatasetServiceImpl::GetDataset(grpc::ServerContext* context, const v1::GetDatasetRequest* request,
+                                            v1::DatasetInfo* response) {
+  auto record = store_.get_dataset(tenant_of(context), request->id());
+  if (!record.is_ok()) return to_grpc(record.status());
+  *response = to_proto(record.value());
+  return grpc::Status::OK;
+}
+
+grpc::Status DatasetServiceImpl::ListDatasets(grpc::ServerContext* context, const v1::ListDatasetsRequest*,
+                                              v1::ListDatasetsResponse* response) {
+  auto records = store_.list_datasets(tenant_of(context));
+  if (!records.is_ok()) return to_grpc(records.status());
+  for (const auto& r : records.value()) *response->add_datasets() = to_proto(r);
+  return grpc::Status::OK;
+}
+
+grpc::Status DatasetServiceImpl::DeleteDataset(grpc::ServerContext* context, const v1::DeleteDatasetRequest* request,
+                                               v1::DeleteDatasetResponse*) {
+  return to_grpc(store_.delete_dataset(tenant_of(context), request->id()));
+}
+
+grpc::Status DatasetServiceImpl::GetDatasetData(grpc::ServerContext* context, const v1::GetDatasetRequest* request,
+                                                v1::DatasetData* response) {
+  const std::string tenant = tenant_of(context);
+  auto record = store_.get_dataset(tenant, request->id());
+  if (!record.is_ok()) return to_grpc(record.status());
+  auto data = store_.load_dataset(tenant, request->id());
+  if (!data.is_ok()) return to_grpc(data.status());
+  *response->mutable_info() = to_proto(record.value());
+  copy_values(data.value().t, response->mutable_t());
+  *response->mutable_u() = to_matrix(data.value().u);
+  *response->mutable_y() = to_matrix(data.value().y);
+  return grpc::Status::OK;
+}
+
+// ---- JobService -----------------------------------------------------------
+
+v1::Job to_proto(const JobRecord& job) {
+  v1::Job out;
+  out.set_id(job.id);
+  out.set_state(to_proto(job.state));
+  if (job.kind == "identification") {
+    out.mutable_identification()->ParseFromString(job.spec);
+  } else if (job.kind == "validation") {
+    out.mutable_validation()->ParseFromString(job.spec);
+  }
+  v1::JobProgress* p = out.mutable_progress();
+  p->set_pass(static_cast<uint32_t>(job.pass));
+  p->set_passes(static_cast<uint32_t>(job.passes));
+  p->set_sample(static_cast<uint64_t>(job.sample));
+  p->set_samples(static_cast<uint64_t>(job.samples));
+  for (double v : job.theta) p->add_theta(v);
+  if (job.error_code != 0) {
+    out.mutable_error()->set_code(job.error_code);
+    out.mutable_error()->set_message(job.error_message);
+  }
+  set_timestamp(job.created_ms, out.mutable_created());
+  if (job.started_ms != 0) set_timestamp(job.started_ms, out.mutable_started());
+  if (job.finished_ms != 0) set_timestamp(job.finished_ms, out.mutable_finished());
+  return out;
+}
+
+grpc::Status JobServiceImpl::SubmitIdentification(grpc::ServerContext* context, const v1::IdentificationSpec* spec,
+                                                   v1::Job* response) {
+  auto job = jobs_.submit_identification(tenant_of(context), *spec);
+  if (!job.is_ok()) return to_grpc(job.status());
+  *response = to_proto(job.value());
+  return grpc::Status::OK;
+}
+
+grpc::Status JobServiceImpl::SubmitValidation(grpc::ServerContext* context, const v1::ValidationSpec* spec,
+                                              v1::Job* response) {
+  auto job = jobs_.submit_validation(tenant_of(context), *spec);
+  if (!job.is_ok()) return to_grpc(job.status());
+  *response = to_proto(job.value());
+  return grpc::Status::OK;
+}
+
+grpc::Status JobServiceImpl::WatchJob(grpc::ServerContext* context, const v1::WatchJobRequest* request,
+                                      grpc::ServerWriter<v1::Job>* writer) {
+  const std::string tenant = tenant_of(context);
+  std::uint64_t version = 0;
+  for (;;) {
+    // Short waits, so a client that went away or a deadline is noticed.
+    const auto until = std::chrono::steady_clock::now() + std::chrono::milliseconds(500);
+    auto job = jobs_.wait_for_change(tenant, request->id(), &version, until);
+    if (!job.is_ok()) return to_grpc(job.status());
+    if (context->IsCancelled()) return {grpc::StatusCode::CANCELLED, "watch cancelled by the client"};
+    if (!writer->Write(to_proto(job.value()))) return {grpc::StatusCode::CANCELLED, "client went away"};
+    if (is_terminal(job.value().state)) return grpc::Status::OK;
+    if (version == UINT64_MAX) {
+      // Not live any more but not terminal: the daemon is shutting down.
+      return {grpc::StatusCode::UNAVAILABLE, "riccatid is shutting down; watch again after it restarts"};
+    }
+  }
+}
+
+grpc::Status JobServiceImpl::GetJob(grpc::ServerContext* context, const v1::GetJobRequest* request,
+                                    v1::Job* response) {
+  auto job = jobs_.get(tenant_of(context), request->id());
+  if (!job.is_ok()) return to_grpc(job.status());
+  *response = to_proto(job.value());
+  return grpc::Status::OK;
+}
+
+grpc::Status JobServiceImpl::ListJobs(grpc::ServerContext* context, const v1::ListJobsRequest*,
+                                      v1::ListJobsResponse* response) {
+  const std::string tenant = tenant_of(context);
+  auto jobs = store_.list_jobs(tenant);
+  if (!jobs.is_ok()) return to_grpc(jobs.status());
+  for (const auto& stored : jobs.value()) {
+    // Live progress is fresher than the store's.
+    auto live = jobs_.get(tenant, stored.id);
+    *response->add_jobs() = to_proto(live.is_ok() ? live.value() : stored);
+  }
+  return grpc::Status::OK;
+}
+
+grpc::Status JobServiceImpl::CancelJob(grpc::ServerContext* context, const v1::CancelJobRequest* request,
+                                       v1::Job* response) {
+  auto job = jobs_.cancel(tenant_of(context), request->id());
+  if (!job.is_ok()) return to_grpc(job.status());
+  *response = to_proto(job.value());
+  return grpc::Status::OK;
+}
+
+grpc::Status JobServiceImpl::GetResult(grpc::ServerContext* context, const v1::GetResultRequest* request,
+                                       v1::JobResult* response) {
+  const std::string tenant = tenant_of(context);
+  auto job = jobs_.get(tenant, request->job_id());
+  if (!job.is_ok()) return to_grpc(job.status());
+  if (job.value().state != JobState::kSucceeded) {
+    return to_grpc(failed_precondition("job " + request->job_id() + " has no result: it is " +
+                                       job_state_name(job.value().state)));
+  }
+  auto encoded = store_.get_result(tenant, request->job_id());
+  if (!encoded.is_ok()) return to_grpc(encoded.status());
+  if (!response->ParseFromString(encoded.value())) {
+    return to_grpc(internal_error("stored result of job " + request->job_id() + " is unreadable"));
+  }
+  return grpc::Status::OK;
+}
+
+// ---- SessionService -------------------------------------------------------
+
+grpc::Status SessionServiceImpl::CreateSession(grpc::ServerContext* context, const v1::CreateSessionRequest* request,
+                                               v1::SessionInfo* response) {
+  auto session = sessions_.create(tenant_of(context), *request);
+  if (!session.is_ok()) return to_grpc(session.status());
+  *response = session.value()->info();
+  return grpc::Status::OK;
+}
+
+grpc::Status SessionServiceImpl::GetSession(grpc::ServerContext* context, const v1::GetSessionRequest* request,
+                                            v1::SessionInfo* response) {
+  auto session = sessions_.get(tenant_of(context), request->id());
+  if (!session.is_ok()) return to_grpc(session.status());
+  *response = session.value()->info();
+  return grpc::Status::OK;
+}
+
+grpc::Status SessionServiceImpl::ListSessions(grpc::ServerContext* context, const v1::ListSessionsRequest*,
+                                              v1::ListSessionsResponse* response) {
+  for (const auto& s : sessions_.list(tenant_of(context))) *response->add_sessions() = s->info();
+  return grpc::Status::OK;
+}
+
+grpc::Status SessionServiceImpl::CloseSession(grpc::ServerContext* context, const v1::CloseSessionRequest* request,
+                                              v1::CloseSessionResponse*) {
+  return to_grpc(sessions_.close(tenant_of(context), request->id()));
+}
+
+grpc::Status SessionServiceImpl::Stream(grpc::ServerContext* context,
+                                        grpc::ServerReaderWriter<v1::StreamResponse, v1::StreamRequest>* stream) {
+  v1::StreamRequest request;
+  if (!stream->Read(&request)) return grpc::Status::OK;  // the client closed before opening
+  if (!request.has_open()) return to_grpc(invalid_argument("the first message of a stream must be StreamOpen"));
+  const bool full_covariance = request.open().full_covariance();
+  auto found = sessions_.get(tenant_of(context), request.open().session_id());
+  if (!found.is_ok()) return to_grpc(found.status());
+  const std::shared_ptr<Session> session = found.value();
+  const Status attached = session->attach();
+  if (!attached.is_ok()) return to_grpc(attached);
+  struct Detach {
+    Session& s;
+    ~Detach() { s.detach(); }
+  } detach{*session};
+
+  v1::StreamResponse response;
+  while (stream->Read(&request)) {
+    if (!request.has_batch()) return to_grpc(invalid_argument("after StreamOpen, only measurement batches"));
+    const auto& measurements = request.batch().measurements();
+    if (measurements.size() > limits_.max_batch) {
+      return to_grpc({StatusCode::kResourceExhausted, "a batch holds at most " + std::to_string(limits_.max_batch) +
+                                                          " measurements, got " + std::to_string(measurements.size())});
+    }
+    response.Clear();
+    Status diverged;
+    for (const auto& m : measurements) {
+      diverged = session->process(m, full_covariance, response.add_results());
+      if (!diverged.is_ok()) break;
+    }
+    // Written without holding the session's lock (process() releases it).
+    if (!stream->Write(response)) return grpc::Status::OK;  // the client went away
+    if (!diverged.is_ok()) return to_grpc(diverged);
+  }
+  return grpc::Status::OK;
+}
+
+}  // namespace riccati::service

@@ -1,0 +1,88 @@
+// The gRPC services of riccati.v1: thin adapters. Each handler converts the
+// request, calls the engine, the store or a manager, and maps the Status to a
+// gRPC status; no estimation logic lives here.
+#pragma once
+
+#include <grpcpp/grpcpp.h>
+
+#include <cstdint>
+
+#include "engine/plugin_loader.hpp"
+#include "riccati/v1/datasets.grpc.pb.h"
+#include "riccati/v1/jobs.grpc.pb.h"
+#include "riccati/v1/models.grpc.pb.h"
+#include "riccati/v1/sessions.grpc.pb.h"
+#include "service/job_manager.hpp"
+#include "service/session_manager.hpp"
+#include "store/store.hpp"
+
+namespace riccati::service {
+
+struct ServiceLimits {
+  std::int64_t max_dataset_bytes = 256ll << 20;  // an upload larger than this is refused
+  int max_batch = 4096;                          // measurements per stream message
+};
+
+class ModelServiceImpl final : public v1::ModelService::Service {
+ public:
+  explicit ModelServiceImpl(const ModelRegistry& models) : models_(models) {}
+  grpc::Status ListModels(grpc::ServerContext*, const v1::ListModelsRequest*, v1::ListModelsResponse*) override;
+  grpc::Status GetModel(grpc::ServerContext*, const v1::GetModelRequest*, v1::ModelInfo*) override;
+  grpc::Status Simulate(grpc::ServerContext*, const v1::SimulateRequest*, v1::SimulateResponse*) override;
+
+ private:
+  const ModelRegistry& models_;
+};
+
+class DatasetServiceImpl final : public v1::DatasetService::Service {
+ public:
+  DatasetServiceImpl(Store& store, std::string scratch_dir, ServiceLimits limits)
+      : store_(store), scratch_dir_(std::move(scratch_dir)), limits_(limits) {}
+  grpc::Status UploadDataset(grpc::ServerContext*, grpc::ServerReader<v1::UploadDatasetRequest>*,
+                             v1::DatasetInfo*) override;
+  grpc::Status GetDataset(grpc::ServerContext*, const v1::GetDatasetRequest*, v1::DatasetInfo*) override;
+  grpc::Status ListDatasets(grpc::ServerContext*, const v1::ListDatasetsRequest*, v1::ListDatasetsResponse*) override;
+  grpc::Status DeleteDataset(grpc::ServerContext*, const v1::DeleteDatasetRequest*,
+                             v1::DeleteDatasetResponse*) override;
+  grpc::Status GetDatasetData(grpc::ServerContext*, const v1::GetDatasetRequest*, v1::DatasetData*) override;
+
+ private:
+  Store& store_;
+  const std::string scratch_dir_;  // where MAT uploads are written for matio to read
+  const ServiceLimits limits_;
+};
+
+class JobServiceImpl final : public v1::JobService::Service {
+ public:
+  JobServiceImpl(JobManager& jobs, Store& store) : jobs_(jobs), store_(store) {}
+  grpc::Status SubmitIdentification(grpc::ServerContext*, const v1::IdentificationSpec*, v1::Job*) override;
+  grpc::Status SubmitValidation(grpc::ServerContext*, const v1::ValidationSpec*, v1::Job*) override;
+  grpc::Status WatchJob(grpc::ServerContext*, const v1::WatchJobRequest*, grpc::ServerWriter<v1::Job>*) override;
+  grpc::Status GetJob(grpc::ServerContext*, const v1::GetJobRequest*, v1::Job*) override;
+  grpc::Status ListJobs(grpc::ServerContext*, const v1::ListJobsRequest*, v1::ListJobsResponse*) override;
+  grpc::Status CancelJob(grpc::ServerContext*, const v1::CancelJobRequest*, v1::Job*) override;
+  grpc::Status GetResult(grpc::ServerContext*, const v1::GetResultRequest*, v1::JobResult*) override;
+
+ private:
+  JobManager& jobs_;
+  Store& store_;
+};
+
+class SessionServiceImpl final : public v1::SessionService::Service {
+ public:
+  SessionServiceImpl(SessionManager& sessions, ServiceLimits limits) : sessions_(sessions), limits_(limits) {}
+  grpc::Status CreateSession(grpc::ServerContext*, const v1::CreateSessionRequest*, v1::SessionInfo*) override;
+  grpc::Status GetSession(grpc::ServerContext*, const v1::GetSessionRequest*, v1::SessionInfo*) override;
+  grpc::Status ListSessions(grpc::ServerContext*, const v1::ListSessionsRequest*, v1::ListSessionsResponse*) override;
+  grpc::Status CloseSession(grpc::ServerContext*, const v1::CloseSessionRequest*, v1::CloseSessionResponse*) override;
+  grpc::Status Stream(grpc::ServerContext*, grpc::ServerReaderWriter<v1::StreamResponse, v1::StreamRequest>*) override;
+
+ private:
+  SessionManager& sessions_;
+  const ServiceLimits limits_;
+};
+
+// The job as the API shows it (spec decoded from the store's bytes).
+v1::Job to_proto(const JobRecord& job);
+
+}  // namespace riccati::service

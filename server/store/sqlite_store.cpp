@@ -1,0 +1,489 @@
+// The SQLite store: one database file, WAL journal, versioned migrations.
+#include <sqlite3.h>
+
+#include <cstring>
+#include <memory>
+#include <mutex>
+#include <string>
+#include <vector>
+
+#include "store/store.hpp"
+
+namespace riccati {
+
+namespace {
+
+// Migrations, applied in order, each in its own transaction; the database's
+// PRAGMA user_version is the number applied. Append only: never edit one
+// that has shipped.
+const std::vector<const char*> kMigrations = {
+    // 1: datasets, their samples, jobs, results, session snapshots.
+    R"sql(
+    CREATE TABLE datasets (
+      id TEXT PRIMARY KEY,
+      tenant TEXT NOT NULL,
+      name TEXT NOT NULL,
+      format TEXT NOT NULL,
+      input_names TEXT NOT NULL,
+      output_names TEXT NOT NULL,
+      samples INTEGER NOT NULL,
+      t_start REAL NOT NULL,
+      t_end REAL NOT NULL,
+      size_bytes INTEGER NOT NULL,
+      created_ms INTEGER NOT NULL);
+    CREATE INDEX datasets_by_tenant ON datasets (tenant, created_ms);
+    CREATE TABLE dataset_samples (
+      dataset_id TEXT PRIMARY KEY REFERENCES datasets (id) ON DELETE CASCADE,
+      t BLOB NOT NULL,
+      u BLOB NOT NULL,
+      y BLOB NOT NULL);
+    CREATE TABLE jobs (
+      id TEXT PRIMARY KEY,
+      tenant TEXT NOT NULL,
+      kind TEXT NOT NULL,
+      state TEXT NOT NULL,
+      spec BLOB NOT NULL,
+      pass INTEGER NOT NULL,
+      passes INTEGER NOT NULL,
+      sample INTEGER NOT NULL,
+      samples INTEGER NOT NULL,
+      theta BLOB NOT NULL,
+      error_code INTEGER NOT NULL,
+      error_message TEXT NOT NULL,
+      created_ms INTEGER NOT NULL,
+      started_ms INTEGER NOT NULL,
+      finished_ms INTEGER NOT NULL);
+    CREATE INDEX jobs_by_tenant ON jobs (tenant, created_ms);
+    CREATE INDEX jobs_by_state ON jobs (state);
+    CREATE TABLE results (
+      job_id TEXT PRIMARY KEY REFERENCES jobs (id) ON DELETE CASCADE,
+      tenant TEXT NOT NULL,
+      result BLOB NOT NULL);
+    CREATE TABLE session_snapshots (
+      session_id TEXT PRIMARY KEY,
+      tenant TEXT NOT NULL,
+      snapshot BLOB NOT NULL,
+      updated_ms INTEGER NOT NULL);
+    )sql",
+};
+
+// Names never contain the ASCII unit separator, so it can join them.
+constexpr char kSeparator = '\x1f';
+
+std::string join_names(const std::vector<std::string>& names) {
+  std::string out;
+  for (std::size_t i = 0; i < names.size(); ++i) {
+    if (i > 0) out += kSeparator;
+    out += names[i];
+  }
+  return out;
+}
+
+std::vector<std::string> split_names(const std::string& joined) {
+  std::vector<std::string> out;
+  if (joined.empty()) return out;
+  std::size_t start = 0;
+  for (std::size_t i = 0; i <= joined.size(); ++i) {
+    if (i == joined.size() || joined[i] == kSeparator) {
+      out.push_back(joined.substr(start, i - start));
+      start = i + 1;
+    }
+  }
+  return out;
+}
+
+// Doubles as raw little-endian bytes (x86-64 and ARM64 are both): exact.
+std::string to_blob(const double* v, std::size_t n) {
+  return std::string(reinterpret_cast<const char*>(v), n * sizeof(double));
+}
+
+std::vector<double> from_blob(const void* data, int bytes) {
+  std::vector<double> out(static_cast<std::size_t>(bytes) / sizeof(double));
+  if (!out.empty()) std::memcpy(out.data(), data, out.size() * sizeof(double));
+  return out;
+}
+
+struct CloseDb {
+  void operator()(sqlite3* db) const { sqlite3_close_v2(db); }
+};
+struct FinalizeStmt {
+  void operator()(sqlite3_stmt* s) const { sqlite3_finalize(s); }
+};
+
+// A prepared statement with positional binding (1-based, in call order).
+class Statement {
+ public:
+  Statement(sqlite3* db, const char* sql) : db_(db) {
+    sqlite3_stmt* raw = nullptr;
+    rc_ = sqlite3_prepare_v2(db, sql, -1, &raw, nullptr);
+    stmt_.reset(raw);
+  }
+  bool prepared() const { return rc_ == SQLITE_OK; }
+
+  Statement& text(const std::string& v) {
+    sqlite3_bind_text(stmt_.get(), ++index_, v.data(), static_cast<int>(v.size()), SQLITE_TRANSIENT);
+    return *this;
+  }
+  Statement& blob(const std::string& v) {
+    sqlite3_bind_blob(stmt_.get(), ++index_, v.data(), static_cast<int>(v.size()), SQLITE_TRANSIENT);
+    return *this;
+  }
+  Statement& integer(std::int64_t v) {
+    sqlite3_bind_int64(stmt_.get(), ++index_, v);
+    return *this;
+  }
+  Statement& real(double v) {
+    sqlite3_bind_double(stmt_.get(), ++index_, v);
+    return *this;
+  }
+
+  // SQLITE_ROW, SQLITE_DONE or an error code.
+  int step() { return sqlite3_step(stmt_.get()); }
+
+  std::string column_text(int i) const {
+    const auto* p = reinterpret_cast<const char*>(sqlite3_column_text(stmt_.get(), i));
+    return p != nullptr ? std::string(p, static_cast<std::size_t>(sqlite3_column_bytes(stmt_.get(), i))) : "";
+  }
+  std::string column_blob(int i) const {
+    const void* p = sqlite3_column_blob(stmt_.get(), i);
+    return p != nullptr ? std::string(static_cast<const char*>(p), static_cast<std::size_t>(sqlite3_column_bytes(stmt_.get(), i)))
+                        : "";
+  }
+  std::vector<double> column_doubles(int i) const {
+    return from_blob(sqlite3_column_blob(stmt_.get(), i), sqlite3_column_bytes(stmt_.get(), i));
+  }
+  std::int64_t column_int(int i) const { return sqlite3_column_int64(stmt_.get(), i); }
+  double column_real(int i) const { return sqlite3_column_double(stmt_.get(), i); }
+
+ private:
+  sqlite3* db_;
+  std::unique_ptr<sqlite3_stmt, FinalizeStmt> stmt_;
+  int rc_ = SQLITE_OK;
+  int index_ = 0;
+};
+
+JobState parse_state(const std::string& s) {
+  for (JobState st : {JobState::kQueued, JobState::kRunning, JobState::kSucceeded, JobState::kFailed,
+                      JobState::kCancelled}) {
+    if (s == job_state_name(st)) return st;
+  }
+  return JobState::kFailed;
+}
+
+constexpr const char* kJobColumns =
+    "id, tenant, kind, state, spec, pass, passes, sample, samples, theta, error_code, error_message, created_ms, "
+    "started_ms, finished_ms";
+
+JobRecord read_job(const Statement& s) {
+  JobRecord j;
+  j.id = s.column_text(0);
+  j.tenant = s.column_text(1);
+  j.kind = s.column_text(2);
+  j.state = parse_state(s.column_text(3));
+  j.spec = s.column_blob(4);
+  j.pass = static_cast<int>(s.column_int(5));
+  j.passes = static_cast<int>(s.column_int(6));
+  j.sample = s.column_int(7);
+  j.samples = s.column_int(8);
+  j.theta = s.column_doubles(9);
+  j.error_code = static_cast<int>(s.column_int(10));
+  j.error_message = s.column_text(11);
+  j.created_ms = s.column_int(12);
+  j.started_ms = s.column_int(13);
+  j.finished_ms = s.column_int(14);
+  return j;
+}
+
+constexpr const char* kDatasetColumns =
+    "id, tenant, name, format, input_names, output_names, samples, t_start, t_end, size_bytes, created_ms";
+
+DatasetRecord read_dataset(const Statement& s) {
+  DatasetRecord d;
+  d.id = s.column_text(0);
+  d.tenant = s.column_text(1);
+  d.name = s.column_text(2);
+  d.format = s.column_text(3);
+  d.input_names = split_names(s.column_text(4));
+  d.output_names = split_names(s.column_text(5));
+  d.samples = s.column_int(6);
+  d.t_start = s.column_real(7);
+  d.t_end = s.column_real(8);
+  d.size_bytes = s.column_int(9);
+  d.created_ms = s.column_int(10);
+  return d;
+}
+
+class SqliteStore final : public Store {
+ public:
+  SqliteStore(std::unique_ptr<sqlite3, CloseDb> db, std::string path) : db_(std::move(db)), path_(std::move(path)) {}
+
+  Status migrate() {
+    std::lock_guard lock(mu_);
+    RICCATI_RETURN_IF_ERROR(exec("PRAGMA journal_mode = WAL"));
+    // NORMAL with WAL: a committed transaction survives a crash of the
+    // process (not necessarily a power loss).
+    RICCATI_RETURN_IF_ERROR(exec("PRAGMA synchronous = NORMAL"));
+    RICCATI_RETURN_IF_ERROR(exec("PRAGMA foreign_keys = ON"));
+    sqlite3_busy_timeout(db_.get(), 5000);
+    Statement version(db_.get(), "PRAGMA user_version");
+    if (version.step() != SQLITE_ROW) return error("reading the schema version");
+    const auto current = version.column_int(0);
+    const auto known = static_cast<std::int64_t>(kMigrations.size());
+    if (current > known) {
+      return failed_precondition("database " + path_ + " has schema version " + std::to_string(current) +
+                                 ", newer than this riccatid (" + std::to_string(known) + "): upgrade riccatid");
+    }
+    for (auto v = current; v < known; ++v) {
+      RICCATI_RETURN_IF_ERROR(exec("BEGIN IMMEDIATE"));
+      Status applied = exec(kMigrations[static_cast<std::size_t>(v)]);
+      if (applied.is_ok()) applied = exec("PRAGMA user_version = " + std::to_string(v + 1));
+      if (!applied.is_ok()) {
+        (void)exec("ROLLBACK");
+        return applied.with_context("migration " + std::to_string(v + 1));
+      }
+      RICCATI_RETURN_IF_ERROR(exec("COMMIT"));
+    }
+    return Status::ok();
+  }
+
+  Status put_dataset(const DatasetRecord& r, const Dataset& data) override {
+    std::lock_guard lock(mu_);
+    RICCATI_RETURN_IF_ERROR(exec("BEGIN IMMEDIATE"));
+    Status s = [&]() -> Status {
+      Statement insert(db_.get(),
+                       "INSERT INTO datasets (id, tenant, name, format, input_names, output_names, samples, t_start, "
+                       "t_end, size_bytes, created_ms) VALUES (?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?)");
+      insert.text(r.id).text(r.tenant).text(r.name).text(r.format).text(join_names(r.input_names))
+          .text(join_names(r.output_names)).integer(r.samples).real(r.t_start).real(r.t_end).integer(r.size_bytes)
+          .integer(r.created_ms);
+      RICCATI_RETURN_IF_ERROR(done(insert, "storing dataset " + r.id));
+      Statement samples(db_.get(), "INSERT INTO dataset_samples (dataset_id, t, u, y) VALUES (?, ?, ?, ?)");
+      samples.text(r.id)
+          .blob(to_blob(data.t.data(), static_cast<std::size_t>(data.t.size())))
+          .blob(to_blob(data.u.data(), static_cast<std::size_t>(data.u.size())))
+          .blob(to_blob(data.y.data(), static_cast<std::size_t>(data.y.size())));
+      return done(samples, "storing the samples of dataset " + r.id);
+    }();
+    if (!s.is_ok()) {
+      (void)exec("ROLLBACK");
+      return s;
+    }
+    return exec("COMMIT");
+  }
+
+  Result<DatasetRecord> get_dataset(const std::string& tenant, const std::string& id) override {
+    std::lock_guard lock(mu_);
+    Statement q(db_.get(), (std::string("SELECT ") + kDatasetColumns + " FROM datasets WHERE id = ? AND tenant = ?").c_str());
+    q.text(id).text(tenant);
+    const int rc = q.step();
+    if (rc == SQLITE_DONE) return not_found("no dataset " + id);
+    if (rc != SQLITE_ROW) return error("reading dataset " + id);
+    return read_dataset(q);
+  }
+
+  Result<Dataset> load_dataset(const std::string& tenant, const std::string& id) override {
+    RICCATI_ASSIGN_OR_RETURN(const DatasetRecord record, get_dataset(tenant, id));
+    std::lock_guard lock(mu_);
+    Statement q(db_.get(), "SELECT t, u, y FROM dataset_samples WHERE dataset_id = ?");
+    q.text(id);
+    if (q.step() != SQLITE_ROW) return error("reading the samples of dataset " + id);
+    const auto t = q.column_doubles(0), u = q.column_doubles(1), y = q.column_doubles(2);
+    const auto n = static_cast<Eigen::Index>(record.samples);
+    const auto nu = static_cast<Eigen::Index>(record.input_names.size());
+    const auto ny = static_cast<Eigen::Index>(record.output_names.size());
+    if (static_cast<Eigen::Index>(t.size()) != n || static_cast<Eigen::Index>(u.size()) != nu * n ||
+        static_cast<Eigen::Index>(y.size()) != ny * n) {
+      return internal_error("the stored samples of dataset " + id + " do not match its sizes");
+    }
+    Dataset d;
+    d.name = record.name;
+    d.input_names = record.input_names;
+    d.output_names = record.output_names;
+    d.t = Eigen::Map<const Eigen::VectorXd>(t.data(), n);
+    d.u = Eigen::Map<const Eigen::MatrixXd>(u.data(), nu, n);
+    d.y = Eigen::Map<const Eigen::MatrixXd>(y.data(), ny, n);
+    return d;
+  }
+
+  Result<std::vector<DatasetRecord>> list_datasets(const std::string& tenant) override {
+    std::lock_guard lock(mu_);
+    Statement q(db_.get(),
+                (std::string("SELECT ") + kDatasetColumns + " FROM datasets WHERE tenant = ? ORDER BY created_ms, rowid")
+                    .c_str());
+    q.text(tenant);
+    std::vector<DatasetRecord> out;
+    int rc;
+    while ((rc = q.step()) == SQLITE_ROW) out.push_back(read_dataset(q));
+    if (rc != SQLITE_DONE) return error("listing datasets");
+    return out;
+  }
+
+  Status delete_dataset(const std::string& tenant, const std::string& id) override {
+    std::lock_guard lock(mu_);
+    Statement q(db_.get(), "DELETE FROM datasets WHERE id = ? AND tenant = ?");
+    q.text(id).text(tenant);
+    RICCATI_RETURN_IF_ERROR(done(q, "deleting dataset " + id));
+    if (sqlite3_changes(db_.get()) == 0) return not_found("no dataset " + id);
+    return Status::ok();
+  }
+
+  Status put_job(const JobRecord& j) override {
+    std::lock_guard lock(mu_);
+    Statement q(db_.get(), (std::string("INSERT INTO jobs (") + kJobColumns +
+                            ") VALUES (?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?)")
+                               .c_str());
+    q.text(j.id).text(j.tenant).text(j.kind).text(job_state_name(j.state)).blob(j.spec).integer(j.pass)
+        .integer(j.passes).integer(j.sample).integer(j.samples).blob(to_blob(j.theta.data(), j.theta.size()))
+        .integer(j.error_code).text(j.error_message).integer(j.created_ms).integer(j.started_ms)
+        .integer(j.finished_ms);
+    return done(q, "storing job " + j.id);
+  }
+
+  Status update_job(const JobRecord& j) override {
+    std::lock_guard lock(mu_);
+    Statement q(db_.get(),
+                "UPDATE jobs SET state = ?, pass = ?, passes = ?, sample = ?, samples = ?, theta = ?, error_code = ?, "
+                "error_message = ?, started_ms = ?, finished_ms = ? WHERE id = ? AND tenant = ?");
+    q.text(job_state_name(j.state)).integer(j.pass).integer(j.passes).integer(j.sample).integer(j.samples)
+        .blob(to_blob(j.theta.data(), j.theta.size())).integer(j.error_code).text(j.error_message)
+        .integer(j.started_ms).integer(j.finished_ms).text(j.id).text(j.tenant);
+    RICCATI_RETURN_IF_ERROR(done(q, "updating job " + j.id));
+    if (sqlite3_changes(db_.get()) == 0) return not_found("no job " + j.id);
+    return Status::ok();
+  }
+
+  Result<JobRecord> get_job(const std::string& tenant, const std::string& id) override {
+    std::lock_guard lock(mu_);
+    Statement q(db_.get(), (std::string("SELECT ") + kJobColumns + " FROM jobs WHERE id = ? AND tenant = ?").c_str());
+    q.text(id).text(tenant);
+    const int rc = q.step();
+    if (rc == SQLITE_DONE) return not_found("no job " + id);
+    if (rc != SQLITE_ROW) return error("reading job " + id);
+    return read_job(q);
+  }
+
+  Result<std::vector<JobRecord>> list_jobs(const std::string& tenant) override {
+    std::lock_guard lock(mu_);
+    Statement q(db_.get(),
+                (std::string("SELECT ") + kJobColumns + " FROM jobs WHERE tenant = ? ORDER BY created_ms, rowid").c_str());
+    q.text(tenant);
+    return read_jobs(q, "listing jobs");
+  }
+
+  Result<std::vector<JobRecord>> jobs_in_states(const std::vector<JobState>& states) override {
+    std::lock_guard lock(mu_);
+    std::string sql = std::string("SELECT ") + kJobColumns + " FROM jobs WHERE state IN (";
+    for (std::size_t i = 0; i < states.size(); ++i) sql += i == 0 ? "?" : ", ?";
+    sql += ") ORDER BY created_ms, rowid";
+    Statement q(db_.get(), sql.c_str());
+    for (JobState s : states) q.text(job_state_name(s));
+    return read_jobs(q, "listing unfinished jobs");
+  }
+
+  Status put_result(const std::string& tenant, const std::string& job_id, const std::string& result) override {
+    std::lock_guard lock(mu_);
+    Statement q(db_.get(), "INSERT INTO results (job_id, tenant, result) VALUES (?, ?, ?)");
+    q.text(job_id).text(tenant).blob(result);
+    return done(q, "storing the result of job " + job_id);
+  }
+
+  Result<std::string> get_result(const std::string& tenant, const std::string& job_id) override {
+    std::lock_guard lock(mu_);
+    Statement q(db_.get(), "SELECT result FROM results WHERE job_id = ? AND tenant = ?");
+    q.text(job_id).text(tenant);
+    const int rc = q.step();
+    if (rc == SQLITE_DONE) return not_found("no result for job " + job_id);
+    if (rc != SQLITE_ROW) return error("reading the result of job " + job_id);
+    return q.column_blob(0);
+  }
+
+  Status put_session_snapshot(const std::string& tenant, const std::string& session_id,
+                              const std::string& snapshot) override {
+    std::lock_guard lock(mu_);
+    Statement q(db_.get(),
+                "INSERT INTO session_snapshots (session_id, tenant, snapshot, updated_ms) VALUES (?, ?, ?, "
+                "CAST(strftime('%s', 'now') AS INTEGER) * 1000) ON CONFLICT (session_id) DO UPDATE SET "
+                "snapshot = excluded.snapshot, updated_ms = excluded.updated_ms WHERE session_snapshots.tenant = "
+                "excluded.tenant");
+    q.text(session_id).text(tenant).blob(snapshot);
+    RICCATI_RETURN_IF_ERROR(done(q, "storing the snapshot of session " + session_id));
+    if (sqlite3_changes(db_.get()) == 0) return not_found("no session " + session_id);  // another tenant's id
+    return Status::ok();
+  }
+
+  Result<std::string> get_session_snapshot(const std::string& tenant, const std::string& session_id) override {
+    std::lock_guard lock(mu_);
+    Statement q(db_.get(), "SELECT snapshot FROM session_snapshots WHERE session_id = ? AND tenant = ?");
+    q.text(session_id).text(tenant);
+    const int rc = q.step();
+    if (rc == SQLITE_DONE) return not_found("no snapshot of session " + session_id);
+    if (rc != SQLITE_ROW) return error("reading the snapshot of session " + session_id);
+    return q.column_blob(0);
+  }
+
+  Status delete_session_snapshot(const std::string& tenant, const std::string& session_id) override {
+    std::lock_guard lock(mu_);
+    Statement q(db_.get(), "DELETE FROM session_snapshots WHERE session_id = ? AND tenant = ?");
+    q.text(session_id).text(tenant);
+    RICCATI_RETURN_IF_ERROR(done(q, "deleting the snapshot of session " + session_id));
+    if (sqlite3_changes(db_.get()) == 0) return not_found("no snapshot of session " + session_id);
+    return Status::ok();
+  }
+
+ private:
+  Status exec(const std::string& sql) {
+    char* message = nullptr;
+    if (sqlite3_exec(db_.get(), sql.c_str(), nullptr, nullptr, &message) != SQLITE_OK) {
+      std::string what = message != nullptr ? message : sqlite3_errmsg(db_.get());
+      sqlite3_free(message);
+      return internal_error("database " + path_ + ": " + what);
+    }
+    return Status::ok();
+  }
+
+  Status error(const std::string& doing) const {
+    return internal_error("database " + path_ + ", " + doing + ": " + sqlite3_errmsg(db_.get()));
+  }
+
+  // Runs a statement that returns no rows.
+  Status done(Statement& s, const std::string& doing) {
+    if (!s.prepared()) return error(doing);
+    const int rc = s.step();
+    if (rc == SQLITE_DONE) return Status::ok();
+    if (rc == SQLITE_CONSTRAINT) {
+      return {StatusCode::kAlreadyExists, doing + ": " + sqlite3_errmsg(db_.get())};
+    }
+    return error(doing);
+  }
+
+  Result<std::vector<JobRecord>> read_jobs(Statement& q, const std::string& doing) {
+    if (!q.prepared()) return error(doing);
+    std::vector<JobRecord> out;
+    int rc;
+    while ((rc = q.step()) == SQLITE_ROW) out.push_back(read_job(q));
+    if (rc != SQLITE_DONE) return error(doing);
+    return out;
+  }
+
+  std::mutex mu_;  // one connection, one statement at a time
+  std::unique_ptr<sqlite3, CloseDb> db_;
+  const std::string path_;
+};
+
+}  // namespace
+
+Result<std::unique_ptr<Store>> open_sqlite_store(const std::string& path) {
+  sqlite3* raw = nullptr;
+  const int rc = sqlite3_open_v2(path.c_str(), &raw, SQLITE_OPEN_READWRITE | SQLITE_OPEN_CREATE | SQLITE_OPEN_FULLMUTEX,
+                                 nullptr);
+  std::unique_ptr<sqlite3, CloseDb> db(raw);
+  if (rc != SQLITE_OK) {
+    return failed_precondition("cannot open database " + path + ": " +
+                               (raw != nullptr ? sqlite3_errmsg(raw) : sqlite3_errstr(rc)));
+  }
+  auto store = std::make_unique<SqliteStore>(std::move(db), path);
+  RICCATI_RETURN_IF_ERROR(store->migrate());
+  return std::unique_ptr<Store>(std::move(store));
+}
+
+}  // namespace riccati

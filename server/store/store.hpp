@@ -1,0 +1,109 @@
+// Store: what the daemon keeps across restarts.
+//
+// Datasets (their samples), jobs (spec, state, progress), job results and
+// session snapshots. SQLite (a file in the data directory) is the embedded
+// default; PostgreSQL comes later behind the same interface, so nothing here
+// may depend on SQLite: records are plain values, ids are strings chosen by
+// the caller, times are Unix milliseconds, and what the store does not need
+// to look into (a job's spec, a result, a snapshot) is an opaque byte string
+// that the service layer encodes (protobuf).
+//
+// Every record belongs to a tenant. Lookups take the tenant and never return
+// another tenant's records (NOT_FOUND), so tenancy cannot be forgotten at a
+// call site. Until authentication exists every caller is tenant "default".
+//
+// Implementations are thread-safe: the daemon calls them from RPC threads and
+// workers at once.
+#pragma once
+
+#include <cstdint>
+#include <memory>
+#include <optional>
+#include <string>
+#include <vector>
+
+#include "engine/dataset.hpp"
+#include "engine/status.hpp"
+
+namespace riccati {
+
+struct DatasetRecord {
+  std::string id;
+  std::string tenant;
+  std::string name;    // as uploaded (usually the file name)
+  std::string format;  // "csv" or "mat"
+  std::vector<std::string> input_names;
+  std::vector<std::string> output_names;
+  std::int64_t samples = 0;
+  double t_start = 0.0;
+  double t_end = 0.0;
+  std::int64_t size_bytes = 0;  // of the uploaded file
+  std::int64_t created_ms = 0;
+};
+
+enum class JobState { kQueued, kRunning, kSucceeded, kFailed, kCancelled };
+
+const char* job_state_name(JobState state);  // "queued", "running", ...
+bool is_terminal(JobState state);
+
+struct JobRecord {
+  std::string id;
+  std::string tenant;
+  std::string kind;  // "identification" or "validation"
+  JobState state = JobState::kQueued;
+  std::string spec;  // opaque: encoded by the service layer
+  // Progress (identification): pass and sample are 1-based; 0 = not started.
+  int pass = 0;
+  int passes = 0;
+  std::int64_t sample = 0;
+  std::int64_t samples = 0;
+  std::vector<double> theta;  // current estimate
+  // Failure or cancellation.
+  int error_code = 0;  // StatusCode
+  std::string error_message;
+  std::int64_t created_ms = 0;
+  std::int64_t started_ms = 0;   // 0 = not started
+  std::int64_t finished_ms = 0;  // 0 = not finished
+};
+
+class Store {
+ public:
+  virtual ~Store() = default;
+
+  // Datasets. put_dataset stores the record and the samples together (all or
+  // nothing); ALREADY_EXISTS if the id is taken.
+  virtual Status put_dataset(const DatasetRecord& record, const Dataset& data) = 0;
+  virtual Result<DatasetRecord> get_dataset(const std::string& tenant, const std::string& id) = 0;
+  virtual Result<Dataset> load_dataset(const std::string& tenant, const std::string& id) = 0;
+  // Oldest first.
+  virtual Result<std::vector<DatasetRecord>> list_datasets(const std::string& tenant) = 0;
+  virtual Status delete_dataset(const std::string& tenant, const std::string& id) = 0;
+
+  // Jobs. put_job inserts (ALREADY_EXISTS if the id is taken); update_job
+  // replaces state, progress, error and times of an existing job (NOT_FOUND).
+  virtual Status put_job(const JobRecord& job) = 0;
+  virtual Status update_job(const JobRecord& job) = 0;
+  virtual Result<JobRecord> get_job(const std::string& tenant, const std::string& id) = 0;
+  // Oldest first.
+  virtual Result<std::vector<JobRecord>> list_jobs(const std::string& tenant) = 0;
+  // Every tenant's jobs in one of these states, oldest first: what a daemon
+  // starting up must run again.
+  virtual Result<std::vector<JobRecord>> jobs_in_states(const std::vector<JobState>& states) = 0;
+
+  // Results: at most one per job, written once (ALREADY_EXISTS after).
+  virtual Status put_result(const std::string& tenant, const std::string& job_id, const std::string& result) = 0;
+  virtual Result<std::string> get_result(const std::string& tenant, const std::string& job_id) = 0;
+
+  // Session snapshots: the latest state of a filter session, replaced on
+  // every put, so that a session can be resumed (opaque bytes).
+  virtual Status put_session_snapshot(const std::string& tenant, const std::string& session_id,
+                                      const std::string& snapshot) = 0;
+  virtual Result<std::string> get_session_snapshot(const std::string& tenant, const std::string& session_id) = 0;
+  virtual Status delete_session_snapshot(const std::string& tenant, const std::string& session_id) = 0;
+};
+
+// Opens (creating if needed) the SQLite store in `path` and brings its schema
+// up to date (versioned migrations, applied in one transaction each).
+Result<std::unique_ptr<Store>> open_sqlite_store(const std::string& path);
+
+}  // namespace riccati

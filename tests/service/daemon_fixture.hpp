@@ -1,0 +1,111 @@
+// A real riccatid, started as a child process on a free loopback port with
+// its own data directory, for tests that talk to it over gRPC.
+#pragma once
+
+#include <grpcpp/grpcpp.h>
+#include <signal.h>
+#include <sys/wait.h>
+#include <unistd.h>
+
+#include <chrono>
+#include <filesystem>
+#include <fstream>
+#include <limits>
+#include <memory>
+#include <stdexcept>
+#include <string>
+#include <thread>
+#include <vector>
+
+namespace riccati::testing {
+
+class DaemonProcess {
+ public:
+  // `data_dir` is kept across stop() and start(), so a restart finds its data.
+  explicit DaemonProcess(std::filesystem::path data_dir, std::vector<std::string> extra_args = {})
+      : data_dir_(std::move(data_dir)), extra_args_(std::move(extra_args)) {}
+  ~DaemonProcess() { kill_now(); }
+
+  void start() {
+    const auto port_file = data_dir_ / "port";
+    std::filesystem::create_directories(data_dir_);
+    std::filesystem::remove(port_file);
+    std::vector<std::string> args = {RICCATI_DAEMON_BIN,
+                                     "--listen", "127.0.0.1:0",
+                                     "--data-dir", data_dir_.string(),
+                                     "--models-dir", RICCATI_TEST_PLUGIN_DIR,
+                                     "--port-file", port_file.string(),
+                                     "--workers", "2",
+                                     "--log-level", "warn"};
+    args.insert(args.end(), extra_args_.begin(), extra_args_.end());
+    pid_ = fork();
+    if (pid_ == 0) {
+      std::vector<char*> argv;
+      for (auto& a : args) argv.push_back(a.data());
+      argv.push_back(nullptr);
+      execv(argv[0], argv.data());
+      _exit(127);
+    }
+    // Wait for the port file (the daemon writes it once it listens).
+    for (int i = 0; i < 1000; ++i) {
+      std::ifstream in(port_file);
+      if (in >> port_ && port_ > 0) break;
+      int status = 0;
+      if (waitpid(pid_, &status, WNOHANG) == pid_) {
+        pid_ = -1;
+        throw std::runtime_error("riccatid exited at start");
+      }
+      std::this_thread::sleep_for(std::chrono::milliseconds(10));
+    }
+    if (port_ <= 0) throw std::runtime_error("riccatid did not start listening");
+    grpc::ChannelArguments channel_args;
+    channel_args.SetMaxReceiveMessageSize(-1);  // unlimited: results of long identifications are large
+    channel_ = grpc::CreateCustomChannel(address(), grpc::InsecureChannelCredentials(), channel_args);
+  }
+
+  // SIGTERM, then wait; returns the exit status (0 for a clean stop).
+  int stop() { return signal_and_wait(SIGTERM); }
+  // SIGKILL, as a crash would.
+  int kill_now() { return signal_and_wait(SIGKILL); }
+
+  std::string address() const { return "127.0.0.1:" + std::to_string(port_); }
+  std::shared_ptr<grpc::Channel> channel() const { return channel_; }
+  const std::filesystem::path& data_dir() const { return data_dir_; }
+
+ private:
+  int signal_and_wait(int sig) {
+    if (pid_ <= 0) return -1;
+    ::kill(pid_, sig);
+    int status = 0;
+    waitpid(pid_, &status, 0);
+    pid_ = -1;
+    port_ = 0;
+    return WIFEXITED(status) ? WEXITSTATUS(status) : 128 + WTERMSIG(status);
+  }
+
+  std::filesystem::path data_dir_;
+  std::vector<std::string> extra_args_;
+  pid_t pid_ = -1;
+  int port_ = 0;
+  std::shared_ptr<grpc::Channel> channel_;
+};
+
+// A fresh directory under the system's temp directory, removed at the end.
+class TempDir {
+ public:
+  TempDir() {
+    std::string tmpl = (std::filesystem::temp_directory_path() / "riccati-test-XXXXXX").string();
+    if (mkdtemp(tmpl.data()) == nullptr) throw std::runtime_error("mkdtemp failed");
+    path_ = tmpl;
+  }
+  ~TempDir() {
+    std::error_code ec;
+    std::filesystem::remove_all(path_, ec);
+  }
+  const std::filesystem::path& path() const { return path_; }
+
+ private:
+  std::filesystem::path path_;
+};
+
+}  // namespace riccati::testing

@@ -1,0 +1,511 @@
+// riccatid over gRPC on a loopback port: jobs, sessions, restarts, bad input.
+// The daemon is the real binary in a child process; references are the
+// engine run in-process on the same data.
+#include <gtest/gtest.h>
+
+#include <fstream>
+#include <sstream>
+#include <thread>
+
+#include "daemon_fixture.hpp"
+#include "engine/identification.hpp"
+#include "engine/plugin_loader.hpp"
+#include "riccati/v1/datasets.grpc.pb.h"
+#include "riccati/v1/jobs.grpc.pb.h"
+#include "riccati/v1/models.grpc.pb.h"
+#include "riccati/v1/sessions.grpc.pb.h"
+
+namespace riccati {
+namespace {
+
+using testing::DaemonProcess;
+using testing::TempDir;
+
+const std::string kData = RICCATI_TEST_DATA_DIR;
+
+std::string read_file(const std::string& path) {
+  std::ifstream in(path, std::ios::binary);
+  std::stringstream ss;
+  ss << in.rdbuf();
+  return ss.str();
+}
+
+class DaemonTest : public ::testing::Test {
+ protected:
+  void SetUp() override {
+    daemon_ = std::make_unique<DaemonProcess>(dir_.path() / "data");
+    daemon_->start();
+    connect();
+  }
+
+  void connect() {
+    models_ = v1::ModelService::NewStub(daemon_->channel());
+    datasets_ = v1::DatasetService::NewStub(daemon_->channel());
+    jobs_ = v1::JobService::NewStub(daemon_->channel());
+    sessions_ = v1::SessionService::NewStub(daemon_->channel());
+  }
+
+  grpc::Status upload(const std::string& name, const std::string& bytes, std::vector<std::string> inputs,
+                      std::vector<std::string> outputs, v1::DatasetInfo* info) {
+    grpc::ClientContext ctx;
+    auto writer = datasets_->UploadDataset(&ctx, info);
+    v1::UploadDatasetRequest header;
+    header.mutable_header()->set_name(name);
+    for (const auto& i : inputs) header.mutable_header()->add_input_columns(i);
+    for (const auto& o : outputs) header.mutable_header()->add_output_columns(o);
+    writer->Write(header);
+    constexpr std::size_t kChunk = 64 * 1024;
+    for (std::size_t at = 0; at < bytes.size(); at += kChunk) {
+      v1::UploadDatasetRequest chunk;
+      chunk.set_chunk(bytes.substr(at, kChunk));
+      writer->Write(chunk);
+    }
+    writer->WritesDone();
+    return writer->Finish();
+  }
+
+  std::string upload_two_tank() {
+    v1::DatasetInfo info;
+    const grpc::Status s = upload("two_tank.csv", read_file(kData + "/two_tank.csv"), {"F1", "F2"}, {"h1", "h2"}, &info);
+    EXPECT_TRUE(s.ok()) << s.error_message();
+    return info.id();
+  }
+
+  // Hensen's settings (two_tank.json): 10 passes from theta0 = [20 20 1 1].
+  static v1::IdentificationSpec hensen(const std::string& dataset_id, int passes = 10) {
+    v1::IdentificationSpec spec;
+    spec.set_model("two_tank");
+    spec.set_dataset_id(dataset_id);
+    spec.mutable_filter()->set_kind(v1::FILTER_KIND_EKF);
+    spec.mutable_filter()->mutable_integrator()->set_kind(v1::INTEGRATOR_KIND_RK4);
+    spec.mutable_filter()->mutable_integrator()->set_substeps(10);
+    for (double r : {1e-3, 1e-3}) spec.mutable_filter()->mutable_r()->mutable_diagonal()->add_values(r);
+    spec.mutable_initial_state()->set_first_measurement(true);
+    for (double v : {20.0, 20.0, 1.0, 1.0}) spec.add_theta0(v);
+    for (double v : {0.0, 0.0, 10.0, 10.0, 10.0, 10.0}) spec.mutable_p0()->mutable_diagonal()->add_values(v);
+    spec.set_passes(passes);
+    return spec;
+  }
+
+  // Watches a job to its end and returns its last state.
+  v1::Job wait_for(const std::string& id) {
+    grpc::ClientContext ctx;
+    ctx.set_deadline(std::chrono::system_clock::now() + std::chrono::seconds(120));
+    v1::WatchJobRequest request;
+    request.set_id(id);
+    auto reader = jobs_->WatchJob(&ctx, request);
+    v1::Job job;
+    while (reader->Read(&job)) {
+    }
+    const grpc::Status s = reader->Finish();
+    EXPECT_TRUE(s.ok()) << s.error_message();
+    return job;
+  }
+
+  v1::JobResult result_of(const std::string& id) {
+    grpc::ClientContext ctx;
+    v1::GetResultRequest request;
+    request.set_job_id(id);
+    v1::JobResult result;
+    const grpc::Status s = jobs_->GetResult(&ctx, request, &result);
+    EXPECT_TRUE(s.ok()) << s.error_message();
+    return result;
+  }
+
+  v1::Job submit(const v1::IdentificationSpec& spec) {
+    grpc::ClientContext ctx;
+    v1::Job job;
+    const grpc::Status s = jobs_->SubmitIdentification(&ctx, spec, &job);
+    EXPECT_TRUE(s.ok()) << s.error_message();
+    return job;
+  }
+
+  void expect_serving() {
+    grpc::ClientContext ctx;
+    v1::ListModelsResponse list;
+    ASSERT_TRUE(models_->ListModels(&ctx, {}, &list).ok());
+    EXPECT_EQ(list.models_size(), 4);
+  }
+
+  TempDir dir_;
+  std::unique_ptr<DaemonProcess> daemon_;
+  std::unique_ptr<v1::ModelService::Stub> models_;
+  std::unique_ptr<v1::DatasetService::Stub> datasets_;
+  std::unique_ptr<v1::JobService::Stub> jobs_;
+  std::unique_ptr<v1::SessionService::Stub> sessions_;
+};
+
+TEST_F(DaemonTest, ListsTheBuiltInModels) {
+  grpc::ClientContext ctx;
+  v1::ListModelsResponse list;
+  ASSERT_TRUE(models_->ListModels(&ctx, {}, &list).ok());
+  std::vector<std::string> names;
+  for (const auto& m : list.models()) names.push_back(m.name());
+  EXPECT_EQ(names, (std::vector<std::string>{"flexible_manipulator", "rotary_pendulum", "rotating_arm", "two_tank"}));
+  grpc::ClientContext ctx2;
+  v1::GetModelRequest get;
+  get.set_name("two_tank");
+  v1::ModelInfo info;
+  ASSERT_TRUE(models_->GetModel(&ctx2, get, &info).ok());
+  EXPECT_EQ(info.param_names_size(), 4);
+  EXPECT_TRUE(info.exact_f_jacobian());
+}
+
+TEST_F(DaemonTest, IdentificationJobEqualsTheEngineInProcess) {
+  const std::string id = upload_two_tank();
+  const v1::Job submitted = submit(hensen(id));
+  EXPECT_EQ(submitted.state(), v1::JOB_STATE_QUEUED);
+  const v1::Job done = wait_for(submitted.id());
+  ASSERT_EQ(done.state(), v1::JOB_STATE_SUCCEEDED) << done.error().message();
+  EXPECT_EQ(done.progress().pass(), 10u);
+  const v1::JobResult result = result_of(submitted.id());
+  ASSERT_TRUE(result.has_identification());
+
+  // The same run in this process, on the same file.
+  auto registry = ModelRegistry::load_directory(RICCATI_TEST_PLUGIN_DIR).value();
+  auto data = read_csv_file(kData + "/two_tank.csv", ColumnMapping{"t", {"F1", "F2"}, {"h1", "h2"}}).value();
+  IdentificationSettings s;
+  s.filter.R = Eigen::Vector2d(1e-3, 1e-3).asDiagonal();
+  s.filter.Q = Eigen::MatrixXd::Zero(6, 6);
+  s.initial_state = InitialState::kFirstMeasurement;
+  s.theta0 = Eigen::Vector4d(20, 20, 1, 1);
+  Eigen::VectorXd p0(6);
+  p0 << 0, 0, 10, 10, 10, 10;
+  s.P0 = p0.asDiagonal();
+  s.passes = 10;
+  auto local = identify(registry.find("two_tank"), data, s);
+  ASSERT_TRUE(local.is_ok());
+  const auto& remote = result.identification();
+  ASSERT_EQ(remote.theta_mean_size(), 4);
+  for (int i = 0; i < 4; ++i) {
+    EXPECT_EQ(remote.theta_mean(i), local.value().theta_mean[i]) << i;  // the same numbers, not close ones
+    EXPECT_EQ(remote.theta_std(i), local.value().theta_std[i]) << i;
+  }
+  EXPECT_EQ(remote.passes_size(), 10);
+  EXPECT_EQ(remote.y_model().cols(), 2000u);
+}
+
+TEST_F(DaemonTest, ValidationJobWithTrueParametersFitsAbove99Point9) {
+  const std::string id = upload_two_tank();
+  v1::ValidationSpec spec;
+  spec.set_model("two_tank");
+  spec.set_dataset_id(id);
+  for (double v : {10.0, 5.0, 0.0791, 0.1342}) spec.mutable_theta()->add_values(v);
+  spec.mutable_initial_state()->set_first_measurement(true);
+  grpc::ClientContext ctx;
+  v1::Job job;
+  ASSERT_TRUE(jobs_->SubmitValidation(&ctx, spec, &job).ok());
+  ASSERT_EQ(wait_for(job.id()).state(), v1::JOB_STATE_SUCCEEDED);
+  const v1::JobResult result = result_of(job.id());
+  ASSERT_TRUE(result.has_validation());
+  ASSERT_EQ(result.validation().fits_size(), 2);
+  for (const auto& fit : result.validation().fits()) EXPECT_GT(fit.fit_percent(), 99.9) << fit.name();
+}
+
+TEST_F(DaemonTest, StreamingASessionEqualsTheOfflineFilter) {
+  // rotary_pendulum_noisy.csv through a UKF session, one measurement per
+  // message, against one pass of the same filter offline.
+  const auto data = read_csv_file(kData + "/rotary_pendulum_noisy.csv", ColumnMapping{"t", {"v"}, {"phi", "alpha"}})
+                        .value();
+  v1::CreateSessionRequest create;
+  create.set_model("rotary_pendulum");
+  create.mutable_filter()->set_kind(v1::FILTER_KIND_UKF);
+  for (double r : {4e-6, 4e-6}) create.mutable_filter()->mutable_r()->mutable_diagonal()->add_values(r);
+  for (double x : {0.0, 0.0, 0.0, 0.0}) create.mutable_initial_state()->add_x0(x);
+  for (double v : {0.06, 0.15, 0.22}) create.add_theta0(v);
+  for (double v : {1e-4, 1e-4, 1e-4, 1e-4, 1e-4, 1e-4, 1e-4}) create.mutable_p0()->mutable_diagonal()->add_values(v);
+  v1::SessionInfo session;
+  {
+    grpc::ClientContext ctx;
+    ASSERT_TRUE(sessions_->CreateSession(&ctx, create, &session).ok());
+  }
+
+  grpc::ClientContext ctx;
+  auto stream = sessions_->Stream(&ctx);
+  v1::StreamRequest open;
+  open.mutable_open()->set_session_id(session.id());
+  ASSERT_TRUE(stream->Write(open));
+  std::vector<v1::Estimate> estimates;
+  for (Eigen::Index k = 0; k < data.size(); ++k) {
+    v1::StreamRequest request;
+    v1::Measurement* m = request.mutable_batch()->add_measurements();
+    m->set_t(data.t[k]);
+    m->add_u(data.u(0, k));
+    m->add_y(data.y(0, k));
+    m->add_y(data.y(1, k));
+    ASSERT_TRUE(stream->Write(request));
+    v1::StreamResponse response;
+    ASSERT_TRUE(stream->Read(&response));
+    ASSERT_EQ(response.results_size(), 1);
+    ASSERT_TRUE(response.results(0).has_estimate()) << response.results(0).error().message();
+    estimates.push_back(response.results(0).estimate());
+  }
+  stream->WritesDone();
+  ASSERT_TRUE(stream->Finish().ok());
+
+  auto registry = ModelRegistry::load_directory(RICCATI_TEST_PLUGIN_DIR).value();
+  IdentificationSettings s;
+  s.filter.kind = FilterKind::kUkf;
+  s.filter.R = Eigen::Vector2d(4e-6, 4e-6).asDiagonal();
+  s.filter.Q = Eigen::MatrixXd::Zero(7, 7);
+  s.x0 = Eigen::VectorXd::Zero(4);
+  s.theta0 = Eigen::Vector3d(0.06, 0.15, 0.22);
+  s.P0 = Eigen::MatrixXd::Identity(7, 7) * 1e-4;
+  auto offline = identify(registry.find("rotary_pendulum"), data, s);
+  ASSERT_TRUE(offline.is_ok()) << offline.status().to_string();
+  ASSERT_EQ(static_cast<Eigen::Index>(estimates.size()), data.size());
+  double worst = 0.0;
+  for (Eigen::Index k = 0; k < data.size(); ++k) {
+    for (int i = 0; i < 4; ++i) worst = std::max(worst, std::abs(estimates[k].state(i) - offline.value().x_trace(i, k)));
+    for (int j = 0; j < 3; ++j) {
+      worst = std::max(worst, std::abs(estimates[k].state(4 + j) - offline.value().passes[0].theta_trace(j, k)));
+    }
+  }
+  EXPECT_LT(worst, 1e-12);
+}
+
+TEST_F(DaemonTest, RestartKeepsDatasetsJobsAndResultsAndFinishesARunningJob) {
+  const std::string dataset = upload_two_tank();
+  const v1::Job quick = submit(hensen(dataset, 1));
+  ASSERT_EQ(wait_for(quick.id()).state(), v1::JOB_STATE_SUCCEEDED);
+  // A long job, stopped while it runs.
+  const v1::Job slow = submit(hensen(dataset, 300));
+  for (int i = 0; i < 500; ++i) {
+    grpc::ClientContext ctx;
+    v1::GetJobRequest get;
+    get.set_id(slow.id());
+    v1::Job job;
+    ASSERT_TRUE(jobs_->GetJob(&ctx, get, &job).ok());
+    if (job.state() == v1::JOB_STATE_RUNNING && job.progress().pass() >= 1) break;
+    std::this_thread::sleep_for(std::chrono::milliseconds(10));
+  }
+  EXPECT_EQ(daemon_->stop(), 0);  // SIGTERM: a clean exit
+
+  daemon_->start();
+  connect();
+  {
+    grpc::ClientContext ctx;
+    v1::GetDatasetRequest get;
+    get.set_id(dataset);
+    v1::DatasetInfo info;
+    ASSERT_TRUE(datasets_->GetDataset(&ctx, get, &info).ok());
+    EXPECT_EQ(info.samples(), 2000u);
+  }
+  {
+    grpc::ClientContext ctx;
+    v1::ListJobsResponse list;
+    ASSERT_TRUE(jobs_->ListJobs(&ctx, {}, &list).ok());
+    EXPECT_EQ(list.jobs_size(), 2);
+  }
+  EXPECT_TRUE(result_of(quick.id()).has_identification());
+  const v1::Job resumed = wait_for(slow.id());
+  EXPECT_EQ(resumed.state(), v1::JOB_STATE_SUCCEEDED) << resumed.error().message();
+  EXPECT_EQ(result_of(slow.id()).identification().passes_size(), 300);
+}
+
+TEST_F(DaemonTest, CancelStopsARunningJob) {
+  const std::string dataset = upload_two_tank();
+  const v1::Job slow = submit(hensen(dataset, 1000));
+  for (int i = 0; i < 500; ++i) {
+    grpc::ClientContext ctx;
+    v1::GetJobRequest get;
+    get.set_id(slow.id());
+    v1::Job job;
+    ASSERT_TRUE(jobs_->GetJob(&ctx, get, &job).ok());
+    if (job.state() == v1::JOB_STATE_RUNNING) break;
+    std::this_thread::sleep_for(std::chrono::milliseconds(10));
+  }
+  grpc::ClientContext ctx;
+  v1::CancelJobRequest cancel;
+  cancel.set_id(slow.id());
+  v1::Job job;
+  ASSERT_TRUE(jobs_->CancelJob(&ctx, cancel, &job).ok());
+  const v1::Job done = wait_for(slow.id());
+  EXPECT_EQ(done.state(), v1::JOB_STATE_CANCELLED);
+  EXPECT_LT(done.progress().pass(), 1000u);
+  grpc::ClientContext ctx2;
+  v1::GetResultRequest get;
+  get.set_job_id(slow.id());
+  v1::JobResult result;
+  EXPECT_EQ(jobs_->GetResult(&ctx2, get, &result).error_code(), grpc::StatusCode::FAILED_PRECONDITION);
+}
+
+TEST_F(DaemonTest, BadInputGetsClearErrorsAndTheDaemonKeepsServing) {
+  v1::DatasetInfo info;
+  // A CSV with a missing column.
+  grpc::Status s = upload("two_tank.csv", read_file(kData + "/two_tank.csv"), {"F1", "F3"}, {"h1", "h2"}, &info);
+  EXPECT_EQ(s.error_code(), grpc::StatusCode::INVALID_ARGUMENT);
+  EXPECT_NE(s.error_message().find("missing column \"F3\""), std::string::npos) << s.error_message();
+  // An empty upload.
+  s = upload("empty.csv", "", {"F1"}, {"h1"}, &info);
+  EXPECT_EQ(s.error_code(), grpc::StatusCode::INVALID_ARGUMENT);
+  EXPECT_NE(s.error_message().find("empty"), std::string::npos) << s.error_message();
+  // Time going backwards.
+  s = upload("back.csv", "t,u,y\n0,1,2\n1,1,2\n0.5,1,2\n", {"u"}, {"y"}, &info);
+  EXPECT_EQ(s.error_code(), grpc::StatusCode::INVALID_ARGUMENT);
+  EXPECT_NE(s.error_message().find("backwards"), std::string::npos) << s.error_message();
+  // A MAT file without T: the two-tank MAT file cut short is not a MAT file any more.
+  const std::string mat = read_file(kData + "/two_tank.mat");
+  s = upload("broken.mat", mat.substr(0, 200), {"F1", "F2"}, {"h1", "h2"}, &info);
+  EXPECT_EQ(s.error_code(), grpc::StatusCode::INVALID_ARGUMENT) << s.error_message();
+  EXPECT_NE(s.error_message().find("broken.mat"), std::string::npos) << s.error_message();
+
+  // Unknown model; wrong sizes.
+  const std::string dataset = upload_two_tank();
+  v1::IdentificationSpec spec = hensen(dataset);
+  spec.set_model("no_such_model");
+  {
+    grpc::ClientContext ctx;
+    v1::Job job;
+    s = jobs_->SubmitIdentification(&ctx, spec, &job);
+    EXPECT_EQ(s.error_code(), grpc::StatusCode::NOT_FOUND);
+    EXPECT_NE(s.error_message().find("no_such_model"), std::string::npos);
+  }
+  spec = hensen(dataset);
+  spec.add_theta0(1.0);  // 5 parameters for a 4-parameter model
+  {
+    grpc::ClientContext ctx;
+    v1::Job job;
+    s = jobs_->SubmitIdentification(&ctx, spec, &job);
+    EXPECT_EQ(s.error_code(), grpc::StatusCode::INVALID_ARGUMENT);
+    EXPECT_NE(s.error_message().find("theta0 needs 4 values, got 5"), std::string::npos) << s.error_message();
+  }
+  spec = hensen("ds-unknown");
+  {
+    grpc::ClientContext ctx;
+    v1::Job job;
+    EXPECT_EQ(jobs_->SubmitIdentification(&ctx, spec, &job).error_code(), grpc::StatusCode::NOT_FOUND);
+  }
+  expect_serving();
+}
+
+TEST_F(DaemonTest, StreamRefusesBadMeasurementsOneByOneAndGoesOn) {
+  v1::CreateSessionRequest create;
+  create.set_model("two_tank");
+  for (double r : {1e-3, 1e-3}) create.mutable_filter()->mutable_r()->mutable_diagonal()->add_values(r);
+  create.mutable_initial_state()->set_first_measurement(true);
+  for (double v : {0.0, 0.0, 1.0, 1.0, 1e-6, 1e-6}) create.mutable_p0()->mutable_diagonal()->add_values(v);
+  v1::SessionInfo session;
+  {
+    grpc::ClientContext ctx;
+    ASSERT_TRUE(sessions_->CreateSession(&ctx, create, &session).ok());
+  }
+  grpc::ClientContext ctx;
+  auto stream = sessions_->Stream(&ctx);
+  v1::StreamRequest open;
+  open.mutable_open()->set_session_id(session.id());
+  ASSERT_TRUE(stream->Write(open));
+  v1::StreamRequest request;
+  auto add = [&](double t, std::vector<double> u, std::vector<double> y) {
+    v1::Measurement* m = request.mutable_batch()->add_measurements();
+    m->set_t(t);
+    for (double v : u) m->add_u(v);
+    for (double v : y) m->add_y(v);
+  };
+  add(0.0, {0.1, 0.03}, {0.4, 0.15});
+  add(1.0, {0.1, 0.03}, {std::nan(""), 0.15});  // NaN
+  add(1.0, {0.1}, {0.4, 0.15});                 // wrong size
+  add(1.0, {0.1, 0.03}, {0.4, 0.15});           // fine
+  add(0.5, {0.1, 0.03}, {0.4, 0.15});           // time going backwards
+  add(2.0, {0.1, 0.03}, {0.41, 0.15});          // fine
+  ASSERT_TRUE(stream->Write(request));
+  v1::StreamResponse response;
+  ASSERT_TRUE(stream->Read(&response));
+  ASSERT_EQ(response.results_size(), 6);
+  EXPECT_TRUE(response.results(0).has_estimate());
+  EXPECT_EQ(response.results(1).error().code(), static_cast<int>(grpc::StatusCode::INVALID_ARGUMENT));
+  EXPECT_NE(response.results(1).error().message().find("output h1 is not finite"), std::string::npos);
+  EXPECT_NE(response.results(2).error().message().find("needs 2 inputs"), std::string::npos);
+  EXPECT_TRUE(response.results(3).has_estimate());
+  EXPECT_NE(response.results(4).error().message().find("backwards"), std::string::npos);
+  EXPECT_TRUE(response.results(5).has_estimate());
+  EXPECT_EQ(response.results(5).sequence(), 5u);
+
+  // A second stream on the same session is refused while this one is open.
+  {
+    grpc::ClientContext ctx2;
+    auto second = sessions_->Stream(&ctx2);
+    ASSERT_TRUE(second->Write(open));
+    second->WritesDone();
+    v1::StreamResponse ignored;
+    EXPECT_FALSE(second->Read(&ignored));
+    EXPECT_EQ(second->Finish().error_code(), grpc::StatusCode::FAILED_PRECONDITION);
+  }
+  stream->WritesDone();
+  ASSERT_TRUE(stream->Finish().ok());
+
+  // After a disconnect the session can be resumed, and remembers its state.
+  grpc::ClientContext ctx3;
+  auto resumed = sessions_->Stream(&ctx3);
+  ASSERT_TRUE(resumed->Write(open));
+  v1::StreamRequest next;
+  v1::Measurement* m = next.mutable_batch()->add_measurements();
+  m->set_t(1.5);  // not after t = 2: refused, so the session kept its time
+  m->add_u(0.1);
+  m->add_u(0.03);
+  m->add_y(0.4);
+  m->add_y(0.15);
+  ASSERT_TRUE(resumed->Write(next));
+  ASSERT_TRUE(resumed->Read(&response));
+  EXPECT_NE(response.results(0).error().message().find("after t = 2"), std::string::npos)
+      << response.results(0).error().message();
+  resumed->WritesDone();
+  EXPECT_TRUE(resumed->Finish().ok());
+
+  grpc::ClientContext close_ctx;
+  v1::CloseSessionRequest close;
+  close.set_id(session.id());
+  v1::CloseSessionResponse closed;
+  EXPECT_TRUE(sessions_->CloseSession(&close_ctx, close, &closed).ok());
+  grpc::ClientContext get_ctx;
+  v1::GetSessionRequest get;
+  get.set_id(session.id());
+  EXPECT_EQ(sessions_->GetSession(&get_ctx, get, &session).error_code(), grpc::StatusCode::NOT_FOUND);
+}
+
+TEST_F(DaemonTest, AStreamAndAJobDoNotBlockEachOther) {
+  const std::string dataset = upload_two_tank();
+  const v1::Job slow = submit(hensen(dataset, 400));
+  v1::CreateSessionRequest create;
+  create.set_model("two_tank");
+  for (double r : {1e-3, 1e-3}) create.mutable_filter()->mutable_r()->mutable_diagonal()->add_values(r);
+  create.mutable_initial_state()->set_first_measurement(true);
+  for (double v : {0.0, 0.0, 1.0, 1.0, 1e-6, 1e-6}) create.mutable_p0()->mutable_diagonal()->add_values(v);
+  v1::SessionInfo session;
+  {
+    grpc::ClientContext ctx;
+    ASSERT_TRUE(sessions_->CreateSession(&ctx, create, &session).ok());
+  }
+  grpc::ClientContext ctx;
+  auto stream = sessions_->Stream(&ctx);
+  v1::StreamRequest open;
+  open.mutable_open()->set_session_id(session.id());
+  ASSERT_TRUE(stream->Write(open));
+  for (int k = 0; k < 200; ++k) {
+    v1::StreamRequest request;
+    v1::Measurement* m = request.mutable_batch()->add_measurements();
+    m->set_t(k);
+    m->add_u(0.1);
+    m->add_u(0.03);
+    m->add_y(0.4);
+    m->add_y(0.15);
+    ASSERT_TRUE(stream->Write(request));
+    v1::StreamResponse response;
+    ASSERT_TRUE(stream->Read(&response));
+    ASSERT_TRUE(response.results(0).has_estimate());
+  }
+  stream->WritesDone();
+  ASSERT_TRUE(stream->Finish().ok());
+  // All 200 round trips happened while the 400-pass job (seconds of work)
+  // was still running on the worker pool.
+  grpc::ClientContext get_ctx;
+  v1::GetJobRequest get;
+  get.set_id(slow.id());
+  v1::Job job;
+  ASSERT_TRUE(jobs_->GetJob(&get_ctx, get, &job).ok());
+  EXPECT_EQ(job.state(), v1::JOB_STATE_RUNNING);
+  EXPECT_LT(job.progress().pass(), 400u);
+}
+
+}  // namespace
+}  // namespace riccati
