@@ -1,0 +1,105 @@
+// The `riccati` commands: each talks to riccatid through the API and prints
+// a table (or JSON with --json). Every command returns a process exit code.
+#pragma once
+
+#include <grpcpp/grpcpp.h>
+
+#include <memory>
+#include <string>
+#include <vector>
+
+#include "riccati/v1/datasets.grpc.pb.h"
+#include "riccati/v1/jobs.grpc.pb.h"
+#include "riccati/v1/models.grpc.pb.h"
+#include "riccati/v1/sessions.grpc.pb.h"
+#include "settings.hpp"
+
+namespace riccati::cli {
+
+// Exit codes scripts can rely on.
+enum ExitCode : int {
+  kExitOk = 0,
+  kExitFailed = 1,       // the operation failed: a job failed or was cancelled, input was refused
+  kExitUsage = 2,        // bad flags, an unreadable local file
+  kExitUnreachable = 3,  // riccatid could not be reached (UNAVAILABLE, DEADLINE_EXCEEDED)
+  kExitNotFound = 4,     // no such model, dataset, job or session
+};
+
+int exit_code_for(grpc::StatusCode code);
+
+struct Client {
+  Client(const std::string& address, double timeout_s, bool json);
+
+  std::shared_ptr<grpc::Channel> channel;
+  std::unique_ptr<v1::ModelService::Stub> models;
+  std::unique_ptr<v1::DatasetService::Stub> datasets;
+  std::unique_ptr<v1::JobService::Stub> jobs;
+  std::unique_ptr<v1::SessionService::Stub> sessions;
+  double timeout_s;
+  bool json;
+
+  // A context with the unary deadline.
+  std::unique_ptr<grpc::ClientContext> context() const;
+  // Prints "riccati: <what>: <message>" and returns the exit code for it.
+  int fail(const std::string& what, const grpc::Status& status) const;
+};
+
+// A table of numbers read from a local CSV file (header row).
+struct CsvTable {
+  std::vector<std::string> columns;
+  std::vector<std::vector<double>> rows;
+  int column(const std::string& name) const;
+};
+bool read_csv(const std::string& path, CsvTable* out, std::string* error);
+
+int models_list(Client& c);
+int models_show(Client& c, const std::string& name);
+
+struct UploadOptions {
+  std::string file, name, time = "t";
+  std::vector<std::string> inputs, outputs;
+};
+int data_upload(Client& c, const UploadOptions& o, std::string* dataset_id = nullptr);
+int data_list(Client& c);
+int data_show(Client& c, const std::string& id);
+int data_delete(Client& c, const std::string& id);
+
+int identify(Client& c, const RunSettings& s, bool wait);
+int jobs_list(Client& c);
+int job_show(Client& c, const std::string& id);
+int job_watch(Client& c, const std::string& id);
+int job_cancel(Client& c, const std::string& id);
+int result(Client& c, const std::string& id, const std::string& format, const std::string& output,
+           const std::vector<double>& truth);
+
+struct ValidateOptions {
+  std::string model, params, data, x0 = "first", hold, integrator = "rk4", time = "t";
+  std::vector<std::string> inputs, outputs;
+  int substeps = 10;
+};
+int validate(Client& c, const ValidateOptions& o);
+
+struct StreamOptions {
+  RunSettings settings;
+  std::string file, output, time = "t";
+  double rate = 0.0;
+  int batch = 1;
+  bool full_covariance = false;
+  bool keep = false;
+};
+int stream(Client& c, const StreamOptions& o);
+
+struct SimulateOptions {
+  std::string model, params, inputs_file, time = "t", output, x0;
+  std::vector<std::string> input_columns;
+  std::string hold, integrator = "rk4";
+  int substeps = 10;
+};
+int simulate(Client& c, const SimulateOptions& o);
+
+// Formatting, shared by the commands (and tested on its own).
+std::string parameter_table(const v1::IdentificationResult& r, const std::vector<double>& initial,
+                            const std::vector<double>& truth);
+std::string fit_table(const v1::ValidationResult& r);
+
+}  // namespace riccati::cli

@@ -1,0 +1,155 @@
+// End to end through the `riccati` command against a real riccatid on a
+// loopback port: what a user types, checked against the engine in-process.
+#include <gtest/gtest.h>
+
+#include <array>
+#include <cstdio>
+#include <fstream>
+#include <sstream>
+#include <nlohmann/json.hpp>
+
+#include "../service/daemon_fixture.hpp"
+#include "engine/identification.hpp"
+#include "engine/plugin_loader.hpp"
+
+namespace riccati {
+namespace {
+
+const std::string kData = RICCATI_TEST_DATA_DIR;
+
+struct CliRun {
+  int exit_code;
+  std::string out;
+};
+
+class CliTest : public ::testing::Test {
+ protected:
+  void SetUp() override {
+    daemon_ = std::make_unique<testing::DaemonProcess>(dir_.path() / "data");
+    daemon_->start();
+  }
+
+  // Runs `riccati --server ADDR <args>`; stdout captured, stderr to a file.
+  CliRun riccati(const std::string& args) {
+    const std::string command = std::string(RICCATI_CLI_BIN) + " --server " + daemon_->address() + " " + args +
+                                " 2>" + (dir_.path() / "stderr").string();
+    CliRun run{0, ""};
+    std::FILE* pipe = popen(command.c_str(), "r");
+    std::array<char, 4096> buffer;
+    std::size_t n;
+    while ((n = std::fread(buffer.data(), 1, buffer.size(), pipe)) > 0) run.out.append(buffer.data(), n);
+    const int status = pclose(pipe);
+    run.exit_code = WIFEXITED(status) ? WEXITSTATUS(status) : -1;
+    return run;
+  }
+
+  std::string last_stderr() {
+    std::ifstream in(dir_.path() / "stderr");
+    return std::string(std::istreambuf_iterator<char>(in), {});
+  }
+
+  testing::TempDir dir_;
+  std::unique_ptr<testing::DaemonProcess> daemon_;
+};
+
+TEST_F(CliTest, UploadIdentifyAndValidateTheTwoTank) {
+  const CliRun upload = riccati("data upload " + kData + "/two_tank.csv --inputs F1,F2 --outputs h1,h2");
+  ASSERT_EQ(upload.exit_code, 0) << last_stderr();
+  const std::string dataset = upload.out.substr(0, upload.out.find('\n'));
+  ASSERT_EQ(dataset.rfind("ds-", 0), 0u) << upload.out;
+
+  const CliRun identified = riccati("--json identify --config " + std::string(RICCATI_EXAMPLES_DIR) +
+                                 "/two_tank_hensen.yaml --data " + dataset);
+  ASSERT_EQ(identified.exit_code, 0) << last_stderr();
+  const auto result = nlohmann::json::parse(identified.out);
+  const auto& mean = result["identification"]["theta_mean"];
+  ASSERT_EQ(mean.size(), 4u);
+
+  // The engine in this process, on the same file, with the same settings.
+  auto registry = ModelRegistry::load_directory(RICCATI_TEST_PLUGIN_DIR).value();
+  auto data = read_csv_file(kData + "/two_tank.csv", ColumnMapping{"t", {"F1", "F2"}, {"h1", "h2"}}).value();
+  IdentificationSettings s;
+  s.filter.R = Eigen::Vector2d(1e-3, 1e-3).asDiagonal();
+  s.filter.Q = Eigen::MatrixXd::Zero(6, 6);
+  s.initial_state = InitialState::kFirstMeasurement;
+  s.theta0 = Eigen::Vector4d(20, 20, 1, 1);
+  Eigen::VectorXd p0(6);
+  p0 << 0, 0, 10, 10, 10, 10;
+  s.P0 = p0.asDiagonal();
+  s.passes = 10;
+  const auto local = identify(registry.find("two_tank"), data, s);
+  ASSERT_TRUE(local.is_ok());
+  for (int i = 0; i < 4; ++i) {
+    // JSON carries doubles exactly (shortest round-trip form): the same numbers.
+    EXPECT_EQ(mean[i].get<double>(), local.value().theta_mean[i]) << i;
+  }
+
+  // The human table, with the truth from the job file.
+  const CliRun table = riccati("jobs");
+  ASSERT_EQ(table.exit_code, 0);
+  EXPECT_NE(table.out.find("succeeded"), std::string::npos) << table.out;
+
+  const CliRun validated = riccati("validate --model two_tank --params 10,5,0.0791,0.1342 --data " + dataset);
+  ASSERT_EQ(validated.exit_code, 0) << last_stderr();
+  // Rows "h1  RMSE  fit%  VAF%  RRSE": the fit column above 99.9.
+  for (const char* output : {"h1", "h2"}) {
+    const auto row = validated.out.find(std::string("\n") + output);
+    ASSERT_NE(row, std::string::npos) << validated.out;
+    std::istringstream fields(validated.out.substr(row + 1));
+    std::string name;
+    double rmse = 0, fit = 0;
+    fields >> name >> rmse >> fit;
+    EXPECT_GT(fit, 99.9) << output;
+  }
+}
+
+TEST_F(CliTest, ExitCodesAndMessagesForBadInput) {
+  // A missing column: refused by the daemon (1) with the column named.
+  CliRun r = riccati("data upload " + kData + "/two_tank.csv --inputs F1,F9 --outputs h1,h2");
+  EXPECT_EQ(r.exit_code, 1);
+  EXPECT_NE(last_stderr().find("missing column \"F9\""), std::string::npos) << last_stderr();
+  // Unknown model: not found (4).
+  r = riccati("models show no_such_model");
+  EXPECT_EQ(r.exit_code, 4);
+  // A bad flag: usage (2).
+  r = riccati("identify --model two_tank --data x --p0 1,abc");
+  EXPECT_EQ(r.exit_code, 2);
+  EXPECT_NE(last_stderr().find("\"abc\" is not a number"), std::string::npos) << last_stderr();
+  // A job file with a typo: usage (2), naming the key.
+  const auto job_file = dir_.path() / "job.yaml";
+  std::ofstream(job_file) << "model: two_tank\npasess: 3\n";
+  r = riccati("identify --config " + job_file.string() + " --data x");
+  EXPECT_EQ(r.exit_code, 2);
+  EXPECT_NE(last_stderr().find("unknown key \"pasess\""), std::string::npos) << last_stderr();
+  // No daemon there: unreachable (3).
+  const std::string command = std::string(RICCATI_CLI_BIN) + " --server 127.0.0.1:1 --timeout 2 models 2>/dev/null";
+  EXPECT_EQ(WEXITSTATUS(std::system(command.c_str())), 3);
+}
+
+TEST_F(CliTest, StreamReplaysAFileIntoASession) {
+  const auto out = dir_.path() / "estimates.csv";
+  const CliRun r = riccati("stream --model two_tank --data " + kData +
+                        "/two_tank_noisy.csv --inputs F1,F2 --outputs h1,h2 --r 2.5e-5 --p0 0,0,1,1,1e-6,1e-6 "
+                        "--theta0 10,5,0.08,0.13 --batch 16 -o " + out.string());
+  ASSERT_EQ(r.exit_code, 0) << last_stderr();
+  EXPECT_NE(last_stderr().find("2000 estimates, 0 refused"), std::string::npos) << last_stderr();
+  std::ifstream in(out);
+  std::string header, line, last;
+  std::getline(in, header);
+  EXPECT_EQ(header.rfind("t,h1,h2,A1,A2,k1,k2", 0), 0u) << header;
+  int rows = 0;
+  while (std::getline(in, line)) {
+    ++rows;
+    last = line;
+  }
+  EXPECT_EQ(rows, 2000);
+  // k1 and k2 tracked close to the truth by the end of the noisy data.
+  std::istringstream fields(last);
+  std::vector<double> v;
+  for (std::string cell; std::getline(fields, cell, ',');) v.push_back(std::stod(cell));
+  EXPECT_NEAR(v[5], 0.0791, 0.002);
+  EXPECT_NEAR(v[6], 0.1342, 0.003);
+}
+
+}  // namespace
+}  // namespace riccati
