@@ -1,1 +1,253 @@
+// The Store contract, run against every implementation (today SQLite; the
+// PostgreSQL store joins the parameter list when it exists).
 #include <gtest/gtest.h>
+
+#include <cmath>
+#include <filesystem>
+#include <functional>
+#include <limits>
+#include <atomic>
+#include <cstring>
+#include <random>
+#include <thread>
+
+#include <sqlite3.h>
+
+#include "store/store.hpp"
+
+namespace riccati {
+namespace {
+
+class TempDir {
+ public:
+  TempDir() {
+    std::string tmpl = (std::filesystem::temp_directory_path() / "riccati-store-XXXXXX").string();
+    path_ = mkdtemp(tmpl.data());
+  }
+  ~TempDir() { std::filesystem::remove_all(path_); }
+  const std::filesystem::path& path() const { return path_; }
+
+ private:
+  std::filesystem::path path_;
+};
+
+struct StoreKind {
+  const char* name;
+  // Opens the store kept at `dir` (the same dir gives the same data).
+  std::function<Result<std::unique_ptr<Store>>(const std::filesystem::path& dir)> open;
+};
+
+class StoreTest : public ::testing::TestWithParam<StoreKind> {
+ protected:
+  std::unique_ptr<Store> open() {
+    auto s = GetParam().open(dir_.path());
+    EXPECT_TRUE(s.is_ok()) << s.status().to_string();
+    return std::move(s).value();
+  }
+
+  static Dataset random_dataset(int n, unsigned seed) {
+    std::mt19937 rng(seed);
+    std::uniform_real_distribution<double> uniform(-1.0, 1.0);
+    Dataset d;
+    d.name = "random.csv";
+    d.input_names = {"u1", "u2"};
+    d.output_names = {"y"};
+    d.t.resize(n);
+    d.u.resize(2, n);
+    d.y.resize(1, n);
+    for (int k = 0; k < n; ++k) {
+      d.t[k] = 0.001 * k;
+      d.u(0, k) = uniform(rng) * 1e300;
+      d.u(1, k) = uniform(rng) * 1e-300;
+      d.y(0, k) = uniform(rng);
+    }
+    d.y(0, 0) = -0.0;  // the sign of zero survives too
+    return d;
+  }
+
+  static DatasetRecord record_for(const std::string& id, const std::string& tenant, const Dataset& d,
+                                  std::int64_t created) {
+    DatasetRecord r;
+    r.id = id;
+    r.tenant = tenant;
+    r.name = d.name;
+    r.format = "csv";
+    r.input_names = d.input_names;
+    r.output_names = d.output_names;
+    r.samples = d.size();
+    r.t_start = d.t[0];
+    r.t_end = d.t[d.size() - 1];
+    r.size_bytes = 1234;
+    r.created_ms = created;
+    return r;
+  }
+
+  static JobRecord job(const std::string& id, const std::string& tenant, std::int64_t created) {
+    JobRecord j;
+    j.id = id;
+    j.tenant = tenant;
+    j.kind = "identification";
+    j.spec = std::string("\x00\x01spec", 6);  // binary-safe
+    j.passes = 10;
+    j.samples = 2000;
+    j.created_ms = created;
+    return j;
+  }
+
+  TempDir dir_;
+};
+
+TEST_P(StoreTest, DatasetRoundTripIsBitExact) {
+  auto store = open();
+  const Dataset d = random_dataset(500, 1);
+  ASSERT_TRUE(store->put_dataset(record_for("ds-1", "alice", d, 10), d).is_ok());
+  auto loaded = store->load_dataset("alice", "ds-1");
+  ASSERT_TRUE(loaded.is_ok()) << loaded.status().to_string();
+  EXPECT_EQ(std::memcmp(loaded.value().u.data(), d.u.data(), sizeof(double) * d.u.size()), 0);
+  EXPECT_EQ(std::memcmp(loaded.value().y.data(), d.y.data(), sizeof(double) * d.y.size()), 0);
+  EXPECT_EQ(std::memcmp(loaded.value().t.data(), d.t.data(), sizeof(double) * d.t.size()), 0);
+  EXPECT_TRUE(std::signbit(loaded.value().y(0, 0)));
+  EXPECT_EQ(loaded.value().input_names, d.input_names);
+  auto rec = store->get_dataset("alice", "ds-1");
+  ASSERT_TRUE(rec.is_ok());
+  EXPECT_EQ(rec.value().samples, 500);
+  EXPECT_EQ(rec.value().output_names, std::vector<std::string>{"y"});
+}
+
+TEST_P(StoreTest, TenantsSeeOnlyTheirOwnRecords) {
+  auto store = open();
+  const Dataset d = random_dataset(10, 2);
+  ASSERT_TRUE(store->put_dataset(record_for("ds-a", "alice", d, 1), d).is_ok());
+  ASSERT_TRUE(store->put_job(job("job-a", "alice", 1)).is_ok());
+  ASSERT_TRUE(store->put_result("alice", "job-a", "result").is_ok());
+  ASSERT_TRUE(store->put_session_snapshot("alice", "ses-a", "snap").is_ok());
+
+  EXPECT_EQ(store->get_dataset("bob", "ds-a").status().code(), StatusCode::kNotFound);
+  EXPECT_EQ(store->load_dataset("bob", "ds-a").status().code(), StatusCode::kNotFound);
+  EXPECT_TRUE(store->list_datasets("bob").value().empty());
+  EXPECT_EQ(store->delete_dataset("bob", "ds-a").code(), StatusCode::kNotFound);
+  EXPECT_EQ(store->get_job("bob", "job-a").status().code(), StatusCode::kNotFound);
+  EXPECT_TRUE(store->list_jobs("bob").value().empty());
+  JobRecord stolen = job("job-a", "bob", 1);
+  stolen.state = JobState::kCancelled;
+  EXPECT_EQ(store->update_job(stolen).code(), StatusCode::kNotFound);
+  EXPECT_EQ(store->get_result("bob", "job-a").status().code(), StatusCode::kNotFound);
+  EXPECT_EQ(store->get_session_snapshot("bob", "ses-a").status().code(), StatusCode::kNotFound);
+  EXPECT_EQ(store->put_session_snapshot("bob", "ses-a", "overwrite").code(), StatusCode::kNotFound);
+  // Another tenant's id reads exactly as a missing one: no hint that it exists.
+  EXPECT_EQ(store->get_job("bob", "job-a").status().message(), "no job job-a");
+  // Alice still has everything, unchanged.
+  EXPECT_EQ(store->get_job("alice", "job-a").value().state, JobState::kQueued);
+  EXPECT_EQ(store->get_session_snapshot("alice", "ses-a").value(), "snap");
+}
+
+TEST_P(StoreTest, DuplicatesAndMissingRecords) {
+  auto store = open();
+  const Dataset d = random_dataset(10, 3);
+  ASSERT_TRUE(store->put_dataset(record_for("ds-1", "t", d, 1), d).is_ok());
+  EXPECT_EQ(store->put_dataset(record_for("ds-1", "t", d, 2), d).code(), StatusCode::kAlreadyExists);
+  ASSERT_TRUE(store->put_job(job("job-1", "t", 1)).is_ok());
+  EXPECT_EQ(store->put_job(job("job-1", "t", 2)).code(), StatusCode::kAlreadyExists);
+  ASSERT_TRUE(store->put_result("t", "job-1", "first").is_ok());
+  EXPECT_EQ(store->put_result("t", "job-1", "second").code(), StatusCode::kAlreadyExists);
+  EXPECT_EQ(store->get_result("t", "job-1").value(), "first");
+  EXPECT_EQ(store->update_job(job("job-2", "t", 1)).code(), StatusCode::kNotFound);
+  EXPECT_EQ(store->delete_dataset("t", "ds-2").code(), StatusCode::kNotFound);
+  ASSERT_TRUE(store->delete_dataset("t", "ds-1").is_ok());
+  EXPECT_EQ(store->load_dataset("t", "ds-1").status().code(), StatusCode::kNotFound);
+}
+
+TEST_P(StoreTest, JobsUpdateListAndUnfinishedStates) {
+  auto store = open();
+  for (int i = 0; i < 4; ++i) ASSERT_TRUE(store->put_job(job("job-" + std::to_string(i), i % 2 ? "a" : "b", 100 - i)).is_ok());
+  JobRecord j = store->get_job("b", "job-0").value();
+  j.state = JobState::kRunning;
+  j.pass = 3;
+  j.sample = 17;
+  j.theta = {1.5, -2.5};
+  j.started_ms = 5;
+  ASSERT_TRUE(store->update_job(j).is_ok());
+  JobRecord done = store->get_job("a", "job-1").value();
+  done.state = JobState::kFailed;
+  done.error_code = 9;
+  done.error_message = "diverged";
+  ASSERT_TRUE(store->update_job(done).is_ok());
+
+  const JobRecord back = store->get_job("b", "job-0").value();
+  EXPECT_EQ(back.state, JobState::kRunning);
+  EXPECT_EQ(back.pass, 3);
+  EXPECT_EQ(back.theta, (std::vector<double>{1.5, -2.5}));
+  EXPECT_EQ(back.spec, j.spec);
+  EXPECT_EQ(store->get_job("a", "job-1").value().error_message, "diverged");
+
+  const auto unfinished = store->jobs_in_states({JobState::kQueued, JobState::kRunning}).value();
+  std::vector<std::string> ids;
+  for (const auto& u : unfinished) ids.push_back(u.id);
+  EXPECT_EQ(ids, (std::vector<std::string>{"job-3", "job-2", "job-0"}));  // oldest first, every tenant
+  const auto listed = store->list_jobs("a").value();
+  ASSERT_EQ(listed.size(), 2u);
+  EXPECT_EQ(listed[0].id, "job-3");
+}
+
+TEST_P(StoreTest, ReopeningFindsEverything) {
+  const Dataset d = random_dataset(20, 4);
+  {
+    auto store = open();
+    ASSERT_TRUE(store->put_dataset(record_for("ds-1", "t", d, 1), d).is_ok());
+    ASSERT_TRUE(store->put_job(job("job-1", "t", 1)).is_ok());
+    ASSERT_TRUE(store->put_result("t", "job-1", "r").is_ok());
+  }
+  auto store = open();
+  EXPECT_TRUE(store->load_dataset("t", "ds-1").value().y.isApprox(d.y));
+  EXPECT_EQ(store->get_job("t", "job-1").value().kind, "identification");
+  EXPECT_EQ(store->get_result("t", "job-1").value(), "r");
+}
+
+TEST_P(StoreTest, ConcurrentWritersAndReaders) {
+  auto store = open();
+  std::vector<std::thread> threads;
+  std::atomic<int> failures{0};
+  for (int w = 0; w < 4; ++w) {
+    threads.emplace_back([&, w] {
+      for (int i = 0; i < 50; ++i) {
+        const std::string id = "job-" + std::to_string(w) + "-" + std::to_string(i);
+        if (!store->put_job(job(id, "t", i)).is_ok()) ++failures;
+        if (!store->get_job("t", id).is_ok()) ++failures;
+        if (!store->list_jobs("t").is_ok()) ++failures;
+      }
+    });
+  }
+  for (auto& t : threads) t.join();
+  EXPECT_EQ(failures.load(), 0);
+  EXPECT_EQ(store->list_jobs("t").value().size(), 200u);
+}
+
+INSTANTIATE_TEST_SUITE_P(
+    Stores, StoreTest,
+    ::testing::Values(StoreKind{"sqlite",
+                                [](const std::filesystem::path& dir) {
+                                  return open_sqlite_store((dir / "riccati.db").string());
+                                }}),
+    [](const auto& test_info) { return std::string(test_info.param.name); });
+
+TEST(SqliteStore, RefusesANewerSchemaAndAMissingDirectory) {
+  TempDir dir;
+  const std::string path = (dir.path() / "riccati.db").string();
+  ASSERT_TRUE(open_sqlite_store(path).is_ok());
+  ASSERT_TRUE(open_sqlite_store(path).is_ok());  // migrations are idempotent
+  sqlite3* db = nullptr;
+  ASSERT_EQ(sqlite3_open(path.c_str(), &db), SQLITE_OK);
+  ASSERT_EQ(sqlite3_exec(db, "PRAGMA user_version = 999", nullptr, nullptr, nullptr), SQLITE_OK);
+  sqlite3_close(db);
+  auto newer = open_sqlite_store(path);
+  ASSERT_FALSE(newer.is_ok());
+  EXPECT_EQ(newer.status().code(), StatusCode::kFailedPrecondition);
+  EXPECT_NE(newer.status().message().find("upgrade riccatid"), std::string::npos) << newer.status().message();
+
+  auto missing = open_sqlite_store((dir.path() / "no" / "such" / "dir" / "riccati.db").string());
+  ASSERT_FALSE(missing.is_ok());
+  EXPECT_NE(missing.status().message().find("no/such/dir"), std::string::npos) << missing.status().message();
+}
+
+}  // namespace
+}  // namespace riccati

@@ -1,0 +1,120 @@
+// The CLI's job files and flags, turned into API requests (no daemon).
+#include <gtest/gtest.h>
+
+#include <filesystem>
+#include <fstream>
+
+#include "commands.hpp"
+#include "settings.hpp"
+
+namespace riccati::cli {
+namespace {
+
+v1::ModelInfo two_tank() {
+  v1::ModelInfo m;
+  m.set_name("two_tank");
+  for (const char* n : {"h1", "h2"}) m.add_state_names(n);
+  for (const char* n : {"A1", "A2", "k1", "k2"}) m.add_param_names(n);
+  for (const char* n : {"F1", "F2"}) m.add_input_names(n);
+  for (const char* n : {"h1", "h2"}) m.add_output_names(n);
+  return m;
+}
+
+std::string write(const std::string& name, const std::string& text) {
+  const auto path = std::filesystem::temp_directory_path() / name;
+  std::ofstream(path) << text;
+  return path.string();
+}
+
+TEST(JobFile, ScalarsListsAndMatricesBecomeCovariances) {
+  RunSettings s;
+  std::string error;
+  ASSERT_TRUE(load_job_file(write("riccati-job-1.yaml",
+                                  "model: two_tank\nfilter: ukf\npasses: 10\nx0: first\ntheta0: [20, 20, 1, 1]\n"
+                                  "P0: [0, 0, 10, 10, 10, 10]\nQ: 0\nR: [[1e-3, 1e-4], [1e-4, 2e-3]]\n"
+                                  "integrator: {kind: cvode-bdf, rtol: 1e-9}\nukf: {weights: scaled, alpha: 0.5}\n"),
+                            &s, &error))
+      << error;
+  v1::IdentificationSpec spec;
+  ASSERT_TRUE(to_identification_spec(s, two_tank(), "ds-1", &spec, &error)) << error;
+  EXPECT_EQ(spec.passes(), 10u);
+  EXPECT_EQ(spec.filter().kind(), v1::FILTER_KIND_UKF);
+  EXPECT_TRUE(spec.initial_state().first_measurement());
+  ASSERT_EQ(spec.p0().diagonal().values_size(), 6);
+  EXPECT_EQ(spec.p0().diagonal().values(2), 10.0);
+  ASSERT_EQ(spec.filter().q().diagonal().values_size(), 6);  // one value: the whole diagonal
+  EXPECT_EQ(spec.filter().q().diagonal().values(5), 0.0);
+  ASSERT_EQ(spec.filter().r().full().values_size(), 4);
+  EXPECT_EQ(spec.filter().r().full().values(1), 1e-4);  // column-major (1, 0)
+  EXPECT_EQ(spec.filter().integrator().kind(), v1::INTEGRATOR_KIND_CVODE_BDF);
+  EXPECT_EQ(spec.filter().integrator().rtol(), 1e-9);
+  EXPECT_EQ(spec.filter().ukf().weights(), v1::SIGMA_WEIGHTS_SCALED);
+  EXPECT_EQ(spec.filter().ukf().alpha(), 0.5);
+}
+
+TEST(JobFile, FlagsOverrideTheFile) {
+  RunSettings file;
+  std::string error;
+  ASSERT_TRUE(load_job_file(write("riccati-job-2.yaml", "model: two_tank\npasses: 10\nR: 1e-3\nP0: 1\n"), &file,
+                            &error));
+  RunSettings flags;
+  flags.passes = 3;
+  flags.r = matrix_from_list({2e-3, 3e-3});
+  overlay(flags, &file);
+  v1::IdentificationSpec spec;
+  ASSERT_TRUE(to_identification_spec(file, two_tank(), "ds-1", &spec, &error)) << error;
+  EXPECT_EQ(spec.passes(), 3u);
+  EXPECT_EQ(spec.filter().r().diagonal().values(1), 3e-3);
+  EXPECT_EQ(spec.model(), "two_tank");
+}
+
+TEST(JobFile, ErrorsNameTheKey) {
+  RunSettings s;
+  std::string error;
+  EXPECT_FALSE(load_job_file(write("riccati-job-3.yaml", "model: two_tank\npases: 3\n"), &s, &error));
+  EXPECT_NE(error.find("unknown key \"pases\" (line 2)"), std::string::npos) << error;
+  EXPECT_FALSE(load_job_file(write("riccati-job-4.yaml", "passes: many\n"), &s, &error));
+  EXPECT_NE(error.find("\"passes\""), std::string::npos) << error;
+  RunSettings sizes;
+  sizes.r = matrix_from_list({1e-3, 1e-3, 1e-3});
+  sizes.p0 = matrix_from_list({1});
+  v1::IdentificationSpec spec;
+  EXPECT_FALSE(to_identification_spec(sizes, two_tank(), "ds", &spec, &error));
+  EXPECT_NE(error.find("R (outputs h1, h2) needs 2 values"), std::string::npos) << error;
+  RunSettings no_r;
+  no_r.p0 = matrix_from_list({1});
+  EXPECT_FALSE(to_identification_spec(no_r, two_tank(), "ds", &spec, &error));
+  EXPECT_NE(error.find("R (measurement noise variances of h1, h2) is required"), std::string::npos) << error;
+}
+
+TEST(Lists, ParseNumbersStrictly) {
+  std::vector<double> v;
+  std::string error;
+  ASSERT_TRUE(parse_list("1, 2.5,-3e-2", &v, &error));
+  EXPECT_EQ(v, (std::vector<double>{1, 2.5, -3e-2}));
+  EXPECT_FALSE(parse_list("1,x", &v, &error));
+  EXPECT_NE(error.find("\"x\" is not a number"), std::string::npos);
+}
+
+TEST(ExitCodes, FollowTheStatusCode) {
+  EXPECT_EQ(exit_code_for(grpc::StatusCode::OK), kExitOk);
+  EXPECT_EQ(exit_code_for(grpc::StatusCode::NOT_FOUND), kExitNotFound);
+  EXPECT_EQ(exit_code_for(grpc::StatusCode::UNAVAILABLE), kExitUnreachable);
+  EXPECT_EQ(exit_code_for(grpc::StatusCode::DEADLINE_EXCEEDED), kExitUnreachable);
+  EXPECT_EQ(exit_code_for(grpc::StatusCode::INVALID_ARGUMENT), kExitFailed);
+  EXPECT_EQ(exit_code_for(grpc::StatusCode::FAILED_PRECONDITION), kExitFailed);
+}
+
+TEST(Tables, ParameterTableShowsTruthAndError) {
+  v1::IdentificationResult r;
+  r.add_param_names("A1");
+  r.add_theta_mean(9.9);
+  r.add_theta_std(0.01);
+  r.add_theta(9.95);
+  const std::string table = parameter_table(r, {20.0}, {10.0});
+  EXPECT_NE(table.find("A1"), std::string::npos);
+  EXPECT_NE(table.find("-1.000"), std::string::npos) << table;  // (9.9 - 10) / 10 = -1 %
+}
+
+}  // namespace
+}  // namespace riccati::cli
