@@ -507,5 +507,37 @@ TEST_F(DaemonTest, AStreamAndAJobDoNotBlockEachOther) {
   EXPECT_LT(job.progress().pass(), 400u);
 }
 
+TEST(DaemonConfig, IdleSessionsExpireAndBadConfigFilesAreRefused) {
+  TempDir dir;
+  DaemonProcess daemon(dir.path() / "data", {"--session-idle-timeout", "1"});
+  daemon.start();
+  auto sessions = v1::SessionService::NewStub(daemon.channel());
+  v1::CreateSessionRequest create;
+  create.set_model("two_tank");
+  create.mutable_filter()->mutable_r()->mutable_diagonal()->add_values(1e-3);
+  create.mutable_filter()->mutable_r()->mutable_diagonal()->add_values(1e-3);
+  create.mutable_initial_state()->set_first_measurement(true);
+  for (int i = 0; i < 6; ++i) create.mutable_p0()->mutable_diagonal()->add_values(1.0);
+  v1::SessionInfo session;
+  {
+    grpc::ClientContext ctx;
+    ASSERT_TRUE(sessions->CreateSession(&ctx, create, &session).ok());
+  }
+  // Idle for 1 s it expires; the reaper looks every 250 ms.
+  std::this_thread::sleep_for(std::chrono::milliseconds(2000));
+  grpc::ClientContext ctx;
+  v1::GetSessionRequest get;
+  get.set_id(session.id());
+  EXPECT_EQ(sessions->GetSession(&ctx, get, &session).error_code(), grpc::StatusCode::NOT_FOUND);
+
+  // A config file with a typo stops the daemon at start, naming the key.
+  const auto config = dir.path() / "riccatid.yaml";
+  std::ofstream(config) << "listen: 127.0.0.1:0\nworkerz: 4\n";
+  const std::string command = std::string(RICCATI_DAEMON_BIN) + " --config " + config.string() + " 2>" +
+                              (dir.path() / "err").string();
+  EXPECT_EQ(WEXITSTATUS(std::system(command.c_str())), 2);
+  EXPECT_NE(read_file((dir.path() / "err").string()).find("unknown key \"workerz\""), std::string::npos);
+}
+
 }  // namespace
 }  // namespace riccati
