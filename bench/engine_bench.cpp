@@ -14,6 +14,7 @@
 
 #include "engine/identification.hpp"
 #include "engine/plugin_loader.hpp"
+#include "support/two_tank_hensen.hpp"
 
 namespace riccati {
 namespace {
@@ -30,21 +31,7 @@ struct TwoTankFixture {
                .value();
   }
 
-  IdentificationSettings hensen(FilterKind kind) const {
-    IdentificationSettings s;
-    s.filter.kind = kind;
-    s.filter.integrator.kind = IntegratorKind::kRk4;
-    s.filter.integrator.substeps = 10;
-    s.filter.Q = Eigen::MatrixXd::Zero(6, 6);
-    s.filter.R = Eigen::Vector2d(1e-3, 1e-3).asDiagonal();
-    s.initial_state = InitialState::kFirstMeasurement;
-    s.theta0 = Eigen::Vector4d(20, 20, 1, 1);
-    Eigen::VectorXd p0(6);
-    p0 << 0, 0, 10, 10, 10, 10;
-    s.P0 = p0.asDiagonal();
-    s.passes = 10;
-    return s;
-  }
+  IdentificationSettings hensen(FilterKind kind) const { return testing::two_tank_hensen(kind); }
 };
 
 void TwoTankIdentification(benchmark::State& state, FilterKind kind) {

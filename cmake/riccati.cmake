@@ -30,6 +30,7 @@ function(riccati_add_test name)
   cmake_parse_arguments(T "" "" "SOURCES;LIBS;LABELS" ${ARGN})
   add_executable(${name} ${T_SOURCES})
   target_link_libraries(${name} PRIVATE ${T_LIBS} GTest::gtest GTest::gtest_main)
+  target_include_directories(${name} PRIVATE ${PROJECT_SOURCE_DIR}/tests)
   target_compile_definitions(${name} PRIVATE
     RICCATI_TEST_DATA_DIR="${PROJECT_SOURCE_DIR}/tests/data"
     RICCATI_TEST_PLUGIN_DIR="${RICCATI_PLUGIN_DIR}")

@@ -394,29 +394,11 @@ bool to_initial_state(const std::string& x0, v1::InitialState* out, std::string*
   return true;
 }
 
-bool to_identification_spec(const RunSettings& s, const v1::ModelInfo& info, const std::string& dataset_id,
-                            v1::IdentificationSpec* out, std::string* error) {
-  out->set_model(info.name());
-  out->set_dataset_id(dataset_id);
-  if (!to_filter_settings(s, info, out->mutable_filter(), error)) return false;
-  if (!to_initial_state(s.x0.value_or("first"), out->mutable_initial_state(), error)) return false;
-  if (s.theta0) {
-    for (double v : *s.theta0) out->add_theta0(v);
-  }
-  const int nz = info.state_names_size() + info.param_names_size();
-  if (!s.p0) {
-    *error = "P0 (initial variances of the " + std::to_string(nz) + " states and parameters) is required";
-    return false;
-  }
-  if (!to_covariance(*s.p0, nz, "P0", out->mutable_p0(), error)) return false;
-  out->set_passes(static_cast<uint32_t>(s.passes.value_or(1)));
-  if (s.first_sample) out->set_first_sample(static_cast<uint64_t>(*s.first_sample));
-  if (s.end_sample) out->set_end_sample(static_cast<uint64_t>(*s.end_sample));
-  return true;
-}
+namespace {
 
-bool to_session_request(const RunSettings& s, const v1::ModelInfo& info, v1::CreateSessionRequest* out,
-                        std::string* error) {
+// What a job and a session share: filter, initial state, theta0 and P0.
+template <typename Request>
+bool fill_run(const RunSettings& s, const v1::ModelInfo& info, Request* out, std::string* error) {
   out->set_model(info.name());
   if (!to_filter_settings(s, info, out->mutable_filter(), error)) return false;
   if (!to_initial_state(s.x0.value_or("first"), out->mutable_initial_state(), error)) return false;
@@ -429,6 +411,23 @@ bool to_session_request(const RunSettings& s, const v1::ModelInfo& info, v1::Cre
     return false;
   }
   return to_covariance(*s.p0, nz, "P0", out->mutable_p0(), error);
+}
+
+}  // namespace
+
+bool to_identification_spec(const RunSettings& s, const v1::ModelInfo& info, const std::string& dataset_id,
+                            v1::IdentificationSpec* out, std::string* error) {
+  if (!fill_run(s, info, out, error)) return false;
+  out->set_dataset_id(dataset_id);
+  out->set_passes(static_cast<uint32_t>(s.passes.value_or(1)));
+  if (s.first_sample) out->set_first_sample(static_cast<uint64_t>(*s.first_sample));
+  if (s.end_sample) out->set_end_sample(static_cast<uint64_t>(*s.end_sample));
+  return true;
+}
+
+bool to_session_request(const RunSettings& s, const v1::ModelInfo& info, v1::CreateSessionRequest* out,
+                        std::string* error) {
+  return fill_run(s, info, out, error);
 }
 
 }  // namespace riccati::cli

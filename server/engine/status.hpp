@@ -21,7 +21,6 @@ enum class StatusCode {
   kResourceExhausted = 8,
   kFailedPrecondition = 9,  // e.g. a filter that diverged
   kOutOfRange = 11,
-  kUnimplemented = 12,
   kInternal = 13,
   kUnavailable = 14,
 };

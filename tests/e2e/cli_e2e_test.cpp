@@ -8,7 +8,8 @@
 #include <sstream>
 #include <nlohmann/json.hpp>
 
-#include "../service/daemon_fixture.hpp"
+#include "service/daemon_fixture.hpp"
+#include "support/two_tank_hensen.hpp"
 #include "engine/identification.hpp"
 #include "engine/plugin_loader.hpp"
 
@@ -68,16 +69,7 @@ TEST_F(CliTest, UploadIdentifyAndValidateTheTwoTank) {
   // The engine in this process, on the same file, with the same settings.
   auto registry = ModelRegistry::load_directory(RICCATI_TEST_PLUGIN_DIR).value();
   auto data = read_csv_file(kData + "/two_tank.csv", ColumnMapping{"t", {"F1", "F2"}, {"h1", "h2"}}).value();
-  IdentificationSettings s;
-  s.filter.R = Eigen::Vector2d(1e-3, 1e-3).asDiagonal();
-  s.filter.Q = Eigen::MatrixXd::Zero(6, 6);
-  s.initial_state = InitialState::kFirstMeasurement;
-  s.theta0 = Eigen::Vector4d(20, 20, 1, 1);
-  Eigen::VectorXd p0(6);
-  p0 << 0, 0, 10, 10, 10, 10;
-  s.P0 = p0.asDiagonal();
-  s.passes = 10;
-  const auto local = identify(registry.find("two_tank"), data, s);
+  const auto local = identify(registry.find("two_tank"), data, testing::two_tank_hensen());
   ASSERT_TRUE(local.is_ok());
   for (int i = 0; i < 4; ++i) {
     // JSON carries doubles exactly (shortest round-trip form): the same numbers.

@@ -7,7 +7,8 @@
 #include <sstream>
 #include <thread>
 
-#include "daemon_fixture.hpp"
+#include "service/daemon_fixture.hpp"
+#include "support/two_tank_hensen.hpp"
 #include "engine/identification.hpp"
 #include "engine/plugin_loader.hpp"
 #include "riccati/v1/datasets.grpc.pb.h"
@@ -87,6 +88,16 @@ class DaemonTest : public ::testing::Test {
     return spec;
   }
 
+  // A two-tank EKF session starting from the first measurement.
+  static v1::CreateSessionRequest two_tank_session() {
+    v1::CreateSessionRequest create;
+    create.set_model("two_tank");
+    for (double r : {1e-3, 1e-3}) create.mutable_filter()->mutable_r()->mutable_diagonal()->add_values(r);
+    create.mutable_initial_state()->set_first_measurement(true);
+    for (double v : {0.0, 0.0, 1.0, 1.0, 1e-6, 1e-6}) create.mutable_p0()->mutable_diagonal()->add_values(v);
+    return create;
+  }
+
   // Watches a job to its end and returns its last state.
   v1::Job wait_for(const std::string& id) {
     grpc::ClientContext ctx;
@@ -164,16 +175,7 @@ TEST_F(DaemonTest, IdentificationJobEqualsTheEngineInProcess) {
   // The same run in this process, on the same file.
   auto registry = ModelRegistry::load_directory(RICCATI_TEST_PLUGIN_DIR).value();
   auto data = read_csv_file(kData + "/two_tank.csv", ColumnMapping{"t", {"F1", "F2"}, {"h1", "h2"}}).value();
-  IdentificationSettings s;
-  s.filter.R = Eigen::Vector2d(1e-3, 1e-3).asDiagonal();
-  s.filter.Q = Eigen::MatrixXd::Zero(6, 6);
-  s.initial_state = InitialState::kFirstMeasurement;
-  s.theta0 = Eigen::Vector4d(20, 20, 1, 1);
-  Eigen::VectorXd p0(6);
-  p0 << 0, 0, 10, 10, 10, 10;
-  s.P0 = p0.asDiagonal();
-  s.passes = 10;
-  auto local = identify(registry.find("two_tank"), data, s);
+  auto local = identify(registry.find("two_tank"), data, testing::two_tank_hensen());
   ASSERT_TRUE(local.is_ok());
   const auto& remote = result.identification();
   ASSERT_EQ(remote.theta_mean_size(), 4);
@@ -380,11 +382,7 @@ TEST_F(DaemonTest, BadInputGetsClearErrorsAndTheDaemonKeepsServing) {
 }
 
 TEST_F(DaemonTest, StreamRefusesBadMeasurementsOneByOneAndGoesOn) {
-  v1::CreateSessionRequest create;
-  create.set_model("two_tank");
-  for (double r : {1e-3, 1e-3}) create.mutable_filter()->mutable_r()->mutable_diagonal()->add_values(r);
-  create.mutable_initial_state()->set_first_measurement(true);
-  for (double v : {0.0, 0.0, 1.0, 1.0, 1e-6, 1e-6}) create.mutable_p0()->mutable_diagonal()->add_values(v);
+  const v1::CreateSessionRequest create = two_tank_session();
   v1::SessionInfo session;
   {
     grpc::ClientContext ctx;
@@ -466,11 +464,7 @@ TEST_F(DaemonTest, StreamRefusesBadMeasurementsOneByOneAndGoesOn) {
 TEST_F(DaemonTest, AStreamAndAJobDoNotBlockEachOther) {
   const std::string dataset = upload_two_tank();
   const v1::Job slow = submit(hensen(dataset, 400));
-  v1::CreateSessionRequest create;
-  create.set_model("two_tank");
-  for (double r : {1e-3, 1e-3}) create.mutable_filter()->mutable_r()->mutable_diagonal()->add_values(r);
-  create.mutable_initial_state()->set_first_measurement(true);
-  for (double v : {0.0, 0.0, 1.0, 1.0, 1e-6, 1e-6}) create.mutable_p0()->mutable_diagonal()->add_values(v);
+  const v1::CreateSessionRequest create = two_tank_session();
   v1::SessionInfo session;
   {
     grpc::ClientContext ctx;
