@@ -12,11 +12,15 @@ std::unique_ptr<Filter> make_ekf(ModelPtr model, const FilterSettings& settings,
                                  std::unique_ptr<Integrator> integrator);
 std::unique_ptr<Filter> make_ukf(ModelPtr model, const FilterSettings& settings,
                                  std::unique_ptr<Integrator> integrator);
+// Defined in optimal.cpp.
+std::unique_ptr<Filter> make_optimal_filter(ModelPtr model, const FilterSettings& settings,
+                                            std::unique_ptr<Integrator> integrator);
 
 const char* filter_kind_name(FilterKind kind) {
   switch (kind) {
     case FilterKind::kEkf: return "ekf";
     case FilterKind::kUkf: return "ukf";
+    case FilterKind::kOptimal: return "optimal";
   }
   return "unknown";
 }
@@ -24,7 +28,8 @@ const char* filter_kind_name(FilterKind kind) {
 Result<FilterKind> parse_filter_kind(std::string_view name) {
   if (name == "ekf") return FilterKind::kEkf;
   if (name == "ukf") return FilterKind::kUkf;
-  return invalid_argument("unknown filter \"" + std::string(name) + "\" (expected ekf or ukf)");
+  if (name == "optimal") return FilterKind::kOptimal;
+  return invalid_argument("unknown filter \"" + std::string(name) + "\" (expected ekf, ukf or optimal)");
 }
 
 const char* hold_order_name(HoldOrder hold) { return hold == HoldOrder::kZero ? "zoh" : "foh"; }
@@ -46,6 +51,19 @@ Result<SigmaWeights> parse_sigma_weights(std::string_view name) {
   if (name == "scaled") return SigmaWeights::kScaled;
   return invalid_argument("unknown sigma-point weights \"" + std::string(name) + "\" (expected julier or scaled)");
 }
+
+Result<OptimalForm> parse_optimal_form(std::string_view name) {
+  if (name == "continuous") return OptimalForm::kContinuous;
+  if (name == "split-step" || name == "split") return OptimalForm::kSplitStep;
+  return invalid_argument("unknown optimal filter form \"" + std::string(name) +
+                          "\" (expected continuous or split-step)");
+}
+
+const char* optimal_form_name(OptimalForm form) {
+  return form == OptimalForm::kSplitStep ? "split-step" : "continuous";
+}
+
+int optimal_equation_count(const Model& model) { return model.ndof() + model.nu() + model.ny(); }
 
 namespace {
 
@@ -76,8 +94,34 @@ Status check_covariance(const Eigen::MatrixXd& M, Eigen::Index n, const std::str
 
 }  // namespace
 
+namespace {
+
+Status validate_optimal(const FilterSettings& s, const Model& model) {
+  if (!model.has_mechanical_form()) {
+    return invalid_argument("model " + model.name() +
+                            " has no mechanical form (M a + h = H u): the optimal filter needs one");
+  }
+  if (s.Q.size() != 0 || s.R.size() != 0) {
+    return invalid_argument("the optimal filter takes its weights from V and W, not from Q and R");
+  }
+  const int L = optimal_equation_count(model);
+  RICCATI_RETURN_IF_ERROR(check_covariance(s.optimal.V, L,
+                                           "optimal filter weights V (" + std::to_string(model.ndof()) +
+                                               " equations of motion, " + std::to_string(model.nu()) + " inputs, " +
+                                               std::to_string(model.ny()) + " outputs)"));
+  RICCATI_RETURN_IF_ERROR(check_covariance(s.optimal.W, model.nz(), "optimal filter weights W"));
+  Eigen::LLT<Eigen::MatrixXd> llt(s.optimal.W);
+  if (llt.info() != Eigen::Success) {
+    return invalid_argument("optimal filter weights W must be positive definite (W^-1 is the process noise)");
+  }
+  return Status::ok();
+}
+
+}  // namespace
+
 Status validate(const FilterSettings& s, const Model& model) {
   RICCATI_RETURN_IF_ERROR(validate(s.integrator));
+  if (s.kind == FilterKind::kOptimal) return validate_optimal(s, model);
   RICCATI_RETURN_IF_ERROR(check_covariance(s.Q, model.nz(), "process noise Q"));
   RICCATI_RETURN_IF_ERROR(check_covariance(s.R, model.ny(), "measurement noise R"));
   if (s.kind == FilterKind::kUkf) {
@@ -119,7 +163,13 @@ Status Filter::reset(double t, const Eigen::VectorXd& z, const Eigen::MatrixXd& 
   t_ = t;
   z_ = z;
   P_ = P;
+  restarted();
   return Status::ok();
+}
+
+Status Filter::step(double t1, const double* u0, const double* u1, const double* y1) {
+  RICCATI_RETURN_IF_ERROR(predict(t1, u0, u1));
+  return update(y1, u1);
 }
 
 void Filter::hold_input(double t, double t0, double t1, const double* u0, const double* u1) {
@@ -176,6 +226,7 @@ Result<std::unique_ptr<Filter>> make_filter(ModelPtr model, const FilterSettings
   switch (settings.kind) {
     case FilterKind::kEkf: return make_ekf(std::move(model), settings, std::move(integrator));
     case FilterKind::kUkf: return make_ukf(std::move(model), settings, std::move(integrator));
+    case FilterKind::kOptimal: return make_optimal_filter(std::move(model), settings, std::move(integrator));
   }
   return invalid_argument("unknown filter kind");
 }

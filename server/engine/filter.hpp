@@ -19,8 +19,9 @@
 namespace riccati {
 
 enum class FilterKind {
-  kEkf,  // continuous-discrete extended Kalman filter (Hensen 1999, ch. 2)
-  kUkf,  // continuous-discrete unscented Kalman filter (Zheng et al. 2010)
+  kEkf,      // continuous-discrete extended Kalman filter (Hensen 1999, ch. 2)
+  kUkf,      // continuous-discrete unscented Kalman filter (Zheng et al. 2010)
+  kOptimal,  // the optimal filter of van de Molengraft / van Kessel (mechanical models)
 };
 
 // How inputs are held between two samples (the toolbox's `order`).
@@ -48,23 +49,48 @@ struct UkfSettings {
   double kappa = std::numeric_limits<double>::quiet_NaN();
 };
 
+// How the optimal filter integrates (OPTIMAL_FILTER.md, sec. 3).
+enum class OptimalForm {
+  kContinuous,  // equations 8 and 10 with the integrator: the measurements act continuously
+  kSplitStep,   // predict without the measurement terms, then a discrete update at each
+                // sample: the same continuous limit, and stable for any V
+};
+
+// The weights of the optimal filter. With n degrees of freedom, nu inputs and
+// ny outputs there are L = n + nu + ny equations: the n equations of motion,
+// the nu measured inputs and the ny measured outputs, in that order.
+struct OptimalSettings {
+  Eigen::MatrixXd V;  // [L x L] confidence in each equation (inverse intensity)
+  Eigen::MatrixXd W;  // [nz x nz] confidence in the state equation; W^-1 is the process noise
+  OptimalForm form = OptimalForm::kContinuous;
+  // Measured outputs within a step: linear between the two samples (true),
+  // or held at the step's start for strict real time (a half-sample lag).
+  // Applied inputs are always held as `hold` says.
+  bool interpolate_outputs = true;
+};
+
 struct FilterSettings {
   FilterKind kind = FilterKind::kEkf;
   HoldOrder hold = HoldOrder::kZero;
   IntegratorSettings integrator;
-  Eigen::MatrixXd Q;  // [nz x nz] process noise intensity; zero is allowed
-  Eigen::MatrixXd R;  // [ny x ny] measurement noise covariance
+  Eigen::MatrixXd Q;  // [nz x nz] process noise intensity; zero is allowed (EKF, UKF)
+  Eigen::MatrixXd R;  // [ny x ny] measurement noise covariance (EKF, UKF)
   GainInversion inversion = GainInversion::kCholesky;
   bool joseph = true;  // EKF: Joseph-form covariance update
   UkfSettings ukf;
+  OptimalSettings optimal;
 };
 
 const char* filter_kind_name(FilterKind kind);
-Result<FilterKind> parse_filter_kind(std::string_view name);  // "ekf", "ukf"
+Result<FilterKind> parse_filter_kind(std::string_view name);  // "ekf", "ukf", "optimal"
 const char* hold_order_name(HoldOrder hold);
 Result<HoldOrder> parse_hold_order(std::string_view name);    // "zoh", "foh"
 Result<GainInversion> parse_gain_inversion(std::string_view name);  // "cholesky", "pinv"
 Result<SigmaWeights> parse_sigma_weights(std::string_view name);    // "julier", "scaled"
+Result<OptimalForm> parse_optimal_form(std::string_view name);      // "continuous", "split-step"
+const char* optimal_form_name(OptimalForm form);
+// Number of equations L of the optimal filter for a mechanical model.
+int optimal_equation_count(const Model& model);
 
 // Checks sizes, symmetry, finiteness and semi-definiteness against a model.
 Status validate(const FilterSettings& settings, const Model& model);
@@ -84,6 +110,11 @@ class Filter {
   // Measurement update at time() with y [ny] and the input u [nu] at that time.
   virtual Status update(const double* y, const double* u) = 0;
 
+  // One sample: predict to t1, then update with y1 [ny]; u0, u1 as in
+  // predict. A filter whose prediction can use the measurement at the end of
+  // the interval (the optimal filter interpolates it) overrides this.
+  virtual Status step(double t1, const double* u0, const double* u1, const double* y1);
+
   const Model& model() const { return *model_; }
   const FilterSettings& settings() const { return settings_; }
   double time() const { return t_; }
@@ -94,9 +125,18 @@ class Filter {
   const Eigen::VectorXd& innovation() const { return innovation_; }    // y - y_pred [ny]
   const Eigen::MatrixXd& innovation_covariance() const { return S_; }  // [ny x ny]
   double nis() const { return nis_; }  // normalised innovation squared, innovation' S^-1 innovation
+  // Optimal filter only (empty for the others), at the last update: the
+  // estimated inputs and accelerations p = [u; a] [nu + ndof] and the
+  // residuals zeta of the L equations.
+  const Eigen::VectorXd& estimated_inputs() const { return p_hat_; }
+  const Eigen::VectorXd& equation_residuals() const { return zeta_; }
 
  protected:
   Filter(ModelPtr model, FilterSettings settings);
+
+  // Called at the end of reset(): a filter that keeps more than z and P
+  // (the optimal filter's last measurement) clears it here.
+  virtual void restarted() {}
 
   // Solves K S = C for the gain K = C S^-1 ([nz x ny]) and the NIS, as the
   // settings' inversion says. Shared by the EKF and the UKF.
@@ -116,6 +156,7 @@ class Filter {
   Eigen::MatrixXd S_;
   Eigen::MatrixXd K_;  // gain of the last update [nz x ny]
   double nis_ = 0.0;
+  Eigen::VectorXd p_hat_, zeta_;
   Eigen::VectorXd u_hold_;  // scratch: the held input [nu]
 };
 

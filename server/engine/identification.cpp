@@ -165,11 +165,9 @@ Result<IdentificationResult> identify(ModelPtr model, const Dataset& data, const
         return "pass " + std::to_string(pass) + ", sample " + std::to_string(k + 1) + " (t = " +
                std::to_string(bound.t[s]) + ")";
       };
-      if (k > 0) {
-        Status st = filter->predict(bound.t[s], bound.u.col(s - 1).data(), bound.u.col(s).data());
-        if (!st.is_ok()) return st.with_context(where());
-      }
-      Status st = filter->update(bound.y.col(s).data(), bound.u.col(s).data());
+      Status st = k == 0 ? filter->update(bound.y.col(s).data(), bound.u.col(s).data())
+                         : filter->step(bound.t[s], bound.u.col(s - 1).data(), bound.u.col(s).data(),
+                                        bound.y.col(s).data());
       if (!st.is_ok()) return st.with_context(where());
 
       const Eigen::VectorXd& zk = filter->state();

@@ -1,6 +1,7 @@
 #include "engine/model.hpp"
 
 #include <array>
+#include <cstddef>
 #include <cmath>
 #include <limits>
 #include <string>
@@ -79,9 +80,9 @@ Result<ModelPtr> Model::create(const riccati_model_v1* t, std::shared_ptr<void> 
     return fail("ABI version " + std::to_string(t->abi_version) + ", this host speaks version " +
                 std::to_string(RICCATI_MODEL_ABI_VERSION) + "; rebuild it against this riccati's model_abi.h");
   }
-  if (t->struct_size < sizeof(riccati_model_v1)) {
+  if (t->struct_size < RICCATI_MODEL_V1_BASE_SIZE) {
     return fail("model table is " + std::to_string(t->struct_size) + " bytes, expected at least " +
-                std::to_string(sizeof(riccati_model_v1)));
+                std::to_string(RICCATI_MODEL_V1_BASE_SIZE));
   }
   if (!valid_model_name(t->name)) return fail("model name must be non-empty and use only [a-z0-9_]");
   constexpr uint32_t kMaxSize = 4096;  // far above any real model; stops absurd tables early
@@ -89,6 +90,14 @@ Result<ModelPtr> Model::create(const riccati_model_v1* t, std::shared_ptr<void> 
   if (t->ny == 0 || t->ny > kMaxSize) return fail("model " + std::string(t->name) + " has ny = " + std::to_string(t->ny));
   if (t->ntheta > kMaxSize || t->nu > kMaxSize) return fail("model " + std::string(t->name) + " sizes are too large");
   if (t->f == nullptr || t->g == nullptr) return fail("model " + std::string(t->name) + " does not provide f and g");
+  // Appended fields exist only as far as the plugin's table reaches.
+  const bool has_mech_fields = t->struct_size >= offsetof(riccati_model_v1, mech) + sizeof(t->mech);
+  const uint32_t ndof = has_mech_fields ? t->ndof : 0;
+  if (ndof > 0 && (t->mech == nullptr || 2 * ndof != t->nx)) {
+    return fail("model " + std::string(t->name) + " declares " + std::to_string(ndof) +
+                " degrees of freedom: it needs nx = 2 ndof states [s; v] (it has " + std::to_string(t->nx) +
+                ") and a mech function");
+  }
 
   std::shared_ptr<Model> m(new Model());
   m->table_ = t;
@@ -101,6 +110,8 @@ Result<ModelPtr> Model::create(const riccati_model_v1* t, std::shared_ptr<void> 
   m->ntheta_ = static_cast<int>(t->ntheta);
   m->nu_ = static_cast<int>(t->nu);
   m->ny_ = static_cast<int>(t->ny);
+  m->ndof_ = static_cast<int>(ndof);
+  m->mech_ = ndof > 0 ? t->mech : nullptr;
 
   const std::string who = "model " + m->name_ + ": ";
   Status s = read_names(t->state_names, t->nx, "state", &m->state_names_);
@@ -214,6 +225,23 @@ Status Model::f_jacobian(double t, const double* u, const double* x, const doubl
 Status Model::g_jacobian(double t, const double* u, const double* x, const double* theta, double* out,
                          double* jac) const {
   return jacobian(false, t, u, x, theta, out, jac);
+}
+
+Status Model::mechanical(double t, const double* x, const double* theta, double* c, double* Fc, double* c_jac,
+                         double* Fc_jac) const {
+  if (mech_ == nullptr) return failed_precondition("model " + name_ + " has no mechanical form (M a + h = H u)");
+  std::array<char, kErrorBufferSize> err;  // not zeroed: written only on failure
+  err[0] = '\0';
+  if (mech_(t, x, theta, c, Fc, c_jac, Fc_jac, err.data(), err.size()) != 0) {
+    return internal_error("model " + name_ + ": mechanical form failed at t = " + std::to_string(t) + ": " +
+                          err.data());
+  }
+  const std::size_t rows = static_cast<std::size_t>(ndof_ + ny_), cols = static_cast<std::size_t>(nu_ + ndof_);
+  if (!all_finite(c, rows) || !all_finite(Fc, rows * cols) || !all_finite(c_jac, rows * nz()) ||
+      !all_finite(Fc_jac, rows * cols * nz())) {
+    return failed_precondition("model " + name_ + ": the mechanical form is not finite at t = " + std::to_string(t));
+  }
+  return Status::ok();
 }
 
 int Model::state_index(std::string_view n) const { return index_of(state_names_, n); }

@@ -33,6 +33,9 @@ class Model {
   int nu() const { return nu_; }
   int ny() const { return ny_; }
   int nz() const { return nx_ + ntheta_; }  // augmented state [x; theta]
+  // Degrees of freedom of the mechanical form (0: the model has none).
+  int ndof() const { return ndof_; }
+  bool has_mechanical_form() const { return mech_ != nullptr; }
 
   const std::vector<std::string>& state_names() const { return state_names_; }
   const std::vector<std::string>& param_names() const { return param_names_; }
@@ -60,6 +63,13 @@ class Model {
   Status g_jacobian(double t, const double* u, const double* x, const double* theta, double* out,
                     double* jac) const;
 
+  // The mechanical form at one point (model_abi.h, riccati_mech_fn): with
+  // n = ndof, c [n + ny] = [h; g], Fc [(n + ny) x (nu + n)] = [-H M; R G],
+  // and their Jacobians with respect to [x; theta], c_jac [(n + ny) x nz]
+  // and Fc_jac [(n + ny)(nu + n) x nz], all column-major.
+  Status mechanical(double t, const double* x, const double* theta, double* c, double* Fc, double* c_jac,
+                    double* Fc_jac) const;
+
   // Index of a state / parameter / input / output by name, or -1.
   int state_index(std::string_view n) const;
   int param_index(std::string_view n) const;
@@ -79,7 +89,8 @@ class Model {
   const riccati_model_v1* table_ = nullptr;
   std::shared_ptr<void> library_;
   std::string name_, version_, description_, origin_;
-  int nx_ = 0, ntheta_ = 0, nu_ = 0, ny_ = 0;
+  int nx_ = 0, ntheta_ = 0, nu_ = 0, ny_ = 0, ndof_ = 0;
+  riccati_mech_fn mech_ = nullptr;
   std::vector<std::string> state_names_, param_names_, input_names_, output_names_;
   Eigen::VectorXd theta_default_, theta_lower_, theta_upper_;
 };

@@ -71,8 +71,8 @@ Status Session::check(const v1::Measurement& m) const {
   return Status::ok();
 }
 
-// The same sequence as an offline run of the filter (identify()): reset at
-// the first sample, then predict with the held inputs and update.
+// The same sequence as an offline run of the filter (identify()): reset and
+// update at the first sample, then a step (predict and update) per sample.
 Status Session::step(const v1::Measurement& m) {
   std::copy(m.u().begin(), m.u().end(), u_.data());
   std::copy(m.y().begin(), m.y().end(), y_.data());
@@ -86,10 +86,10 @@ Status Session::step(const v1::Measurement& m) {
     z << x0, theta0_;
     RICCATI_RETURN_IF_ERROR(filter_->reset(m.t(), z, P0_));
     started_ = true;
+    RICCATI_RETURN_IF_ERROR(filter_->update(y_.data(), u_.data()));
   } else {
-    RICCATI_RETURN_IF_ERROR(filter_->predict(m.t(), u_last_.data(), u_.data()));
+    RICCATI_RETURN_IF_ERROR(filter_->step(m.t(), u_last_.data(), u_.data(), y_.data()));
   }
-  RICCATI_RETURN_IF_ERROR(filter_->update(y_.data(), u_.data()));
   u_last_ = u_;
   return Status::ok();
 }

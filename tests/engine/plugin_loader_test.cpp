@@ -11,6 +11,7 @@
 #include <string>
 #include <vector>
 
+#include "engine/bad_plugins/pendulum_table.hpp"
 #include "engine/model.hpp"
 #include "engine/plugin_loader.hpp"
 
@@ -151,6 +152,44 @@ TEST(PluginLoaderTest, MissingJacobiansFallBackToFiniteDifferences) {
 
 // ---------------------------------------------------------------------------
 // Directories
+
+// The table only grows (model_abi.h): a plugin built before the mechanical
+// form was appended has a smaller struct_size, still loads, and the host
+// reads nothing past it.
+TEST(PluginLoaderTest, TableFromBeforeAppendedFieldsStillLoads) {
+  riccati_model_v1 t = bad_plugin::pendulum_table("old_pendulum");
+  t.struct_size = RICCATI_MODEL_V1_BASE_SIZE;
+  t.ndof = 3;  // past struct_size: whatever an old plugin has there is not read
+  auto old = Model::create(&t, nullptr, "old_pendulum (in-process)");
+  ASSERT_TRUE(old.is_ok()) << old.status().to_string();
+  EXPECT_EQ(old.value()->ndof(), 0);
+  EXPECT_FALSE(old.value()->has_mechanical_form());
+
+  t.struct_size = RICCATI_MODEL_V1_BASE_SIZE - 1;
+  auto truncated = Model::create(&t, nullptr, "truncated (in-process)");
+  ASSERT_FALSE(truncated.is_ok());
+  EXPECT_NE(truncated.status().message().find("bytes"), std::string::npos) << truncated.status().message();
+}
+
+int no_mech(double, const double*, const double*, double*, double*, double*, double*, char*, size_t) { return 0; }
+
+TEST(PluginLoaderTest, MechanicalFormNeedsPositionsAndVelocitiesAndItsFunction) {
+  riccati_model_v1 t = bad_plugin::pendulum_table("pendulum");
+  t.ndof = 1;  // nx = 2: one position, one velocity
+  t.mech = nullptr;
+  auto without = Model::create(&t, nullptr, "pendulum (in-process)");
+  ASSERT_FALSE(without.is_ok());
+  EXPECT_NE(without.status().message().find("mech function"), std::string::npos) << without.status().message();
+  t.ndof = 2;  // would need nx = 4
+  t.mech = &no_mech;
+  auto wrong = Model::create(&t, nullptr, "pendulum (in-process)");
+  ASSERT_FALSE(wrong.is_ok());
+  EXPECT_NE(wrong.status().message().find("nx = 2 ndof"), std::string::npos) << wrong.status().message();
+  t.ndof = 1;
+  auto right = Model::create(&t, nullptr, "pendulum (in-process)");
+  ASSERT_TRUE(right.is_ok()) << right.status().to_string();
+  EXPECT_EQ(right.value()->ndof(), 1);
+}
 
 TEST(ModelRegistryTest, BadDirectoryLoadsTheValidAndListsTheRefused) {
   auto registry = ModelRegistry::load_directory(RICCATI_TEST_BAD_PLUGIN_DIR);

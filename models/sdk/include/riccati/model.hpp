@@ -43,6 +43,37 @@
 // every exception at that boundary (a throw becomes an error message for that
 // evaluation, never a crash of the host).
 //
+// Mechanical models (for the optimal filter, and for every other filter too)
+// are written in their implicit form instead: declare the degrees of freedom
+// and give the equations of motion and the measurement, M(s) a + h(s, v) =
+// H(s, v) u and y = g + G a + R u (each matrix starts at zero: set only what
+// is not). The states are the positions, then the velocities.
+//
+//     struct MassSpringDamper {
+//       static constexpr int ndof = 1;
+//       static constexpr riccati::ModelSpec<2, 1, 1, 1> spec{
+//           .name = "mass_spring_damper",
+//           .states = {"s", "v"}, .params = {"k"}, .inputs = {"F"}, .outputs = {"s"},
+//           .theta_default = {40.0}};
+//       template <typename T>
+//       void equations_of_motion(const T* s, const T* v, const T* theta, double /*t*/, auto& eom) const {
+//         eom.M(0, 0) = 2.0;                          // mass [kg]
+//         eom.h(0) = 0.5 * v[0] + theta[0] * s[0];    // damper and spring forces
+//         eom.H(0, 0) = 1.0;                          // F acts on the mass
+//       }
+//       template <typename T>
+//       void measurement(const T* s, const T* /*v*/, const T* /*theta*/, double /*t*/, auto& y) const {
+//         y.g(0) = s[0];                              // the position is measured
+//       }
+//     };
+//     RICCATI_MODEL_PLUGIN(MassSpringDamper)
+//
+// The SDK derives the explicit model from it, x' = [v; a] with a solved from
+// M a = H u - h (Gaussian elimination with partial pivoting, never an
+// inverse) and y = g + G a + R u, so the EKF and the UKF run on it as on any
+// model, and gives the optimal filter the stacked equations and their exact
+// Jacobians (model_abi.h, riccati_mech_fn).
+//
 // Common mistakes
 //  - Calling std::sqrt (or std::sin ...) on a T: it does not accept a Dual.
 //    Call the unqualified name after `using namespace riccati::math;`.
@@ -52,6 +83,8 @@
 //    derivative is that of the branch taken; prefer riccati::sat, min, max.
 //  - Inputs u are plain doubles: the Jacobians are with respect to x and
 //    theta only.
+//  - Mechanical models: a mass matrix M that is singular somewhere (a zero
+//    inertia parameter) makes f fail there with an error.
 #pragma once
 
 #include <algorithm>
@@ -59,6 +92,8 @@
 #include <cstdio>
 #include <cstring>
 #include <exception>
+#include <stdexcept>
+#include <utility>
 #include <limits>
 #include <type_traits>
 
@@ -96,7 +131,73 @@ struct ModelSpec {
   std::array<double, NTHETA> theta_upper = detail::filled<NTHETA>(std::numeric_limits<double>::infinity());
 };
 
+// The equations of motion M a + h = H u of a mechanical model, at one point,
+// as the model writes them: every entry starts at zero.
+template <typename T, int N, int NU>
+struct EquationsOfMotion {
+  std::array<T, N * N> mass{};                       // M, column-major
+  std::array<T, N> forces{};                         // h
+  std::array<T, (NU > 0 ? N * NU : 1)> input_map{};  // H, column-major
+
+  T& M(int i, int j) { return mass[i + j * N]; }
+  T& h(int i) { return forces[i]; }
+  T& H(int i, int j) { return input_map[i + j * N]; }
+  const T& M(int i, int j) const { return mass[i + j * N]; }
+  const T& h(int i) const { return forces[i]; }
+  const T& H(int i, int j) const { return input_map[i + j * N]; }
+};
+
+// The measurement y = g + G a + R u of a mechanical model, at one point.
+template <typename T, int N, int NU, int NY>
+struct MeasurementEquation {
+  std::array<T, NY> direct{};                           // g
+  std::array<T, NY * N> acceleration_map{};             // G, column-major
+  std::array<T, (NU > 0 ? NY * NU : 1)> input_map{};    // R, column-major
+
+  T& g(int i) { return direct[i]; }
+  T& G(int i, int j) { return acceleration_map[i + j * NY]; }
+  T& R(int i, int j) { return input_map[i + j * NY]; }
+  const T& g(int i) const { return direct[i]; }
+  const T& G(int i, int j) const { return acceleration_map[i + j * NY]; }
+  const T& R(int i, int j) const { return input_map[i + j * NY]; }
+};
+
+// A model written in the mechanical form (it declares its degrees of freedom).
+template <typename M>
+concept MechanicalModel = requires { M::ndof; };
+
 namespace detail {
+
+// Solves M a = b (N x N, column-major, by value) by Gaussian elimination with
+// partial pivoting; T may be a dual number (pivots are chosen by value).
+template <typename T, int N>
+std::array<T, N> solve(std::array<T, N * N> M, std::array<T, N> b) {
+  using std::abs;
+  for (int k = 0; k < N; ++k) {
+    int pivot = k;
+    for (int i = k + 1; i < N; ++i) {
+      if (abs(value_of(M[i + k * N])) > abs(value_of(M[pivot + k * N]))) pivot = i;
+    }
+    if (value_of(M[pivot + k * N]) == 0.0) throw std::domain_error("the mass matrix M is singular");
+    if (pivot != k) {
+      for (int j = k; j < N; ++j) std::swap(M[k + j * N], M[pivot + j * N]);
+      std::swap(b[k], b[pivot]);
+    }
+    for (int i = k + 1; i < N; ++i) {
+      if (value_of(M[i + k * N]) == 0.0) continue;  // nothing to eliminate (M is often sparse)
+      const T factor = M[i + k * N] / M[k + k * N];
+      for (int j = k + 1; j < N; ++j) M[i + j * N] -= factor * M[k + j * N];
+      b[i] -= factor * b[k];
+    }
+  }
+  std::array<T, N> a;
+  for (int k = N - 1; k >= 0; --k) {
+    T sum = b[k];
+    for (int j = k + 1; j < N; ++j) sum -= M[k + j * N] * a[j];
+    a[k] = sum / M[k + k * N];
+  }
+  return a;
+}
 
 inline void write_error(char* err, size_t err_len, const char* what) {
   if (err != nullptr && err_len > 0) std::snprintf(err, err_len, "%s", what);
@@ -132,14 +233,89 @@ struct Plugin {
     return instance;
   }
 
-  // Calls model().f or .g (selected by `which_f`) on scalars of type T.
+  // Mechanical models: the equations of motion and the measurement at a point.
+  static constexpr int ndof = [] {
+    if constexpr (MechanicalModel<M>) return M::ndof;
+    return 0;
+  }();
+  template <typename T>
+  using Eom = EquationsOfMotion<T, (ndof > 0 ? ndof : 1), nu>;
+  template <typename T>
+  using Measurement = MeasurementEquation<T, (ndof > 0 ? ndof : 1), nu, ny>;
+  static_assert(ndof == 0 || nx == 2 * ndof, "a mechanical model has nx = 2 ndof states: positions, then velocities");
+
+  // The accelerations a from M a = H u - h.
+  template <typename T>
+  static std::array<T, (ndof > 0 ? ndof : 1)> accelerations(const Eom<T>& eom, const double* u) {
+    std::array<T, (ndof > 0 ? ndof : 1)> rhs;
+    for (int i = 0; i < ndof; ++i) {
+      T sum = -eom.h(i);
+      for (int j = 0; j < nu; ++j) sum += eom.H(i, j) * u[j];
+      rhs[i] = sum;
+    }
+    return solve<T, (ndof > 0 ? ndof : 1)>(eom.mass, rhs);
+  }
+
+  // Calls model().f or .g (selected by `which_f`) on scalars of type T; for
+  // a mechanical model, its explicit form.
   template <bool which_f, typename T>
   static void call(const T* x, const T* theta, const double* u, double t, T* out) {
-    if constexpr (which_f) {
+    if constexpr (MechanicalModel<M>) {
+      Eom<T> eom;
+      model().template equations_of_motion<T>(x, x + ndof, theta, t, eom);
+      const auto a = accelerations(eom, u);
+      if constexpr (which_f) {
+        for (int i = 0; i < ndof; ++i) {
+          out[i] = x[ndof + i];
+          out[ndof + i] = a[i];
+        }
+      } else {
+        Measurement<T> y;
+        model().template measurement<T>(x, x + ndof, theta, t, y);
+        for (int i = 0; i < ny; ++i) {
+          T sum = y.g(i);
+          for (int j = 0; j < ndof; ++j) sum += y.G(i, j) * a[j];
+          for (int j = 0; j < nu; ++j) sum += y.R(i, j) * u[j];
+          out[i] = sum;
+        }
+      }
+    } else if constexpr (which_f) {
       model().template f<T>(x, theta, u, t, out);
     } else {
       model().template g<T>(x, theta, u, t, out);
     }
+  }
+
+  // The stacked rows of the mechanical form and their Jacobians (model_abi.h).
+  static int mech(double t, const double* x, const double* theta, double* c, double* Fc, double* c_jac,
+                  double* Fc_jac, char* err, size_t err_len) {
+    return guarded(err, err_len, [&] {
+      if constexpr (MechanicalModel<M>) {
+        constexpr int rows = ndof + ny, cols = nu + ndof, entries = rows * cols;
+        std::array<Jet, nx> xj{};
+        std::array<Jet, (ntheta > 0 ? ntheta : 1)> tj{};
+        seed(x, theta, xj.data(), tj.data());
+        Eom<Jet> eom;
+        Measurement<Jet> y;
+        model().template equations_of_motion<Jet>(xj.data(), xj.data() + ndof, tj.data(), t, eom);
+        model().template measurement<Jet>(xj.data(), xj.data() + ndof, tj.data(), t, y);
+        auto put = [&](double* value, double* jac, int k, int stride, const Jet& e, double sign) {
+          value[k] = sign * e.v;
+          for (int j = 0; j < nz; ++j) jac[k + j * stride] = sign * e.d[j];
+        };
+        for (int i = 0; i < ndof; ++i) put(c, c_jac, i, rows, eom.h(i), 1.0);
+        for (int i = 0; i < ny; ++i) put(c, c_jac, ndof + i, rows, y.g(i), 1.0);
+        for (int j = 0; j < nu; ++j) {  // the columns of u: -H over R
+          for (int i = 0; i < ndof; ++i) put(Fc, Fc_jac, i + j * rows, entries, eom.H(i, j), -1.0);
+          for (int i = 0; i < ny; ++i) put(Fc, Fc_jac, ndof + i + j * rows, entries, y.R(i, j), 1.0);
+        }
+        for (int j = 0; j < ndof; ++j) {  // the columns of a: M over G
+          const int col = nu + j;
+          for (int i = 0; i < ndof; ++i) put(Fc, Fc_jac, i + col * rows, entries, eom.M(i, j), 1.0);
+          for (int i = 0; i < ny; ++i) put(Fc, Fc_jac, ndof + i + col * rows, entries, y.G(i, j), 1.0);
+        }
+      }
+    });
   }
 
   template <bool which_f>
@@ -161,24 +337,28 @@ struct Plugin {
     });
   }
 
+  // Seeds zeroed Jets with the values of [x; theta] and unit derivatives, in
+  // place: building whole Jets as temporaries costs store-forwarding stalls.
+  static void seed(const double* x, const double* theta, Jet* xj, Jet* tj) {
+    for (int i = 0; i < nx; ++i) {
+      xj[i].v = x[i];
+      xj[i].d[i] = 1.0;
+    }
+    for (int j = 0; j < ntheta; ++j) {
+      tj[j].v = theta[j];
+      tj[j].d[nx + j] = 1.0;
+    }
+  }
+
   template <bool which_f>
   static int jac(double t, const double* u, const double* x, const double* theta, double* out, double* jac,
                  char* err, size_t err_len) {
     constexpr int rows = which_f ? nx : ny;
     return guarded(err, err_len, [&] {
-      // Seeded in place (zero derivatives, then one unit each): building
-      // whole Jets as temporaries costs store-forwarding stalls here.
       std::array<Jet, nx> xj{};
       std::array<Jet, (ntheta > 0 ? ntheta : 1)> tj{};
       std::array<Jet, rows> oj;
-      for (int i = 0; i < nx; ++i) {
-        xj[i].v = x[i];
-        xj[i].d[i] = 1.0;
-      }
-      for (int j = 0; j < ntheta; ++j) {
-        tj[j].v = theta[j];
-        tj[j].d[nx + j] = 1.0;
-      }
+      seed(x, theta, xj.data(), tj.data());
       call<which_f, Jet>(xj.data(), tj.data(), u, t, oj.data());
       for (int i = 0; i < rows; ++i) {
         out[i] = oj[i].v;
@@ -209,6 +389,8 @@ struct Plugin {
         &eval<false>,
         &jac<true>,
         &jac<false>,
+        static_cast<uint32_t>(ndof),
+        ndof > 0 ? &mech : nullptr,
     };
     return &t;
   }

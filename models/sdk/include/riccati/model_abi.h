@@ -30,6 +30,9 @@
  *    They are optional (NULL): the host falls back to central finite
  *    differences.
  *  - The host checks results for NaN and Inf; a plugin need not.
+ *  - The table only grows: fields are appended, and a plugin's struct_size
+ *    says which it has. The host reads an appended field only when the
+ *    plugin's struct_size covers it, so older plugins keep loading.
  */
 #ifndef RICCATI_MODEL_ABI_H_
 #define RICCATI_MODEL_ABI_H_
@@ -59,6 +62,21 @@ typedef int (*riccati_eval_fn)(uint32_t n, size_t ld, double t, const double* u,
 typedef int (*riccati_jac_fn)(double t, const double* u, const double* x, const double* theta,
                               double* out, double* jac, char* err, size_t err_len);
 
+/* The mechanical (implicit) form of a model, for the optimal filter. With
+ * n = ndof degrees of freedom the states are x = [s; v] (n positions, then n
+ * velocities: nx = 2 n), a = v' are the accelerations, the inputs u [nu] are
+ * the applied forces, and
+ *     M(s, theta) a + h(s, v, theta) = H(s, v, theta) u     (n equations of motion)
+ *     y = g(s, v, theta, t) + G(s, v, theta, t) a + R(s, v, theta, t) u
+ * One point: the stacked rows, so that [0; y] = c + Fc [u; a],
+ *     c  = [h; g]            (n + ny)
+ *     Fc = [-H  M; R  G]     ((n + ny) x (nu + n), column-major),
+ * and their Jacobians with respect to z = [x; theta], column-major:
+ * c_jac is (n + ny) x nz, Fc_jac is ((n + ny)(nu + n)) x nz with row k the
+ * derivative of Fc's column-major element k. */
+typedef int (*riccati_mech_fn)(double t, const double* x, const double* theta, double* c, double* Fc,
+                               double* c_jac, double* Fc_jac, char* err, size_t err_len);
+
 typedef struct riccati_model_v1 {
   uint32_t abi_version; /* RICCATI_MODEL_ABI_VERSION the plugin was built with */
   uint32_t struct_size; /* sizeof(riccati_model_v1) in the plugin: later versions only append */
@@ -82,7 +100,17 @@ typedef struct riccati_model_v1 {
   riccati_eval_fn g; /* required */
   riccati_jac_fn f_jac; /* optional: f value and d f / d [x; theta] (nx rows) */
   riccati_jac_fn g_jac; /* optional: g value and d g / d [x; theta] (ny rows) */
+
+  /* Appended: the mechanical form (optional; ndof = 0 and mech = NULL for a
+   * model without one). f and g above stay required: they are its explicit
+   * form, a = M^-1 (H u - h). */
+  uint32_t ndof;
+  riccati_mech_fn mech;
 } riccati_model_v1;
+
+/* The size of the table before any field was appended: the least a plugin's
+ * struct_size may be. */
+#define RICCATI_MODEL_V1_BASE_SIZE offsetof(riccati_model_v1, ndof)
 
 /* The one symbol a plugin exports. The host passes its own ABI version; a
  * plugin may return NULL if it cannot serve that version. */
