@@ -1,5 +1,7 @@
 #include "commands.hpp"
 
+#include "live_view.hpp"
+
 #include <google/protobuf/util/json_util.h>
 #include <unistd.h>
 #include <yaml-cpp/yaml.h>
@@ -672,13 +674,28 @@ int stream(Client& c, const StreamOptions& o) {
     }
   }
   const int nz = info->state_names_size() + info->param_names_size();
+  const bool optimal = create.filter().kind() == v1::FILTER_KIND_OPTIMAL;
   std::fprintf(out, "t");
   for (const auto& n : info->state_names()) std::fprintf(out, ",%s", n.c_str());
   for (const auto& n : info->param_names()) std::fprintf(out, ",%s", n.c_str());
   for (const auto& n : info->state_names()) std::fprintf(out, ",std_%s", n.c_str());
   for (const auto& n : info->param_names()) std::fprintf(out, ",std_%s", n.c_str());
   for (const auto& n : info->output_names()) std::fprintf(out, ",innovation_%s", n.c_str());
-  std::fprintf(out, ",nis\n");
+  std::fprintf(out, ",nis");
+  if (optimal) {
+    // The estimated inputs and accelerations (named after the positions),
+    // then the residuals of the equations of motion, inputs and outputs.
+    const int ndof = static_cast<int>(info->ndof());
+    for (const auto& n : info->input_names()) std::fprintf(out, ",est_%s", n.c_str());
+    for (int i = 0; i < ndof; ++i) std::fprintf(out, ",acc_%s", info->state_names(i).c_str());
+    for (int i = 0; i < ndof; ++i) std::fprintf(out, ",res_motion%d", i + 1);
+    for (const auto& n : info->input_names()) std::fprintf(out, ",res_%s", n.c_str());
+    for (const auto& n : info->output_names()) std::fprintf(out, ",res_%s", n.c_str());
+  }
+  std::fprintf(out, "\n");
+  const bool live = o.live == "always" ||
+                    (o.live == "auto" && isatty(STDERR_FILENO) != 0 && (out != stdout || isatty(STDOUT_FILENO) == 0));
+  std::unique_ptr<LiveView> view = live ? std::make_unique<LiveView>(*info, stderr) : nullptr;
 
   grpc::ClientContext ctx;
   auto rpc = c.sessions->Stream(&ctx);
@@ -699,9 +716,13 @@ int stream(Client& c, const StreamOptions& o) {
     std::size_t batch = 0;
     while (rpc->Read(&response)) {
       const auto now = Clock::now();
+      double trip_us = -1.0;
       {
         std::lock_guard lock(mu);
-        if (batch < sent.size()) trips_us.push_back(std::chrono::duration<double, std::micro>(now - sent[batch]).count());
+        if (batch < sent.size()) {
+          trip_us = std::chrono::duration<double, std::micro>(now - sent[batch]).count();
+          trips_us.push_back(trip_us);
+        }
       }
       ++batch;
       for (const auto& r : response.results()) {
@@ -717,7 +738,11 @@ int stream(Client& c, const StreamOptions& o) {
         for (int i = 0; i < nz; ++i) std::fprintf(out, ",%.17g", e.state(i));
         for (int i = 0; i < nz; ++i) std::fprintf(out, ",%.17g", e.std(i));
         for (double v : e.innovation()) std::fprintf(out, ",%.17g", v);
-        std::fprintf(out, ",%.17g\n", e.nis());
+        std::fprintf(out, ",%.17g", e.nis());
+        for (double v : e.estimated_inputs()) std::fprintf(out, ",%.17g", v);
+        for (double v : e.residuals()) std::fprintf(out, ",%.17g", v);
+        std::fprintf(out, "\n");
+        if (view) view->add(e, trip_us);
       }
     }
   });
@@ -746,6 +771,7 @@ int stream(Client& c, const StreamOptions& o) {
   }
   rpc->WritesDone();
   reader.join();
+  if (view) view->finish();
   const grpc::Status finished = rpc->Finish();
   const double seconds = std::chrono::duration<double>(Clock::now() - start).count();
   if (out != stdout) std::fclose(out);

@@ -86,6 +86,7 @@ struct StreamOptions {
   int batch = 1;
   bool full_covariance = false;
   bool keep = false;
+  std::string live = "auto";  // the live view on stderr: auto (on a terminal), always, never
 };
 int stream(Client& c, const StreamOptions& o);
 

@@ -13,6 +13,8 @@ using namespace riccati::cli;
 // given, so that they override a job file and nothing else).
 struct RunFlags {
   std::string model, data, filter, hold, integrator, inversion, weights, x0, theta0, truth, p0, q, r;
+  std::string v, w, r0, form;
+  bool hold_outputs = false;
   std::vector<std::string> inputs, outputs;
   int passes = 0, substeps = 0;
   double rtol = 0, atol = 0, alpha = 0, beta = 0, kappa = 0;
@@ -24,7 +26,7 @@ struct RunFlags {
     given["model"] = cmd->add_option("--model,-m", model, "Model name");
     given["inputs"] = cmd->add_option("--inputs", inputs, "Input columns, in the model's order")->delimiter(',');
     given["outputs"] = cmd->add_option("--outputs", outputs, "Output columns, in the model's order")->delimiter(',');
-    given["filter"] = cmd->add_option("--filter", filter, "ekf or ukf");
+    given["filter"] = cmd->add_option("--filter", filter, "ekf, ukf or optimal");
     given["x0"] = cmd->add_option("--x0", x0, "Initial state: first (first measurement) or a list");
     given["theta0"] = cmd->add_option("--theta0", theta0, "Initial parameters (default: the model's)");
     given["p0"] = cmd->add_option("--p0", p0, "Initial variances of [x; theta] (one value: all)");
@@ -41,6 +43,12 @@ struct RunFlags {
     given["alpha"] = cmd->add_option("--alpha", alpha, "UKF scaled weights: alpha");
     given["beta"] = cmd->add_option("--beta", beta, "UKF scaled weights: beta");
     given["kappa"] = cmd->add_option("--kappa", kappa, "UKF kappa");
+    given["v"] = cmd->add_option("--v", v, "Optimal filter: weights of the equations of motion, inputs, outputs");
+    given["w"] = cmd->add_option("--w", w, "Optimal filter: weights of the states and parameters");
+    given["r0"] = cmd->add_option("--r0", r0, "Optimal filter: confidence in x0 and theta0 (instead of --p0)");
+    given["form"] = cmd->add_option("--form", form, "Optimal filter: continuous or split-step");
+    given["hold_outputs"] =
+        cmd->add_flag("--hold-outputs", hold_outputs, "Optimal filter: hold outputs over a step (strict real time)");
     if (identification) {
       given["data"] = cmd->add_option("--data,-d", data, "Dataset id, or a local CSV/MAT file to upload");
       given["passes"] = cmd->add_option("--passes", passes, "Passes over the data");
@@ -59,18 +67,18 @@ struct RunFlags {
   bool collect(RunSettings* s, std::string* error) const {
     auto list = [&](const std::string& key, const std::string& text, std::optional<std::vector<double>>* out) {
       if (!has(key)) return true;
-      std::vector<double> v;
-      if (!parse_list(text, &v, error)) {
+      std::vector<double> values;
+      if (!parse_list(text, &values, error)) {
         *error = "--" + key + ": " + *error;
         return false;
       }
-      *out = v;
+      *out = values;
       return true;
     };
     auto matrix = [&](const std::string& key, const std::string& text, std::optional<MatrixSetting>* out) {
-      std::optional<std::vector<double>> v;
-      if (!list(key, text, &v)) return false;
-      if (v) *out = matrix_from_list(*v);
+      std::optional<std::vector<double>> values;
+      if (!list(key, text, &values)) return false;
+      if (values) *out = matrix_from_list(*values);
       return true;
     };
     if (has("model")) s->model = model;
@@ -93,8 +101,11 @@ struct RunFlags {
     if (has("passes")) s->passes = passes;
     if (has("first_sample")) s->first_sample = first_sample;
     if (has("end_sample")) s->end_sample = end_sample;
+    if (has("form")) s->form = form;
+    if (has("hold_outputs")) s->hold_outputs = true;
     return list("theta0", theta0, &s->theta0) && list("truth", truth, &s->truth) && matrix("p0", p0, &s->p0) &&
-           matrix("q", q, &s->q) && matrix("r", r, &s->r);
+           matrix("q", q, &s->q) && matrix("r", r, &s->r) && matrix("v", v, &s->v) && matrix("w", w, &s->w) &&
+           matrix("r0", r0, &s->r0);
   }
 };
 
@@ -204,6 +215,11 @@ int main(int argc, char** argv) {
   stream_cmd->add_option("--time", st.time, "Time column")->capture_default_str();
   stream_cmd->add_flag("--full-covariance", st.full_covariance, "Ask for the full covariance");
   stream_cmd->add_flag("--keep", st.keep, "Keep the session open at the end");
+  stream_cmd->add_option("--live", st.live,
+                         "Live view of the estimates on stderr: auto (when it is a terminal and the estimates go "
+                         "elsewhere), always, never")
+      ->check(CLI::IsMember({"auto", "always", "never"}))
+      ->capture_default_str();
   st_flags.add(stream_cmd, false);
 
   SimulateOptions sim;

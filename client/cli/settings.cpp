@@ -242,6 +242,29 @@ bool load_job_file(const std::string& path, RunSettings* s, std::string* error) 
         }
         if (!ok) break;
       }
+    } else if (key == "optimal") {
+      if (!v.IsMap()) {
+        *error = "key \"optimal\": expected a map (V, W, R0, form, hold_outputs)";
+        ok = false;
+      }
+      for (const auto& sub : v) {
+        if (!ok) break;
+        const std::string k = sub.first.as<std::string>();
+        if (k == "V" || k == "v") {
+          ok = read_matrix(sub.second, "optimal.V", &s->v, error);
+        } else if (k == "W" || k == "w") {
+          ok = read_matrix(sub.second, "optimal.W", &s->w, error);
+        } else if (k == "R0" || k == "r0") {
+          ok = read_matrix(sub.second, "optimal.R0", &s->r0, error);
+        } else if (k == "form") {
+          ok = read_scalar(sub.second, "optimal.form", &s->form, error);
+        } else if (k == "hold_outputs") {
+          ok = read_scalar(sub.second, "optimal.hold_outputs", &s->hold_outputs, error);
+        } else {
+          *error = "unknown key \"optimal." + k + "\" (expected V, W, R0, form, hold_outputs)";
+          ok = false;
+        }
+      }
     } else if (key == "first_sample") {
       ok = read_scalar(v, key, &s->first_sample, error);
     } else if (key == "end_sample") {
@@ -277,6 +300,11 @@ void overlay(const RunSettings& f, RunSettings* b) {
   take(f.p0, b->p0);
   take(f.q, b->q);
   take(f.r, b->r);
+  take(f.v, b->v);
+  take(f.w, b->w);
+  take(f.r0, b->r0);
+  take(f.form, b->form);
+  take(f.hold_outputs, b->hold_outputs);
   take(f.passes, b->passes);
   take(f.substeps, b->substeps);
   take(f.rtol, b->rtol);
@@ -330,6 +358,51 @@ bool to_hold(const std::optional<std::string>& hold, v1::HoldOrder* out, std::st
   return true;
 }
 
+namespace {
+
+// The optimal filter's weights V, W and R0, its form and output hold.
+bool to_optimal_settings(const RunSettings& s, const v1::ModelInfo& info, v1::OptimalSettings* out,
+                         std::string* error) {
+  const int nz = info.state_names_size() + info.param_names_size();
+  if (info.ndof() == 0) {
+    *error = "model " + info.name() + " has no mechanical form (M a + h = H u): the optimal filter needs one";
+    return false;
+  }
+  if (s.q || s.r) {
+    *error = "the optimal filter takes no Q and R: give its weights V and W";
+    return false;
+  }
+  const int L = static_cast<int>(info.ndof()) + info.input_names_size() + info.output_names_size();
+  const std::string rows = std::to_string(info.ndof()) + " equations of motion, then inputs " +
+                           join(info.input_names()) + ", then outputs " + join(info.output_names());
+  if (!s.v || !s.w) {
+    *error = "the optimal filter needs its weights V (" + std::to_string(L) + ": " + rows + ") and W (" +
+             std::to_string(nz) + ": states and parameters)";
+    return false;
+  }
+  if (!to_covariance(*s.v, L, "V (" + rows + ")", out->mutable_v(), error)) return false;
+  if (!to_covariance(*s.w, nz, "W (" + std::to_string(nz) + " = states + parameters)", out->mutable_w(), error)) {
+    return false;
+  }
+  if (s.r0 && !to_covariance(*s.r0, nz, "R0 (" + std::to_string(nz) + " = states + parameters)",
+                             out->mutable_r0(), error)) {
+    return false;
+  }
+  const std::string form = s.form.value_or("continuous");
+  if (form == "continuous") {
+    out->set_form(v1::OPTIMAL_FORM_CONTINUOUS);
+  } else if (form == "split-step") {
+    out->set_form(v1::OPTIMAL_FORM_SPLIT_STEP);
+  } else {
+    *error = "form \"" + form + "\" is unknown (continuous or split-step)";
+    return false;
+  }
+  out->set_hold_outputs(s.hold_outputs.value_or(false));
+  return true;
+}
+
+}  // namespace
+
 bool to_filter_settings(const RunSettings& s, const v1::ModelInfo& info, v1::FilterSettings* out,
                         std::string* error) {
   const int nz = info.state_names_size() + info.param_names_size();
@@ -339,14 +412,21 @@ bool to_filter_settings(const RunSettings& s, const v1::ModelInfo& info, v1::Fil
     out->set_kind(v1::FILTER_KIND_EKF);
   } else if (filter == "ukf") {
     out->set_kind(v1::FILTER_KIND_UKF);
+  } else if (filter == "optimal") {
+    out->set_kind(v1::FILTER_KIND_OPTIMAL);
   } else {
-    *error = "filter \"" + filter + "\" is unknown (ekf or ukf)";
+    *error = "filter \"" + filter + "\" is unknown (ekf, ukf or optimal)";
     return false;
   }
   v1::HoldOrder hold;
   if (!to_hold(s.hold, &hold, error)) return false;
   out->set_hold(hold);
   if (!to_integrator(s, out->mutable_integrator(), error)) return false;
+  if (filter == "optimal") return to_optimal_settings(s, info, out->mutable_optimal(), error);
+  if (s.v || s.w || s.r0 || s.form || s.hold_outputs) {
+    *error = "V, W, R0, form and hold_outputs are settings of the optimal filter (filter: optimal)";
+    return false;
+  }
   if (s.q && !to_covariance(*s.q, nz, "Q (" + std::to_string(nz) + " = states + parameters)", out->mutable_q(), error)) {
     return false;
   }
@@ -406,6 +486,13 @@ bool fill_run(const RunSettings& s, const v1::ModelInfo& info, Request* out, std
     for (double v : *s.theta0) out->add_theta0(v);
   }
   const int nz = info.state_names_size() + info.param_names_size();
+  if (s.r0) {
+    if (s.p0) {
+      *error = "give P0 or R0 (its inverse, for the optimal filter), not both";
+      return false;
+    }
+    return true;  // the optimal filter's R0 is in its settings
+  }
   if (!s.p0) {
     *error = "P0 (initial variances of the " + std::to_string(nz) + " states and parameters) is required";
     return false;

@@ -8,7 +8,7 @@
 //   data: ds-... | path/to/file.csv
 //   inputs: [F1, F2]
 //   outputs: [h1, h2]
-//   filter: ekf | ukf
+//   filter: ekf | ukf | optimal
 //   passes: 10
 //   x0: first | [0.4, 0.15]
 //   theta0: [20, 20, 1, 1]
@@ -20,6 +20,12 @@
 //   inversion: cholesky | pinv
 //   joseph: true
 //   ukf: {weights: julier, alpha: 1, beta: 2, kappa: -3}
+//   optimal:                           (the optimal filter's weights; it takes no Q and R)
+//     V: [1e6, 1e6, 1e4, 1e6, 1e6]     (equations of motion, measured inputs, measured outputs)
+//     W: [1e4, ..., 1e10]              (states and parameters; W^-1 is the process noise)
+//     R0: [1e12, ..., 5e3]             (confidence in x0, theta0: P0 = R0^-1; instead of P0)
+//     form: continuous | split-step
+//     hold_outputs: false              (true: outputs held over a step, for strict real time)
 //   first_sample: 0
 //   end_sample: 0
 //   truth: [10, 5, 0.0791, 0.1342]     (printed beside the estimates)
@@ -48,6 +54,9 @@ struct RunSettings {
   std::optional<std::string> x0;  // "first" or comma-separated values
   std::optional<std::vector<double>> theta0, truth;
   std::optional<MatrixSetting> p0, q, r;
+  std::optional<MatrixSetting> v, w, r0;  // the optimal filter
+  std::optional<std::string> form;
+  std::optional<bool> hold_outputs;
   std::optional<int> passes, substeps;
   std::optional<double> rtol, atol, alpha, beta, kappa;
   std::optional<bool> joseph;

@@ -1,5 +1,6 @@
 #include "service/convert.hpp"
 
+#include <Eigen/Cholesky>
 #include <chrono>
 #include <cmath>
 #include <cstdio>
@@ -113,12 +114,40 @@ HoldOrder from_proto(v1::HoldOrder hold) {
   return hold == v1::HOLD_ORDER_FIRST ? HoldOrder::kFirst : HoldOrder::kZero;
 }
 
+namespace {
+
+// The optimal filter's weights; it has no Q and no R.
+Status optimal_from_proto(const v1::FilterSettings& s, const Model& model, FilterSettings* out) {
+  if (s.has_q() || s.has_r()) {
+    return invalid_argument("filter.q and filter.r do not apply to the optimal filter: give filter.optimal.v and w");
+  }
+  if (!model.has_mechanical_form()) {
+    return invalid_argument("model " + model.name() +
+                            " has no mechanical form (M a + h = H u): the optimal filter needs one");
+  }
+  const v1::OptimalSettings& o = s.optimal();
+  RICCATI_ASSIGN_OR_RETURN(out->optimal.V, from_covariance(o.v(), optimal_equation_count(model), true,
+                                                           "filter.optimal.v"));
+  RICCATI_ASSIGN_OR_RETURN(out->optimal.W, from_covariance(o.w(), model.nz(), true, "filter.optimal.w"));
+  switch (o.form()) {
+    case v1::OPTIMAL_FORM_UNSPECIFIED:
+    case v1::OPTIMAL_FORM_CONTINUOUS: out->optimal.form = OptimalForm::kContinuous; break;
+    case v1::OPTIMAL_FORM_SPLIT_STEP: out->optimal.form = OptimalForm::kSplitStep; break;
+    default: return invalid_argument("filter.optimal.form " + std::to_string(o.form()) + " is unknown");
+  }
+  out->optimal.interpolate_outputs = !o.hold_outputs();
+  return Status::ok();
+}
+
+}  // namespace
+
 Result<FilterSettings> from_proto(const v1::FilterSettings& s, const Model& model) {
   FilterSettings out;
   switch (s.kind()) {
     case v1::FILTER_KIND_UNSPECIFIED:
     case v1::FILTER_KIND_EKF: out.kind = FilterKind::kEkf; break;
     case v1::FILTER_KIND_UKF: out.kind = FilterKind::kUkf; break;
+    case v1::FILTER_KIND_OPTIMAL: out.kind = FilterKind::kOptimal; break;
     default: return invalid_argument("filter.kind " + std::to_string(s.kind()) + " is unknown");
   }
   if (s.hold() != v1::HOLD_ORDER_UNSPECIFIED && s.hold() != v1::HOLD_ORDER_ZERO && s.hold() != v1::HOLD_ORDER_FIRST) {
@@ -126,6 +155,13 @@ Result<FilterSettings> from_proto(const v1::FilterSettings& s, const Model& mode
   }
   out.hold = from_proto(s.hold());
   RICCATI_ASSIGN_OR_RETURN(out.integrator, from_proto(s.integrator()));
+  if (out.kind == FilterKind::kOptimal) {
+    RICCATI_RETURN_IF_ERROR(optimal_from_proto(s, model, &out));
+    Status valid = validate(out, model);
+    if (!valid.is_ok()) return valid.with_context("filter");
+    return out;
+  }
+  if (s.has_optimal()) return invalid_argument("filter.optimal applies to the optimal filter only");
   RICCATI_ASSIGN_OR_RETURN(out.Q, from_covariance(s.q(), model.nz(), false, "filter.q"));
   RICCATI_ASSIGN_OR_RETURN(out.R, from_covariance(s.r(), model.ny(), true, "filter.r"));
   switch (s.inversion()) {
@@ -149,6 +185,19 @@ Result<FilterSettings> from_proto(const v1::FilterSettings& s, const Model& mode
   return out;
 }
 
+Result<Eigen::MatrixXd> initial_covariance(const v1::Covariance& p0, const v1::FilterSettings& filter,
+                                           const Model& model) {
+  if (!filter.optimal().has_r0()) return from_covariance(p0, model.nz(), true, "p0");
+  if (p0.form_case() != v1::Covariance::FORM_NOT_SET) {
+    return invalid_argument("give either p0 or filter.optimal.r0 (its inverse), not both");
+  }
+  RICCATI_ASSIGN_OR_RETURN(const Eigen::MatrixXd R0,
+                           from_covariance(filter.optimal().r0(), model.nz(), true, "filter.optimal.r0"));
+  Eigen::LLT<Eigen::MatrixXd> llt(R0);
+  if (llt.info() != Eigen::Success) return invalid_argument("filter.optimal.r0 must be positive definite");
+  return Eigen::MatrixXd(llt.solve(Eigen::MatrixXd::Identity(model.nz(), model.nz())));
+}
+
 void initial_state_from_proto(const v1::InitialState& s, InitialState* mode, Eigen::VectorXd* x0) {
   *mode = s.first_measurement() ? InitialState::kFirstMeasurement : InitialState::kGiven;
   *x0 = Eigen::Map<const Eigen::VectorXd>(s.x0().data(), s.x0_size());
@@ -163,7 +212,7 @@ Result<IdentificationSettings> from_proto(const v1::IdentificationSpec& spec, co
   } else {
     RICCATI_ASSIGN_OR_RETURN(out.theta0, from_values(spec.theta0(), model.ntheta(), "theta0"));
   }
-  RICCATI_ASSIGN_OR_RETURN(out.P0, from_covariance(spec.p0(), model.nz(), true, "p0"));
+  RICCATI_ASSIGN_OR_RETURN(out.P0, initial_covariance(spec.p0(), spec.filter(), model));
   out.passes = spec.passes() == 0 ? 1 : static_cast<int>(std::min<uint32_t>(spec.passes(), 1u << 30));
   out.first_sample = static_cast<Eigen::Index>(spec.first_sample());
   out.end_sample = spec.end_sample() == 0 ? -1 : static_cast<Eigen::Index>(spec.end_sample());
@@ -193,6 +242,7 @@ v1::ModelInfo to_proto(const Model& model) {
   copy_values(model.theta_upper(), info.mutable_theta_upper());
   info.set_exact_f_jacobian(model.has_f_jacobian());
   info.set_exact_g_jacobian(model.has_g_jacobian());
+  info.set_ndof(static_cast<uint32_t>(model.ndof()));
   return info;
 }
 
@@ -249,6 +299,15 @@ v1::ValidationResult to_proto(const ValidationResult& r, const Eigen::VectorXd& 
     fit->set_rrse(f.rrse);
   }
   return out;
+}
+
+v1::FilterKind to_proto(FilterKind kind) {
+  switch (kind) {
+    case FilterKind::kEkf: return v1::FILTER_KIND_EKF;
+    case FilterKind::kUkf: return v1::FILTER_KIND_UKF;
+    case FilterKind::kOptimal: return v1::FILTER_KIND_OPTIMAL;
+  }
+  return v1::FILTER_KIND_UNSPECIFIED;
 }
 
 v1::JobState to_proto(JobState state) {

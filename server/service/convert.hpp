@@ -54,11 +54,16 @@ Result<IdentificationSettings> from_proto(const v1::IdentificationSpec& spec, co
 // Everything of a validation spec except where the parameters come from.
 Result<ValidationSettings> from_proto(const v1::ValidationSpec& spec, const Model& model);
 void initial_state_from_proto(const v1::InitialState& s, InitialState* mode, Eigen::VectorXd* x0);
+// The initial covariance of a run: p0, or for the optimal filter R0^-1 from
+// filter.optimal.r0 (one of the two).
+Result<Eigen::MatrixXd> initial_covariance(const v1::Covariance& p0, const v1::FilterSettings& filter,
+                                           const Model& model);
 
 v1::ModelInfo to_proto(const Model& model);
 v1::DatasetInfo to_proto(const DatasetRecord& record);
 v1::IdentificationResult to_proto(const IdentificationResult& r);
 v1::ValidationResult to_proto(const ValidationResult& r, const Eigen::VectorXd& theta);
+v1::FilterKind to_proto(FilterKind kind);
 v1::JobState to_proto(JobState state);
 
 }  // namespace riccati::service

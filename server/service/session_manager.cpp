@@ -128,6 +128,8 @@ Status Session::process(const v1::Measurement& m, bool full_covariance, v1::Meas
   copy_values(filter_->predicted_output(), e->mutable_y_predicted());
   copy_values(filter_->innovation(), e->mutable_innovation());
   e->set_nis(filter_->nis());
+  copy_values(filter_->estimated_inputs(), e->mutable_estimated_inputs());
+  copy_values(filter_->equation_residuals(), e->mutable_residuals());
   return Status::ok();
 }
 
@@ -136,7 +138,7 @@ v1::SessionInfo Session::info() const {
   v1::SessionInfo info;
   info.set_id(id_);
   info.set_model(model_->name());
-  info.set_filter(filter_->settings().kind == FilterKind::kUkf ? v1::FILTER_KIND_UKF : v1::FILTER_KIND_EKF);
+  info.set_filter(to_proto(filter_->settings().kind));
   info.set_state(!diverged_.is_ok() ? v1::SESSION_STATE_DIVERGED
                                     : (streaming_ ? v1::SESSION_STATE_STREAMING : v1::SESSION_STATE_IDLE));
   info.set_measurements(accepted_);
@@ -192,7 +194,7 @@ Result<std::shared_ptr<Session>> SessionManager::create(const std::string& tenan
   if (request.theta0_size() != 0) {
     RICCATI_ASSIGN_OR_RETURN(theta0, from_values(request.theta0(), model->ntheta(), "theta0"));
   }
-  RICCATI_ASSIGN_OR_RETURN(const Eigen::MatrixXd P0, from_covariance(request.p0(), model->nz(), true, "p0"));
+  RICCATI_ASSIGN_OR_RETURN(const Eigen::MatrixXd P0, initial_covariance(request.p0(), request.filter(), *model));
   RICCATI_ASSIGN_OR_RETURN(std::unique_ptr<Filter> filter, make_filter(model, settings));
   // Checks P0 now rather than at the first measurement.
   Eigen::VectorXd z(model->nz());

@@ -52,6 +52,59 @@ TEST(JobFile, ScalarsListsAndMatricesBecomeCovariances) {
   EXPECT_EQ(spec.filter().ukf().alpha(), 0.5);
 }
 
+v1::ModelInfo flexible_manipulator() {
+  v1::ModelInfo m;
+  m.set_name("flexible_manipulator");
+  m.set_ndof(2);
+  for (const char* n : {"s1", "s2", "v1", "v2"}) m.add_state_names(n);
+  for (const char* n : {"c1", "c2", "k", "b", "J1", "J2"}) m.add_param_names(n);
+  m.add_input_names("T");
+  for (const char* n : {"s1", "s2"}) m.add_output_names(n);
+  return m;
+}
+
+TEST(JobFile, OptimalFilterWeightsAndTheirErrors) {
+  RunSettings s;
+  std::string error;
+  ASSERT_TRUE(load_job_file(write("riccati-job-optimal.yaml",
+                                  "model: flexible_manipulator\nfilter: optimal\nx0: [0, 0, 0, 0]\n"
+                                  "optimal:\n  V: [1e6, 1e6, 1e4, 1e6, 1e6]\n  W: 1e10\n  R0: 1e3\n"
+                                  "  form: split-step\n  hold_outputs: true\n"),
+                            &s, &error))
+      << error;
+  v1::CreateSessionRequest session;
+  ASSERT_TRUE(to_session_request(s, flexible_manipulator(), &session, &error)) << error;
+  const v1::OptimalSettings& o = session.filter().optimal();
+  EXPECT_EQ(session.filter().kind(), v1::FILTER_KIND_OPTIMAL);
+  ASSERT_EQ(o.v().diagonal().values_size(), 5);  // 2 equations of motion, T, s1, s2
+  EXPECT_EQ(o.v().diagonal().values(2), 1e4);
+  EXPECT_EQ(o.w().diagonal().values_size(), 10);
+  EXPECT_EQ(o.r0().diagonal().values(9), 1e3);
+  EXPECT_EQ(o.form(), v1::OPTIMAL_FORM_SPLIT_STEP);
+  EXPECT_TRUE(o.hold_outputs());
+  EXPECT_FALSE(session.has_p0());  // R0 instead
+
+  RunSettings short_v = s;
+  short_v.v = matrix_from_list({1, 2, 3, 4});
+  EXPECT_FALSE(to_session_request(short_v, flexible_manipulator(), &session, &error));
+  EXPECT_NE(error.find("equations of motion"), std::string::npos) << error;
+  RunSettings with_r = s;
+  with_r.r = matrix_from_list({1e-3});
+  EXPECT_FALSE(to_session_request(with_r, flexible_manipulator(), &session, &error));
+  EXPECT_NE(error.find("no Q and R"), std::string::npos) << error;
+  RunSettings both = s;
+  both.p0 = matrix_from_list({1});
+  EXPECT_FALSE(to_session_request(both, flexible_manipulator(), &session, &error));
+  RunSettings not_mechanical = s;
+  EXPECT_FALSE(to_session_request(not_mechanical, two_tank(), &session, &error));
+  EXPECT_NE(error.find("mechanical form"), std::string::npos) << error;
+  RunSettings ekf_with_v = s;
+  ekf_with_v.filter = "ekf";
+  ekf_with_v.r = matrix_from_list({1e-3});
+  EXPECT_FALSE(to_session_request(ekf_with_v, flexible_manipulator(), &session, &error));
+  EXPECT_NE(error.find("settings of the optimal filter"), std::string::npos) << error;
+}
+
 TEST(JobFile, FlagsOverrideTheFile) {
   RunSettings file;
   std::string error;

@@ -143,5 +143,39 @@ TEST_F(CliTest, StreamReplaysAFileIntoASession) {
   EXPECT_NEAR(v[6], 0.1342, 0.003);
 }
 
+TEST_F(CliTest, StreamsTheManipulatorIntoAnOptimalFilterSessionWithALiveView) {
+  // The first 2 s of the manipulator, paced at its real 400 Hz, with the
+  // example job file (case C weights); the live view forced on.
+  const auto data = dir_.path() / "manipulator_2s.csv";
+  {
+    std::ifstream in(kData + "/flexible_manipulator.csv");
+    std::ofstream cut(data);
+    std::string line;
+    for (int i = 0; i < 801 && std::getline(in, line); ++i) cut << line << "\n";
+  }
+  const auto out = dir_.path() / "estimates.csv";
+  const CliRun r = riccati("stream --config " + std::string(RICCATI_EXAMPLES_DIR) +
+                           "/flexible_manipulator_optimal.yaml --data " + data.string() +
+                           " --rate 400 --live always -o " + out.string());
+  ASSERT_EQ(r.exit_code, 0) << last_stderr();
+  const std::string err = last_stderr();
+  EXPECT_NE(err.find("800 estimates, 0 refused"), std::string::npos) << err;
+  for (const char* shown : {"parameter", "c1", "J2", "residual RMS", "round trip"}) {
+    EXPECT_NE(err.find(shown), std::string::npos) << shown << " not in the live view:\n" << err;
+  }
+  std::ifstream in(out);
+  std::string header, line, last;
+  std::getline(in, header);
+  EXPECT_NE(header.find(",est_T,acc_s1,acc_s2,res_motion1,res_motion2,res_T,res_s1,res_s2"), std::string::npos)
+      << header;
+  while (std::getline(in, line)) last = line;
+  std::istringstream fields(last);
+  std::vector<double> v;
+  for (std::string cell; std::getline(fields, cell, ',');) v.push_back(std::stod(cell));
+  ASSERT_EQ(v.size(), 32u);  // t, 10 states, 10 std, 2 innovations, nis, 3 estimated, 5 residuals
+  // After 2 s, k (truth 5.8, start 6.5) is within 5 %.
+  EXPECT_NEAR(v[7], 5.8, 0.29);
+}
+
 }  // namespace
 }  // namespace riccati
