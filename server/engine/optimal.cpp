@@ -84,14 +84,18 @@ class OptimalFilter final : public Filter {
     identity_P_ = Eigen::MatrixXd::Identity(P, P);
     // Split-step update.
     vt_ldlt_ = Eigen::LDLT<Eigen::MatrixXd>(L);
+    Lfactor_.resize(L, L);
     U_.resize(L, L);
     Hm_.resize(L, N);
     yv_.resize(L);
+    Syv_.resize(L);
     Sm_.resize(L, L);
     s_llt_ = Eigen::LLT<Eigen::MatrixXd>(L);
     HmQ_.resize(L, N);
+    GainT_.resize(L, N);
     Gain_.resize(N, L);
     IGH_.resize(N, N);
+    IGHP_.resize(N, N);
     Pnew_.resize(N, N);
     p_check_ = Eigen::LLT<Eigen::MatrixXd>(N);
   }
@@ -109,8 +113,8 @@ class OptimalFilter final : public Filter {
     const int ny = model_->ny();
     y_last_ = Eigen::Map<const Eigen::VectorXd>(y, ny);
     has_measurement_ = true;
-    RICCATI_RETURN_IF_ERROR(
-        equations(t_, z_.data(), u, y).with_context("optimal filter at t = " + std::to_string(t_)));
+    const Status evaluated = equations(t_, z_.data(), u, y);
+    if (!evaluated.is_ok()) return evaluated.with_context("optimal filter at t = " + std::to_string(t_));
     innovation_ = zeta_.tail(ny);
     y_pred_ = y_last_ - innovation_;
     const double dt = interval_;
@@ -266,9 +270,9 @@ class OptimalFilter final : public Filter {
     // V~ = U U' from its LDL' factorisation with pivoting (V~ is only
     // semi-definite: its rank is L - (nu + n)).
     vt_ldlt_.compute(Vt_);
-    U_ = vt_ldlt_.matrixL();
-    U_ = U_ * vt_ldlt_.vectorD().cwiseMax(0.0).cwiseSqrt().asDiagonal();
-    U_ = vt_ldlt_.transpositionsP().transpose() * U_;
+    Lfactor_ = vt_ldlt_.matrixL();
+    Lfactor_ = Lfactor_ * vt_ldlt_.vectorD().cwiseMax(0.0).cwiseSqrt().asDiagonal();
+    U_.noalias() = vt_ldlt_.transpositionsP().transpose() * Lfactor_;
     Hm_.noalias() = U_.transpose() * C_;
     yv_.noalias() = U_.transpose() * r_;
     HmQ_.noalias() = Hm_ * P_;
@@ -279,12 +283,15 @@ class OptimalFilter final : public Filter {
       return failed_precondition("filter diverged: the update's S is not positive definite at t = " +
                                  std::to_string(t_));
     }
-    Gain_.transpose() = s_llt_.solve(HmQ_);  // G = Q Hm' S^-1, Q symmetric
-    nis_ = yv_.dot(s_llt_.solve(yv_));
+    GainT_ = s_llt_.solve(HmQ_);  // G' = S^-1 Hm Q, Q symmetric
+    Gain_ = GainT_.transpose();
+    Syv_ = s_llt_.solve(yv_);
+    nis_ = yv_.dot(Syv_);
     z_.noalias() += Gain_ * yv_;
     IGH_.setIdentity();
     IGH_.noalias() -= Gain_ * Hm_;
-    Pnew_.noalias() = IGH_ * P_ * IGH_.transpose();
+    IGHP_.noalias() = IGH_ * P_;
+    Pnew_.noalias() = IGHP_ * IGH_.transpose();
     Pnew_.noalias() += (1.0 / dt) * Gain_ * Gain_.transpose();
     P_ = 0.5 * (Pnew_ + Pnew_.transpose());
     return check("update");
@@ -321,10 +328,10 @@ class OptimalFilter final : public Filter {
   double interval_ = 0.0;         // length of the prediction not yet followed by an update
   // Work space, sized once.
   std::vector<double> w_;  // [x^; vec Q]
-  Eigen::VectorXd c_, r_, DVr_, Vzeta_, CtVzeta_, yv_;
+  Eigen::VectorXd c_, r_, DVr_, Vzeta_, CtVzeta_, yv_, Syv_;
   Eigen::MatrixXd Fc_, c_jac_, Fc_jac_, D_, C_, VD_, DVD_, KDV_, KDVC_, K_pp_, Vt_, identity_P_;
   Eigen::MatrixXd Qs_, AQ_, CQ_, VtCQ_;
-  Eigen::MatrixXd U_, Hm_, Sm_, HmQ_, Gain_, IGH_, Pnew_;
+  Eigen::MatrixXd Lfactor_, U_, Hm_, Sm_, HmQ_, GainT_, Gain_, IGH_, IGHP_, Pnew_;
   Eigen::LLT<Eigen::MatrixXd> dvd_, s_llt_, p_check_;
   Eigen::LDLT<Eigen::MatrixXd> vt_ldlt_;
 };
