@@ -13,6 +13,7 @@ packages=(
   libgrpc++-dev protobuf-compiler-grpc                  # gRPC (server, client, code generator)
   libprotobuf-dev protobuf-compiler                     # Protocol Buffers
   libsqlite3-dev                                        # the embedded store
+  libssl-dev                                            # SHA-256 (token digests, plugin checksums)
   libyaml-cpp-dev                                       # config and job files
   nlohmann-json3-dev                                    # JSON (dataset metadata in tests)
   libgtest-dev libgmock-dev                             # GoogleTest

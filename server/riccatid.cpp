@@ -9,6 +9,7 @@
 #include <csignal>
 #include <cstdio>
 #include <fstream>
+#include <iostream>
 #include <spdlog/sinks/stdout_color_sinks.h>
 #include <spdlog/spdlog.h>
 
@@ -28,7 +29,29 @@ int main(int argc, char** argv) {
   app.add_option("--session-idle-timeout", idle_timeout_s, "Seconds before an idle session expires");
   auto* log_level = app.add_option("--log-level", flags.log_level, "trace, debug, info, warn, error, off");
   app.add_option("--port-file", port_file, "Write the bound port to this file once listening");
+  auto* tls_cert = app.add_option("--tls-cert", flags.security.tls_cert, "TLS certificate chain (PEM)");
+  auto* tls_key = app.add_option("--tls-key", flags.security.tls_key, "TLS private key (PEM)");
+  auto* tls_client_ca =
+      app.add_option("--tls-client-ca", flags.security.tls_client_ca, "CA of client certificates: mutual TLS (PEM)");
+  auto* tokens_file = app.add_option("--tokens-file", flags.security.tokens_file,
+                                     "Bearer tokens: lines \"<tenant> sha256:<digest>\" (none: no authentication, "
+                                     "loopback only)");
+  bool hash_token = false;
+  app.add_flag("--hash-token", hash_token,
+               "Read a token on standard input and print its line for the tokens file (needs --tenant)");
+  std::string tenant;
+  app.add_option("--tenant", tenant, "With --hash-token: the tenant the token belongs to");
   CLI11_PARSE(app, argc, argv);
+
+  if (hash_token) {
+    std::string token;
+    if (tenant.empty() || !std::getline(std::cin, token) || token.empty()) {
+      std::fprintf(stderr, "riccatid: --hash-token reads a token on standard input and needs --tenant\n");
+      return 2;
+    }
+    std::printf("%s %s\n", tenant.c_str(), riccati::service::token_digest(token).c_str());
+    return 0;
+  }
 
   DaemonConfig config;
   if (!config_file.empty()) {
@@ -43,6 +66,10 @@ int main(int argc, char** argv) {
   if (*models_dir) config.models_dir = flags.models_dir;
   if (*workers) config.workers = flags.workers;
   if (*log_level) config.log_level = flags.log_level;
+  if (*tls_cert) config.security.tls_cert = flags.security.tls_cert;
+  if (*tls_key) config.security.tls_key = flags.security.tls_key;
+  if (*tls_client_ca) config.security.tls_client_ca = flags.security.tls_client_ca;
+  if (*tokens_file) config.security.tokens_file = flags.security.tokens_file;
   if (idle_timeout_s >= 0) config.session_idle_timeout = std::chrono::seconds(idle_timeout_s);
 
   auto logger = spdlog::stderr_color_mt("riccatid");

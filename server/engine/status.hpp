@@ -23,6 +23,7 @@ enum class StatusCode {
   kOutOfRange = 11,
   kInternal = 13,
   kUnavailable = 14,
+  kUnauthenticated = 16,
 };
 
 const char* status_code_name(StatusCode code);

@@ -10,14 +10,6 @@
 
 namespace riccati::service {
 
-namespace {
-
-bool is_loopback(const std::string& listen) {
-  return listen.rfind("127.", 0) == 0 || listen.rfind("localhost:", 0) == 0 || listen.rfind("[::1]:", 0) == 0;
-}
-
-}  // namespace
-
 Status load_config_file(const std::string& path, DaemonConfig* c) {
   try {
     const YAML::Node root = YAML::LoadFile(path);
@@ -41,6 +33,14 @@ Status load_config_file(const std::string& path, DaemonConfig* c) {
         c->limits.max_dataset_bytes = v.as<std::int64_t>();
       } else if (key == "max_batch") {
         c->limits.max_batch = v.as<int>();
+      } else if (key == "tls_cert") {
+        c->security.tls_cert = v.as<std::string>();
+      } else if (key == "tls_key") {
+        c->security.tls_key = v.as<std::string>();
+      } else if (key == "tls_client_ca") {
+        c->security.tls_client_ca = v.as<std::string>();
+      } else if (key == "tokens_file") {
+        c->security.tokens_file = v.as<std::string>();
       } else if (key == "log_level") {
         c->log_level = v.as<std::string>();
       } else {
@@ -79,18 +79,19 @@ Status Daemon::start() {
   RICCATI_RETURN_IF_ERROR(jobs_->start());
   sessions_ = std::make_unique<SessionManager>(models_, config_.session_idle_timeout);
 
+  RICCATI_ASSIGN_OR_RETURN(auth_, Authenticator::create(config_.security.tokens_file));
   model_service_ = std::make_unique<ModelServiceImpl>(models_);
-  dataset_service_ = std::make_unique<DatasetServiceImpl>(*store_, config_.data_dir, config_.limits);
-  job_service_ = std::make_unique<JobServiceImpl>(*jobs_, *store_);
-  session_service_ = std::make_unique<SessionServiceImpl>(*sessions_, config_.limits);
+  dataset_service_ = std::make_unique<DatasetServiceImpl>(*auth_, *store_, config_.data_dir, config_.limits);
+  job_service_ = std::make_unique<JobServiceImpl>(*auth_, *jobs_, *store_);
+  session_service_ = std::make_unique<SessionServiceImpl>(*auth_, *sessions_, config_.limits);
 
+  std::string security;
+  RICCATI_ASSIGN_OR_RETURN(const std::shared_ptr<grpc::ServerCredentials> credentials,
+                           server_credentials(config_.security, config_.listen, auth_, &security));
   grpc::EnableDefaultHealthCheckService(true);
   grpc::reflection::InitProtoReflectionServerBuilderPlugin();
   grpc::ServerBuilder builder;
-  if (!is_loopback(config_.listen)) {
-    spdlog::warn("listening on {} without TLS: only for a trusted network", config_.listen);
-  }
-  builder.AddListeningPort(config_.listen, grpc::InsecureServerCredentials(), &port_);
+  builder.AddListeningPort(config_.listen, credentials, &port_);
   builder.SetMaxReceiveMessageSize(config_.max_message_bytes);
   builder.RegisterService(model_service_.get());
   builder.RegisterService(dataset_service_.get());
@@ -100,8 +101,11 @@ Status Daemon::start() {
   if (server_ == nullptr || port_ == 0) {
     return {StatusCode::kUnavailable, "cannot listen on " + config_.listen + " (address in use or invalid?)"};
   }
-  spdlog::info("riccatid listening address={} port={} workers={} models={}", config_.listen, port_, workers,
-               models_.models().size());
+  spdlog::info("riccatid listening address={} port={} security=\"{}\" workers={} models={}", config_.listen, port_,
+               security, workers, models_.models().size());
+  if (config_.security.tls_cert.empty()) {
+    spdlog::warn("plain TCP on loopback, for development: give tls_cert and tls_key to serve other hosts");
+  }
   return Status::ok();
 }
 

@@ -9,6 +9,7 @@
 #include <string>
 
 #include "engine/plugin_loader.hpp"
+#include "service/auth.hpp"
 #include "service/job_manager.hpp"
 #include "service/services.hpp"
 #include "service/session_manager.hpp"
@@ -24,6 +25,7 @@ struct DaemonConfig {
   std::chrono::seconds session_idle_timeout{600};
   int max_message_bytes = 64 << 20;  // largest gRPC message received
   ServiceLimits limits;
+  SecurityConfig security;  // TLS and bearer tokens (auth.hpp)
   std::string log_level = "info";
 };
 
@@ -49,6 +51,7 @@ class Daemon {
   std::unique_ptr<Store> store_;
   std::unique_ptr<JobManager> jobs_;
   std::unique_ptr<SessionManager> sessions_;
+  std::shared_ptr<const Authenticator> auth_;
   std::unique_ptr<ModelServiceImpl> model_service_;
   std::unique_ptr<DatasetServiceImpl> dataset_service_;
   std::unique_ptr<JobServiceImpl> job_service_;

@@ -8,18 +8,10 @@
 #include <fstream>
 
 #include "engine/validation.hpp"
+#include "service/auth.hpp"
 #include "service/convert.hpp"
 
 namespace riccati::service {
-
-namespace {
-
-// Until authentication exists, every caller is this tenant.
-const std::string kTenant = "default";
-
-std::string tenant_of(const grpc::ServerContext* /*context*/) { return kTenant; }
-
-}  // namespace
 
 // ---- ModelService ---------------------------------------------------------
 
@@ -132,7 +124,7 @@ grpc::Status DatasetServiceImpl::UploadDataset(grpc::ServerContext* context,
 
   DatasetRecord record;
   record.id = new_id("ds");
-  record.tenant = tenant_of(context);
+  record.tenant = auth_.tenant(*context);
   record.name = name;
   record.format = format == v1::DATASET_FORMAT_MAT ? "mat" : "csv";
   record.input_names = data.input_names;
@@ -152,7 +144,7 @@ grpc::Status DatasetServiceImpl::UploadDataset(grpc::ServerContext* context,
 
 grpc::Status DatasetServiceImpl::GetDataset(grpc::ServerContext* context, const v1::GetDatasetRequest* request,
                                             v1::DatasetInfo* response) {
-  auto record = store_.get_dataset(tenant_of(context), request->id());
+  auto record = store_.get_dataset(auth_.tenant(*context), request->id());
   if (!record.is_ok()) return to_grpc(record.status());
   *response = to_proto(record.value());
   return grpc::Status::OK;
@@ -160,7 +152,7 @@ grpc::Status DatasetServiceImpl::GetDataset(grpc::ServerContext* context, const 
 
 grpc::Status DatasetServiceImpl::ListDatasets(grpc::ServerContext* context, const v1::ListDatasetsRequest*,
                                               v1::ListDatasetsResponse* response) {
-  auto records = store_.list_datasets(tenant_of(context));
+  auto records = store_.list_datasets(auth_.tenant(*context));
   if (!records.is_ok()) return to_grpc(records.status());
   for (const auto& r : records.value()) *response->add_datasets() = to_proto(r);
   return grpc::Status::OK;
@@ -168,12 +160,12 @@ grpc::Status DatasetServiceImpl::ListDatasets(grpc::ServerContext* context, cons
 
 grpc::Status DatasetServiceImpl::DeleteDataset(grpc::ServerContext* context, const v1::DeleteDatasetRequest* request,
                                                v1::DeleteDatasetResponse*) {
-  return to_grpc(store_.delete_dataset(tenant_of(context), request->id()));
+  return to_grpc(store_.delete_dataset(auth_.tenant(*context), request->id()));
 }
 
 grpc::Status DatasetServiceImpl::GetDatasetData(grpc::ServerContext* context, const v1::GetDatasetRequest* request,
                                                 v1::DatasetData* response) {
-  const std::string tenant = tenant_of(context);
+  const std::string tenant = auth_.tenant(*context);
   auto record = store_.get_dataset(tenant, request->id());
   if (!record.is_ok()) return to_grpc(record.status());
   auto data = store_.load_dataset(tenant, request->id());
@@ -214,7 +206,7 @@ v1::Job to_proto(const JobRecord& job) {
 
 grpc::Status JobServiceImpl::SubmitIdentification(grpc::ServerContext* context, const v1::IdentificationSpec* spec,
                                                    v1::Job* response) {
-  auto job = jobs_.submit_identification(tenant_of(context), *spec);
+  auto job = jobs_.submit_identification(auth_.tenant(*context), *spec);
   if (!job.is_ok()) return to_grpc(job.status());
   *response = to_proto(job.value());
   return grpc::Status::OK;
@@ -222,7 +214,7 @@ grpc::Status JobServiceImpl::SubmitIdentification(grpc::ServerContext* context, 
 
 grpc::Status JobServiceImpl::SubmitValidation(grpc::ServerContext* context, const v1::ValidationSpec* spec,
                                               v1::Job* response) {
-  auto job = jobs_.submit_validation(tenant_of(context), *spec);
+  auto job = jobs_.submit_validation(auth_.tenant(*context), *spec);
   if (!job.is_ok()) return to_grpc(job.status());
   *response = to_proto(job.value());
   return grpc::Status::OK;
@@ -230,7 +222,7 @@ grpc::Status JobServiceImpl::SubmitValidation(grpc::ServerContext* context, cons
 
 grpc::Status JobServiceImpl::WatchJob(grpc::ServerContext* context, const v1::WatchJobRequest* request,
                                       grpc::ServerWriter<v1::Job>* writer) {
-  const std::string tenant = tenant_of(context);
+  const std::string tenant = auth_.tenant(*context);
   std::uint64_t version = 0;
   for (;;) {
     // Short waits, so a client that went away or a deadline is noticed.
@@ -249,7 +241,7 @@ grpc::Status JobServiceImpl::WatchJob(grpc::ServerContext* context, const v1::Wa
 
 grpc::Status JobServiceImpl::GetJob(grpc::ServerContext* context, const v1::GetJobRequest* request,
                                     v1::Job* response) {
-  auto job = jobs_.get(tenant_of(context), request->id());
+  auto job = jobs_.get(auth_.tenant(*context), request->id());
   if (!job.is_ok()) return to_grpc(job.status());
   *response = to_proto(job.value());
   return grpc::Status::OK;
@@ -257,7 +249,7 @@ grpc::Status JobServiceImpl::GetJob(grpc::ServerContext* context, const v1::GetJ
 
 grpc::Status JobServiceImpl::ListJobs(grpc::ServerContext* context, const v1::ListJobsRequest*,
                                       v1::ListJobsResponse* response) {
-  const std::string tenant = tenant_of(context);
+  const std::string tenant = auth_.tenant(*context);
   auto jobs = store_.list_jobs(tenant);
   if (!jobs.is_ok()) return to_grpc(jobs.status());
   for (const auto& stored : jobs.value()) {
@@ -270,7 +262,7 @@ grpc::Status JobServiceImpl::ListJobs(grpc::ServerContext* context, const v1::Li
 
 grpc::Status JobServiceImpl::CancelJob(grpc::ServerContext* context, const v1::CancelJobRequest* request,
                                        v1::Job* response) {
-  auto job = jobs_.cancel(tenant_of(context), request->id());
+  auto job = jobs_.cancel(auth_.tenant(*context), request->id());
   if (!job.is_ok()) return to_grpc(job.status());
   *response = to_proto(job.value());
   return grpc::Status::OK;
@@ -278,7 +270,7 @@ grpc::Status JobServiceImpl::CancelJob(grpc::ServerContext* context, const v1::C
 
 grpc::Status JobServiceImpl::GetResult(grpc::ServerContext* context, const v1::GetResultRequest* request,
                                        v1::JobResult* response) {
-  const std::string tenant = tenant_of(context);
+  const std::string tenant = auth_.tenant(*context);
   auto job = jobs_.get(tenant, request->job_id());
   if (!job.is_ok()) return to_grpc(job.status());
   if (job.value().state != JobState::kSucceeded) {
@@ -297,7 +289,7 @@ grpc::Status JobServiceImpl::GetResult(grpc::ServerContext* context, const v1::G
 
 grpc::Status SessionServiceImpl::CreateSession(grpc::ServerContext* context, const v1::CreateSessionRequest* request,
                                                v1::SessionInfo* response) {
-  auto session = sessions_.create(tenant_of(context), *request);
+  auto session = sessions_.create(auth_.tenant(*context), *request);
   if (!session.is_ok()) return to_grpc(session.status());
   *response = session.value()->info();
   return grpc::Status::OK;
@@ -305,7 +297,7 @@ grpc::Status SessionServiceImpl::CreateSession(grpc::ServerContext* context, con
 
 grpc::Status SessionServiceImpl::GetSession(grpc::ServerContext* context, const v1::GetSessionRequest* request,
                                             v1::SessionInfo* response) {
-  auto session = sessions_.get(tenant_of(context), request->id());
+  auto session = sessions_.get(auth_.tenant(*context), request->id());
   if (!session.is_ok()) return to_grpc(session.status());
   *response = session.value()->info();
   return grpc::Status::OK;
@@ -313,13 +305,13 @@ grpc::Status SessionServiceImpl::GetSession(grpc::ServerContext* context, const 
 
 grpc::Status SessionServiceImpl::ListSessions(grpc::ServerContext* context, const v1::ListSessionsRequest*,
                                               v1::ListSessionsResponse* response) {
-  for (const auto& s : sessions_.list(tenant_of(context))) *response->add_sessions() = s->info();
+  for (const auto& s : sessions_.list(auth_.tenant(*context))) *response->add_sessions() = s->info();
   return grpc::Status::OK;
 }
 
 grpc::Status SessionServiceImpl::CloseSession(grpc::ServerContext* context, const v1::CloseSessionRequest* request,
                                               v1::CloseSessionResponse*) {
-  return to_grpc(sessions_.close(tenant_of(context), request->id()));
+  return to_grpc(sessions_.close(auth_.tenant(*context), request->id()));
 }
 
 grpc::Status SessionServiceImpl::Stream(grpc::ServerContext* context,
@@ -328,7 +320,7 @@ grpc::Status SessionServiceImpl::Stream(grpc::ServerContext* context,
   if (!stream->Read(&request)) return grpc::Status::OK;  // the client closed before opening
   if (!request.has_open()) return to_grpc(invalid_argument("the first message of a stream must be StreamOpen"));
   const bool full_covariance = request.open().full_covariance();
-  auto found = sessions_.get(tenant_of(context), request.open().session_id());
+  auto found = sessions_.get(auth_.tenant(*context), request.open().session_id());
   if (!found.is_ok()) return to_grpc(found.status());
   const std::shared_ptr<Session> session = found.value();
   const Status attached = session->attach();

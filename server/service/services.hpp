@@ -12,6 +12,7 @@
 #include "riccati/v1/jobs.grpc.pb.h"
 #include "riccati/v1/models.grpc.pb.h"
 #include "riccati/v1/sessions.grpc.pb.h"
+#include "service/auth.hpp"
 #include "service/job_manager.hpp"
 #include "service/session_manager.hpp"
 #include "store/store.hpp"
@@ -36,8 +37,8 @@ class ModelServiceImpl final : public v1::ModelService::Service {
 
 class DatasetServiceImpl final : public v1::DatasetService::Service {
  public:
-  DatasetServiceImpl(Store& store, std::string scratch_dir, ServiceLimits limits)
-      : store_(store), scratch_dir_(std::move(scratch_dir)), limits_(limits) {}
+  DatasetServiceImpl(const Authenticator& auth, Store& store, std::string scratch_dir, ServiceLimits limits)
+      : auth_(auth), store_(store), scratch_dir_(std::move(scratch_dir)), limits_(limits) {}
   grpc::Status UploadDataset(grpc::ServerContext*, grpc::ServerReader<v1::UploadDatasetRequest>*,
                              v1::DatasetInfo*) override;
   grpc::Status GetDataset(grpc::ServerContext*, const v1::GetDatasetRequest*, v1::DatasetInfo*) override;
@@ -47,6 +48,7 @@ class DatasetServiceImpl final : public v1::DatasetService::Service {
   grpc::Status GetDatasetData(grpc::ServerContext*, const v1::GetDatasetRequest*, v1::DatasetData*) override;
 
  private:
+  const Authenticator& auth_;
   Store& store_;
   const std::string scratch_dir_;  // where MAT uploads are written for matio to read
   const ServiceLimits limits_;
@@ -54,7 +56,7 @@ class DatasetServiceImpl final : public v1::DatasetService::Service {
 
 class JobServiceImpl final : public v1::JobService::Service {
  public:
-  JobServiceImpl(JobManager& jobs, Store& store) : jobs_(jobs), store_(store) {}
+  JobServiceImpl(const Authenticator& auth, JobManager& jobs, Store& store) : auth_(auth), jobs_(jobs), store_(store) {}
   grpc::Status SubmitIdentification(grpc::ServerContext*, const v1::IdentificationSpec*, v1::Job*) override;
   grpc::Status SubmitValidation(grpc::ServerContext*, const v1::ValidationSpec*, v1::Job*) override;
   grpc::Status WatchJob(grpc::ServerContext*, const v1::WatchJobRequest*, grpc::ServerWriter<v1::Job>*) override;
@@ -64,13 +66,15 @@ class JobServiceImpl final : public v1::JobService::Service {
   grpc::Status GetResult(grpc::ServerContext*, const v1::GetResultRequest*, v1::JobResult*) override;
 
  private:
+  const Authenticator& auth_;
   JobManager& jobs_;
   Store& store_;
 };
 
 class SessionServiceImpl final : public v1::SessionService::Service {
  public:
-  SessionServiceImpl(SessionManager& sessions, ServiceLimits limits) : sessions_(sessions), limits_(limits) {}
+  SessionServiceImpl(const Authenticator& auth, SessionManager& sessions, ServiceLimits limits)
+      : auth_(auth), sessions_(sessions), limits_(limits) {}
   grpc::Status CreateSession(grpc::ServerContext*, const v1::CreateSessionRequest*, v1::SessionInfo*) override;
   grpc::Status GetSession(grpc::ServerContext*, const v1::GetSessionRequest*, v1::SessionInfo*) override;
   grpc::Status ListSessions(grpc::ServerContext*, const v1::ListSessionsRequest*, v1::ListSessionsResponse*) override;
@@ -78,6 +82,7 @@ class SessionServiceImpl final : public v1::SessionService::Service {
   grpc::Status Stream(grpc::ServerContext*, grpc::ServerReaderWriter<v1::StreamResponse, v1::StreamRequest>*) override;
 
  private:
+  const Authenticator& auth_;
   SessionManager& sessions_;
   const ServiceLimits limits_;
 };

@@ -70,6 +70,10 @@ class DaemonProcess {
 
   std::string address() const { return "127.0.0.1:" + std::to_string(port_); }
   std::shared_ptr<grpc::Channel> channel() const { return channel_; }
+  // A new channel to the daemon with other credentials (TLS).
+  std::shared_ptr<grpc::Channel> channel(const std::shared_ptr<grpc::ChannelCredentials>& credentials) const {
+    return grpc::CreateChannel(address(), credentials);
+  }
   const std::filesystem::path& data_dir() const { return data_dir_; }
 
  private:

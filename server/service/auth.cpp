@@ -1,0 +1,194 @@
+#include "service/auth.hpp"
+
+#include <openssl/evp.h>
+
+#include <array>
+#include <cctype>
+#include <fstream>
+#include <sstream>
+
+namespace riccati::service {
+
+namespace {
+
+// Methods every caller may use without a token: health checks (load
+// balancers and orchestrators have none) and server reflection.
+bool is_public_method(std::string_view path) {
+  return path.rfind("/grpc.health.v1.Health/", 0) == 0 ||
+         path.rfind("/grpc.reflection.v1alpha.ServerReflection/", 0) == 0;
+}
+
+std::string hex(const unsigned char* bytes, unsigned int n) {
+  static constexpr char kDigits[] = "0123456789abcdef";
+  std::string out(2 * n, '0');
+  for (unsigned int i = 0; i < n; ++i) {
+    out[2 * i] = kDigits[bytes[i] >> 4];
+    out[2 * i + 1] = kDigits[bytes[i] & 0xf];
+  }
+  return out;
+}
+
+// SHA-256 over chunks fed by `feed` (which calls the given update function).
+template <typename Feed>
+std::string sha256(Feed&& feed) {
+  std::unique_ptr<EVP_MD_CTX, decltype(&EVP_MD_CTX_free)> ctx(EVP_MD_CTX_new(), &EVP_MD_CTX_free);
+  EVP_DigestInit_ex(ctx.get(), EVP_sha256(), nullptr);
+  feed([&](const void* data, std::size_t n) { EVP_DigestUpdate(ctx.get(), data, n); });
+  std::array<unsigned char, EVP_MAX_MD_SIZE> digest;
+  unsigned int length = 0;
+  EVP_DigestFinal_ex(ctx.get(), digest.data(), &length);
+  return hex(digest.data(), length);
+}
+
+Result<std::string> read_file(const std::string& path, const char* what) {
+  std::ifstream in(path, std::ios::binary);
+  if (!in) return invalid_argument(std::string(what) + " " + path + " cannot be read");
+  std::ostringstream text;
+  text << in.rdbuf();
+  return text.str();
+}
+
+}  // namespace
+
+std::string token_digest(std::string_view token) {
+  return "sha256:" + sha256([&](auto update) { update(token.data(), token.size()); });
+}
+
+Result<std::string> file_sha256(const std::string& path) {
+  std::ifstream in(path, std::ios::binary);
+  if (!in) return not_found("cannot read " + path);
+  return sha256([&](auto update) {
+    std::array<char, 1 << 16> buffer;
+    while (in.read(buffer.data(), buffer.size()) || in.gcount() > 0) {
+      update(buffer.data(), static_cast<std::size_t>(in.gcount()));
+    }
+  });
+}
+
+Result<TokenTable> TokenTable::load(const std::string& path) {
+  RICCATI_ASSIGN_OR_RETURN(const std::string text, read_file(path, "tokens file"));
+  TokenTable table;
+  std::istringstream lines(text);
+  std::string line;
+  for (int number = 1; std::getline(lines, line); ++number) {
+    std::istringstream fields(line);
+    std::string tenant, digest, extra;
+    if (!(fields >> tenant) || tenant[0] == '#') continue;
+    const std::string where = "tokens file " + path + ", line " + std::to_string(number);
+    if (!(fields >> digest) || (fields >> extra)) {
+      return invalid_argument(where + ": expected \"<tenant> sha256:<hex digest>\"");
+    }
+    const bool well_formed = digest.size() == 7 + 64 && digest.rfind("sha256:", 0) == 0 &&
+                             digest.find_first_not_of("0123456789abcdef", 7) == std::string::npos;
+    if (!well_formed) {
+      return invalid_argument(where + ": the token must be given as sha256:<64 lower-case hex digits> (riccatid "
+                              "--hash-token prints it), never in clear");
+    }
+    if (!table.tenants_.emplace(digest, tenant).second) {
+      return invalid_argument(where + ": this token is listed twice");
+    }
+  }
+  if (table.tenants_.empty()) return invalid_argument("tokens file " + path + " lists no token");
+  return table;
+}
+
+std::optional<std::string> TokenTable::tenant_for(std::string_view token) const {
+  auto it = tenants_.find(token_digest(token));
+  if (it == tenants_.end()) return std::nullopt;
+  return it->second;
+}
+
+Result<std::shared_ptr<const Authenticator>> Authenticator::create(const std::string& tokens_file) {
+  auto auth = std::make_shared<Authenticator>();
+  if (!tokens_file.empty()) {
+    RICCATI_ASSIGN_OR_RETURN(TokenTable table, TokenTable::load(tokens_file));
+    auth->tokens_ = std::move(table);
+  }
+  return std::shared_ptr<const Authenticator>(std::move(auth));
+}
+
+Result<std::string> Authenticator::tenant_for_header(std::string_view authorization) const {
+  if (!tokens_) return std::string(kDefaultTenant);
+  constexpr std::string_view kScheme = "Bearer ";
+  if (authorization.size() <= kScheme.size() || authorization.substr(0, kScheme.size()) != kScheme) {
+    return Status(StatusCode::kUnauthenticated, "the authorization metadata must be \"Bearer <token>\"");
+  }
+  auto tenant = tokens_->tenant_for(authorization.substr(kScheme.size()));
+  if (!tenant) return Status(StatusCode::kUnauthenticated, "the bearer token is not valid");
+  return *tenant;
+}
+
+std::string Authenticator::tenant(const grpc::ServerContextBase& context) const {
+  if (!tokens_) return std::string(kDefaultTenant);
+  const auto& metadata = context.client_metadata();
+  const auto header = metadata.find("authorization");
+  if (header == metadata.end()) return "";
+  auto tenant = tenant_for_header(std::string_view(header->second.data(), header->second.size()));
+  return tenant.is_ok() ? tenant.value() : "";
+}
+
+grpc::Status TokenAuthProcessor::Process(const InputMetadata& metadata, grpc::AuthContext* /*context*/,
+                                         OutputMetadata* /*consumed*/, OutputMetadata* /*response*/) {
+  const auto path = metadata.find(":path");
+  if (path != metadata.end() && is_public_method(std::string_view(path->second.data(), path->second.size()))) {
+    return grpc::Status::OK;
+  }
+  const auto header = metadata.find("authorization");
+  if (header == metadata.end()) {
+    return {grpc::StatusCode::UNAUTHENTICATED, "no bearer token: send the metadata \"authorization: Bearer <token>\""};
+  }
+  const auto tenant = auth_->tenant_for_header(std::string_view(header->second.data(), header->second.size()));
+  if (!tenant.is_ok()) return {grpc::StatusCode::UNAUTHENTICATED, tenant.status().message()};
+  return grpc::Status::OK;
+}
+
+bool is_loopback(const std::string& listen) {
+  return listen.rfind("127.", 0) == 0 || listen.rfind("localhost:", 0) == 0 || listen.rfind("[::1]:", 0) == 0;
+}
+
+Result<std::shared_ptr<grpc::ServerCredentials>> server_credentials(const SecurityConfig& config,
+                                                                    const std::string& listen,
+                                                                    std::shared_ptr<const Authenticator> auth,
+                                                                    std::string* description) {
+  const bool tls = !config.tls_cert.empty() || !config.tls_key.empty();
+  const bool loopback = is_loopback(listen);
+  if (!tls && !loopback) {
+    return invalid_argument("listening on " + listen +
+                            " needs TLS (tls_cert and tls_key): plain TCP is allowed on a loopback address only");
+  }
+  if (!auth->enabled() && !loopback) {
+    return invalid_argument("listening on " + listen +
+                            " needs a tokens file: without authentication riccatid listens on loopback only");
+  }
+  std::shared_ptr<grpc::ServerCredentials> credentials;
+  if (tls) {
+    if (config.tls_cert.empty() || config.tls_key.empty()) {
+      return invalid_argument("TLS needs both tls_cert and tls_key");
+    }
+    RICCATI_ASSIGN_OR_RETURN(const std::string cert, read_file(config.tls_cert, "TLS certificate"));
+    RICCATI_ASSIGN_OR_RETURN(const std::string key, read_file(config.tls_key, "TLS key"));
+    grpc::SslServerCredentialsOptions options(config.tls_client_ca.empty()
+                                                  ? GRPC_SSL_DONT_REQUEST_CLIENT_CERTIFICATE
+                                                  : GRPC_SSL_REQUEST_AND_REQUIRE_CLIENT_CERTIFICATE_AND_VERIFY);
+    options.pem_key_cert_pairs.push_back({key, cert});
+    if (!config.tls_client_ca.empty()) {
+      RICCATI_ASSIGN_OR_RETURN(options.pem_root_certs, read_file(config.tls_client_ca, "TLS client CA"));
+    }
+    credentials = grpc::SslServerCredentials(options);
+    *description = config.tls_client_ca.empty() ? "tls" : "mutual-tls";
+  } else {
+    // Plain bytes on the wire, but only from this host. Local credentials
+    // (unlike insecure ones) can carry the token processor.
+    credentials = grpc::experimental::LocalServerCredentials(LOCAL_TCP);
+    *description = "plain-tcp-loopback";
+  }
+  if (auth->enabled()) {
+    *description += ", tokens=" + std::to_string(auth->tokens());
+    credentials->SetAuthMetadataProcessor(std::make_shared<TokenAuthProcessor>(std::move(auth)));
+  } else {
+    *description += ", no authentication";
+  }
+  return credentials;
+}
+
+}  // namespace riccati::service
