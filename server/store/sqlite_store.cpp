@@ -65,6 +65,13 @@ const std::vector<const char*> kMigrations = {
       snapshot BLOB NOT NULL,
       updated_ms INTEGER NOT NULL);
     )sql",
+    // 2: checkpoints of jobs, one per job, replaced after every pass.
+    R"sql(
+    CREATE TABLE job_checkpoints (
+      job_id TEXT PRIMARY KEY REFERENCES jobs (id) ON DELETE CASCADE,
+      tenant TEXT NOT NULL,
+      checkpoint BLOB NOT NULL);
+    )sql",
 };
 
 // Names never contain the ASCII unit separator, so it can join them.
@@ -220,9 +227,12 @@ class SqliteStore final : public Store {
   Status migrate() {
     std::lock_guard lock(mu_);
     RICCATI_RETURN_IF_ERROR(exec("PRAGMA journal_mode = WAL"));
-    // NORMAL with WAL: a committed transaction survives a crash of the
-    // process (not necessarily a power loss).
-    RICCATI_RETURN_IF_ERROR(exec("PRAGMA synchronous = NORMAL"));
+    // FULL with WAL: every commit is synced before it is acknowledged, so an
+    // accepted upload, job or result survives a kill -9 of the daemon (NORMAL
+    // would already) and a power loss (NORMAL may lose the last commits).
+    // Commits are few (uploads, state changes, throttled progress, a
+    // checkpoint per pass), so the fsync each costs does not matter.
+    RICCATI_RETURN_IF_ERROR(exec("PRAGMA synchronous = FULL"));
     RICCATI_RETURN_IF_ERROR(exec("PRAGMA foreign_keys = ON"));
     sqlite3_busy_timeout(db_.get(), 5000);
     Statement version(db_.get(), "PRAGMA user_version");
@@ -394,6 +404,28 @@ class SqliteStore final : public Store {
     const int rc = q.step();
     if (rc == SQLITE_DONE) return not_found("no result for job " + job_id);
     if (rc != SQLITE_ROW) return error("reading the result of job " + job_id);
+    return q.column_blob(0);
+  }
+
+  Status put_job_checkpoint(const std::string& tenant, const std::string& job_id,
+                            const std::string& checkpoint) override {
+    std::lock_guard lock(mu_);
+    Statement q(db_.get(),
+                "INSERT INTO job_checkpoints (job_id, tenant, checkpoint) SELECT id, tenant, ? FROM jobs WHERE id = ? "
+                "AND tenant = ? ON CONFLICT (job_id) DO UPDATE SET checkpoint = excluded.checkpoint");
+    q.blob(checkpoint).text(job_id).text(tenant);
+    RICCATI_RETURN_IF_ERROR(done(q, "storing the checkpoint of job " + job_id));
+    if (sqlite3_changes(db_.get()) == 0) return not_found("no job " + job_id);
+    return Status::ok();
+  }
+
+  Result<std::string> get_job_checkpoint(const std::string& tenant, const std::string& job_id) override {
+    std::lock_guard lock(mu_);
+    Statement q(db_.get(), "SELECT checkpoint FROM job_checkpoints WHERE job_id = ? AND tenant = ?");
+    q.text(job_id).text(tenant);
+    const int rc = q.step();
+    if (rc == SQLITE_DONE) return not_found("no checkpoint of job " + job_id);
+    if (rc != SQLITE_ROW) return error("reading the checkpoint of job " + job_id);
     return q.column_blob(0);
   }
 

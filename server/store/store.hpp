@@ -94,6 +94,14 @@ class Store {
   virtual Status put_result(const std::string& tenant, const std::string& job_id, const std::string& result) = 0;
   virtual Result<std::string> get_result(const std::string& tenant, const std::string& job_id) = 0;
 
+  // Job checkpoints: what an identification job has done after its last
+  // completed pass (opaque), replaced on every put, so that a job restarted
+  // after a crash resumes from there instead of from zero.
+  virtual Status put_job_checkpoint(const std::string& tenant, const std::string& job_id,
+                                    const std::string& checkpoint) = 0;
+  // NOT_FOUND if the job has none.
+  virtual Result<std::string> get_job_checkpoint(const std::string& tenant, const std::string& job_id) = 0;
+
   // Session snapshots: the latest state of a filter session, replaced on
   // every put, so that a session can be resumed (opaque bytes).
   virtual Status put_session_snapshot(const std::string& tenant, const std::string& session_id,

@@ -189,6 +189,20 @@ TEST_P(StoreTest, JobsUpdateListAndUnfinishedStates) {
   EXPECT_EQ(listed[0].id, "job-3");
 }
 
+TEST_P(StoreTest, JobCheckpointsAreReplacedAndBelongToTheJobsTenant) {
+  auto store = open();
+  ASSERT_TRUE(store->put_job(job("job-1", "a", 1)).is_ok());
+  EXPECT_EQ(store->get_job_checkpoint("a", "job-1").status().code(), StatusCode::kNotFound);
+  ASSERT_TRUE(store->put_job_checkpoint("a", "job-1", std::string("\x00pass 1", 7)).is_ok());
+  ASSERT_TRUE(store->put_job_checkpoint("a", "job-1", std::string("\x00pass 2", 7)).is_ok());
+  EXPECT_EQ(store->get_job_checkpoint("a", "job-1").value(), std::string("\x00pass 2", 7));
+  // Another tenant can neither read nor overwrite it; no checkpoint without its job.
+  EXPECT_EQ(store->get_job_checkpoint("b", "job-1").status().code(), StatusCode::kNotFound);
+  EXPECT_EQ(store->put_job_checkpoint("b", "job-1", "theirs").code(), StatusCode::kNotFound);
+  EXPECT_EQ(store->put_job_checkpoint("a", "job-2", "none").code(), StatusCode::kNotFound);
+  EXPECT_EQ(store->get_job_checkpoint("a", "job-1").value(), std::string("\x00pass 2", 7));
+}
+
 TEST_P(StoreTest, ReopeningFindsEverything) {
   const Dataset d = random_dataset(20, 4);
   {
@@ -196,11 +210,13 @@ TEST_P(StoreTest, ReopeningFindsEverything) {
     ASSERT_TRUE(store->put_dataset(record_for("ds-1", "t", d, 1), d).is_ok());
     ASSERT_TRUE(store->put_job(job("job-1", "t", 1)).is_ok());
     ASSERT_TRUE(store->put_result("t", "job-1", "r").is_ok());
+    ASSERT_TRUE(store->put_job_checkpoint("t", "job-1", "c").is_ok());
   }
   auto store = open();
   EXPECT_TRUE(store->load_dataset("t", "ds-1").value().y.isApprox(d.y));
   EXPECT_EQ(store->get_job("t", "job-1").value().kind, "identification");
   EXPECT_EQ(store->get_result("t", "job-1").value(), "r");
+  EXPECT_EQ(store->get_job_checkpoint("t", "job-1").value(), "c");
 }
 
 TEST_P(StoreTest, ConcurrentWritersAndReaders) {
