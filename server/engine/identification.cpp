@@ -1,5 +1,7 @@
 #include "engine/identification.hpp"
 
+#include <algorithm>
+
 #include <cmath>
 #include <string>
 
@@ -110,7 +112,7 @@ Status validate(const IdentificationSettings& s, const Model& model) {
 }
 
 Result<IdentificationResult> identify(ModelPtr model, const Dataset& data, const IdentificationSettings& settings,
-                                      const ProgressCallback& progress, std::stop_token stop) {
+                                      const IdentificationHooks& hooks) {
   if (model == nullptr) return invalid_argument("no model given");
   RICCATI_RETURN_IF_ERROR(validate(settings, *model));
   RICCATI_ASSIGN_OR_RETURN(const Dataset bound, bind_dataset(*model, data));
@@ -139,14 +141,39 @@ Result<IdentificationResult> identify(ModelPtr model, const Dataset& data, const
   z << x0, settings.theta0;
   Eigen::VectorXd y_post(ny);
 
-  for (int pass = 1; pass <= settings.passes; ++pass) {
+  // Theta and its covariance at the end of the previous pass.
+  Eigen::VectorXd theta_end;
+  Eigen::MatrixXd P_end;
+  int first_pass = 1;
+  if (hooks.resume != nullptr) {
+    const IdentificationCheckpoint& c = *hooks.resume;
+    const int done = static_cast<int>(c.passes.size());
+    const bool fits = done >= 1 && done < settings.passes && c.covariance.rows() == nz && c.covariance.cols() == nz &&
+                      std::all_of(c.passes.begin(), c.passes.end(), [&](const PassResult& p) {
+                        return p.theta_final.size() == ntheta && p.theta_trace.rows() == ntheta &&
+                               p.theta_trace.cols() == N;
+                      });
+    if (!fits) {
+      return invalid_argument("checkpoint does not fit this run (" + std::to_string(done) + " of " +
+                              std::to_string(settings.passes) + " passes, a " + std::to_string(c.covariance.rows()) +
+                              " x " + std::to_string(c.covariance.cols()) + " covariance for " + std::to_string(nz) +
+                              " states and parameters)");
+    }
+    result.passes = c.passes;
+    theta_end = c.passes.back().theta_final;
+    P_end = c.covariance;
+    first_pass = done + 1;
+  }
+  const std::stop_token& stop = hooks.stop;
+  const ProgressCallback& progress = hooks.progress;
+
+  for (int pass = first_pass; pass <= settings.passes; ++pass) {
     if (pass > 1) {
       // Restart the states and their covariance, keep theta and its covariance.
-      const Eigen::MatrixXd& Pend = filter->covariance();
-      z << x0, filter->state().tail(ntheta);
+      z << x0, theta_end;
       P.setZero();
       P.topLeftCorner(nx, nx) = settings.P0.topLeftCorner(nx, nx);
-      P.bottomRightCorner(ntheta, ntheta) = Pend.bottomRightCorner(ntheta, ntheta);
+      P.bottomRightCorner(ntheta, ntheta) = P_end.bottomRightCorner(ntheta, ntheta);
     }
     RICCATI_RETURN_IF_ERROR(filter->reset(bound.t[first], z, P));
 
@@ -192,6 +219,12 @@ Result<IdentificationResult> identify(ModelPtr model, const Dataset& data, const
     pr.innovation_rms = (innovation_sq / static_cast<double>(N)).cwiseSqrt();
     pr.nis_mean = nis_sum / static_cast<double>(N);
     result.passes.push_back(std::move(pr));
+    theta_end = filter->state().tail(ntheta);
+    P_end = filter->covariance();
+    if (pass < settings.passes && hooks.pass_done) {
+      RICCATI_RETURN_IF_ERROR(
+          hooks.pass_done(pass, result.passes.back(), P_end).with_context("checkpoint after pass " + std::to_string(pass)));
+    }
   }
 
   const PassResult& last = result.passes.back();

@@ -74,6 +74,28 @@ struct IdentificationProgress {
 // Called after every sample; keep it cheap (throttle in the callback).
 using ProgressCallback = std::function<void(const IdentificationProgress&)>;
 
+// Where a run that was interrupted resumes: the passes it completed and the
+// covariance of [x; theta] at the end of the last one. A later pass depends
+// on the earlier ones only through theta and its covariance, so the resumed
+// run's result is the uninterrupted run's, bit for bit.
+struct IdentificationCheckpoint {
+  std::vector<PassResult> passes;
+  Eigen::MatrixXd covariance;  // [nz x nz] at the end of passes.back()
+};
+
+// Called after every pass but the last, with the pass (1-based), its result
+// and the covariance at its end: what a checkpoint stores. An error from it
+// ends the run.
+using PassCallback = std::function<Status(int pass, const PassResult& result, const Eigen::MatrixXd& covariance)>;
+
+// How a run is observed, stopped and resumed; all optional.
+struct IdentificationHooks {
+  ProgressCallback progress;
+  PassCallback pass_done;
+  std::stop_token stop;  // checked between samples: a stop request ends the run with kCancelled
+  const IdentificationCheckpoint* resume = nullptr;  // start after the passes it holds
+};
+
 // Orders a dataset's inputs and outputs as the model's (by name when the
 // names match, else by position when the counts match) and checks the sizes.
 Result<Dataset> bind_dataset(const Model& model, const Dataset& data);
@@ -84,9 +106,8 @@ Result<Eigen::VectorXd> initial_state(const Model& model, const Dataset& bound, 
 
 Status validate(const IdentificationSettings& settings, const Model& model);
 
-// Runs the identification. Checks `stop` between samples: a stop request ends
-// it with kCancelled.
+// Runs the identification.
 Result<IdentificationResult> identify(ModelPtr model, const Dataset& data, const IdentificationSettings& settings,
-                                      const ProgressCallback& progress = {}, std::stop_token stop = {});
+                                      const IdentificationHooks& hooks = {});
 
 }  // namespace riccati

@@ -284,6 +284,34 @@ v1::IdentificationResult to_proto(const IdentificationResult& r) {
   return out;
 }
 
+Result<IdentificationResult> from_proto(const v1::IdentificationResult& r) {
+  IdentificationResult out;
+  out.param_names.assign(r.param_names().begin(), r.param_names().end());
+  const auto n = static_cast<Eigen::Index>(out.param_names.size());
+  for (int i = 0; i < r.passes_size(); ++i) {
+    const v1::PassResult& p = r.passes(i);
+    const std::string where = "passes[" + std::to_string(i) + "]";
+    PassResult pass;
+    RICCATI_ASSIGN_OR_RETURN(pass.theta_trace, from_matrix(p.theta_trace(), where + ".theta_trace"));
+    RICCATI_ASSIGN_OR_RETURN(pass.theta_final, from_values(p.theta_final(), n, where + ".theta_final"));
+    RICCATI_ASSIGN_OR_RETURN(pass.theta_mean, from_values(p.theta_mean(), n, where + ".theta_mean"));
+    RICCATI_ASSIGN_OR_RETURN(pass.theta_std, from_values(p.theta_std(), n, where + ".theta_std"));
+    RICCATI_ASSIGN_OR_RETURN(pass.innovation_rms,
+                             from_values(p.innovation_rms(), p.innovation_rms_size(), where + ".innovation_rms"));
+    pass.nis_mean = p.nis_mean();
+    out.passes.push_back(std::move(pass));
+  }
+  RICCATI_ASSIGN_OR_RETURN(out.theta, from_values(r.theta(), n, "theta"));
+  RICCATI_ASSIGN_OR_RETURN(out.theta_mean, from_values(r.theta_mean(), n, "theta_mean"));
+  RICCATI_ASSIGN_OR_RETURN(out.theta_std, from_values(r.theta_std(), n, "theta_std"));
+  RICCATI_ASSIGN_OR_RETURN(out.covariance, from_matrix(r.covariance(), "covariance"));
+  RICCATI_ASSIGN_OR_RETURN(out.t, from_values(r.t(), r.t_size(), "t"));
+  RICCATI_ASSIGN_OR_RETURN(out.x_trace, from_matrix(r.x_trace(), "x_trace"));
+  RICCATI_ASSIGN_OR_RETURN(out.y_model, from_matrix(r.y_model(), "y_model"));
+  RICCATI_ASSIGN_OR_RETURN(out.innovations, from_matrix(r.innovations(), "innovations"));
+  return out;
+}
+
 v1::ValidationResult to_proto(const ValidationResult& r, const Eigen::VectorXd& theta) {
   v1::ValidationResult out;
   copy_values(theta, out.mutable_theta());

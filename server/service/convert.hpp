@@ -62,6 +62,8 @@ Result<Eigen::MatrixXd> initial_covariance(const v1::Covariance& p0, const v1::F
 v1::ModelInfo to_proto(const Model& model);
 v1::DatasetInfo to_proto(const DatasetRecord& record);
 v1::IdentificationResult to_proto(const IdentificationResult& r);
+// The inverse of to_proto (a stored result or checkpoint).
+Result<IdentificationResult> from_proto(const v1::IdentificationResult& r);
 v1::ValidationResult to_proto(const ValidationResult& r, const Eigen::VectorXd& theta);
 v1::FilterKind to_proto(FilterKind kind);
 v1::JobState to_proto(JobState state);

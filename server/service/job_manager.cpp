@@ -258,6 +258,39 @@ Result<std::string> JobManager::execute(const JobRecord& job, std::stop_token st
   return internal_error("job " + job.id + " has unknown kind \"" + job.kind + "\"");
 }
 
+namespace {
+
+// A checkpoint record: one pass and the covariance at its end, as an
+// IdentificationResult with a single pass.
+std::string encode_pass(const PassResult& pass, const Eigen::MatrixXd& covariance) {
+  IdentificationResult one;
+  one.passes.push_back(pass);
+  one.theta = pass.theta_final;
+  one.theta_mean = pass.theta_mean;
+  one.theta_std = pass.theta_std;
+  one.covariance = covariance;
+  v1::IdentificationResult encoded = to_proto(one);
+  encoded.clear_param_names();
+  return encoded.SerializeAsString();
+}
+
+Status decode_passes(const std::vector<std::string>& records, IdentificationCheckpoint* out) {
+  for (std::size_t i = 0; i < records.size(); ++i) {
+    v1::IdentificationResult encoded;
+    if (!encoded.ParseFromString(records[i]) || encoded.passes_size() != 1) {
+      return internal_error("pass record " + std::to_string(i + 1) + " is unreadable");
+    }
+    // from_proto checks sizes against param_names; records leave them out.
+    for (int k = 0; k < encoded.theta_size(); ++k) encoded.add_param_names("theta" + std::to_string(k));
+    RICCATI_ASSIGN_OR_RETURN(IdentificationResult one, from_proto(encoded));
+    out->passes.push_back(std::move(one.passes.front()));
+    out->covariance = std::move(one.covariance);
+  }
+  return Status::ok();
+}
+
+}  // namespace
+
 Result<std::string> JobManager::execute_identification(const JobRecord& job, std::stop_token stop) {
   v1::IdentificationSpec spec;
   if (!spec.ParseFromString(job.spec)) return internal_error("job " + job.id + ": stored spec is unreadable");
@@ -280,7 +313,26 @@ Result<std::string> JobManager::execute_identification(const JobRecord& job, std
       r.theta.assign(p.theta->data() + model->nx(), p.theta->data() + p.theta->size());
     });
   };
-  RICCATI_ASSIGN_OR_RETURN(const IdentificationResult r, identify(model, data, settings, progress, stop));
+  IdentificationHooks hooks;
+  hooks.progress = progress;
+  hooks.stop = stop;
+  // After each pass, what resumes the job if the daemon dies (kill -9,
+  // power loss) before the next one ends.
+  hooks.pass_done = [&](int pass, const PassResult& result, const Eigen::MatrixXd& covariance) {
+    return store_.put_job_pass(job.tenant, job.id, pass, encode_pass(result, covariance));
+  };
+  RICCATI_ASSIGN_OR_RETURN(const std::vector<std::string> records, store_.list_job_passes(job.tenant, job.id));
+  IdentificationCheckpoint resume;
+  if (!records.empty()) {
+    Status decoded = decode_passes(records, &resume);
+    if (decoded.is_ok()) {
+      hooks.resume = &resume;
+      spdlog::info("job resumes id={} after_pass={}", job.id, resume.passes.size());
+    } else {
+      spdlog::warn("job checkpoint unusable, running from the start id={} error=\"{}\"", job.id, decoded.message());
+    }
+  }
+  RICCATI_ASSIGN_OR_RETURN(const IdentificationResult r, identify(model, data, settings, hooks));
   v1::JobResult result;
   result.set_job_id(job.id);
   *result.mutable_identification() = to_proto(r);

@@ -1,8 +1,10 @@
 // JobManager: runs identification and validation jobs on a worker pool.
 //
 // Jobs are stored before they are queued, so none is lost: at start() every
-// job the store has as queued or running is queued again (a daemon that was
-// stopped, or killed, mid-job runs it again from the start). Workers are the
+// job the store has as queued or running is queued again. An identification
+// stores a checkpoint record after every pass (Store::put_job_pass), so a
+// daemon that was stopped, or killed, mid-job resumes it after its last
+// completed pass, with the result the uninterrupted run would have given. Workers are the
 // only threads that run the engine; RPC threads submit, read and wait.
 // Watchers wait on a version number that changes with every state or
 // progress change (progress is published at most every kProgressInterval).

@@ -65,12 +65,14 @@ const std::vector<const char*> kMigrations = {
       snapshot BLOB NOT NULL,
       updated_ms INTEGER NOT NULL);
     )sql",
-    // 2: checkpoints of jobs, one per job, replaced after every pass.
+    // 2: checkpoints of jobs, a record per completed pass.
     R"sql(
-    CREATE TABLE job_checkpoints (
-      job_id TEXT PRIMARY KEY REFERENCES jobs (id) ON DELETE CASCADE,
+    CREATE TABLE job_passes (
+      job_id TEXT NOT NULL REFERENCES jobs (id) ON DELETE CASCADE,
+      pass INTEGER NOT NULL,
       tenant TEXT NOT NULL,
-      checkpoint BLOB NOT NULL);
+      record BLOB NOT NULL,
+      PRIMARY KEY (job_id, pass));
     )sql",
 };
 
@@ -407,26 +409,27 @@ class SqliteStore final : public Store {
     return q.column_blob(0);
   }
 
-  Status put_job_checkpoint(const std::string& tenant, const std::string& job_id,
-                            const std::string& checkpoint) override {
+  Status put_job_pass(const std::string& tenant, const std::string& job_id, int pass,
+                      const std::string& record) override {
     std::lock_guard lock(mu_);
     Statement q(db_.get(),
-                "INSERT INTO job_checkpoints (job_id, tenant, checkpoint) SELECT id, tenant, ? FROM jobs WHERE id = ? "
-                "AND tenant = ? ON CONFLICT (job_id) DO UPDATE SET checkpoint = excluded.checkpoint");
-    q.blob(checkpoint).text(job_id).text(tenant);
-    RICCATI_RETURN_IF_ERROR(done(q, "storing the checkpoint of job " + job_id));
+                "INSERT INTO job_passes (job_id, pass, tenant, record) SELECT id, ?, tenant, ? FROM jobs WHERE id = ? "
+                "AND tenant = ? ON CONFLICT (job_id, pass) DO UPDATE SET record = excluded.record");
+    q.integer(pass).blob(record).text(job_id).text(tenant);
+    RICCATI_RETURN_IF_ERROR(done(q, "storing pass " + std::to_string(pass) + " of job " + job_id));
     if (sqlite3_changes(db_.get()) == 0) return not_found("no job " + job_id);
     return Status::ok();
   }
 
-  Result<std::string> get_job_checkpoint(const std::string& tenant, const std::string& job_id) override {
+  Result<std::vector<std::string>> list_job_passes(const std::string& tenant, const std::string& job_id) override {
     std::lock_guard lock(mu_);
-    Statement q(db_.get(), "SELECT checkpoint FROM job_checkpoints WHERE job_id = ? AND tenant = ?");
+    Statement q(db_.get(), "SELECT record FROM job_passes WHERE job_id = ? AND tenant = ? ORDER BY pass");
     q.text(job_id).text(tenant);
-    const int rc = q.step();
-    if (rc == SQLITE_DONE) return not_found("no checkpoint of job " + job_id);
-    if (rc != SQLITE_ROW) return error("reading the checkpoint of job " + job_id);
-    return q.column_blob(0);
+    std::vector<std::string> records;
+    int rc;
+    while ((rc = q.step()) == SQLITE_ROW) records.push_back(q.column_blob(0));
+    if (rc != SQLITE_DONE) return error("reading the passes of job " + job_id);
+    return records;
   }
 
   Status put_session_snapshot(const std::string& tenant, const std::string& session_id,

@@ -94,13 +94,15 @@ class Store {
   virtual Status put_result(const std::string& tenant, const std::string& job_id, const std::string& result) = 0;
   virtual Result<std::string> get_result(const std::string& tenant, const std::string& job_id) = 0;
 
-  // Job checkpoints: what an identification job has done after its last
-  // completed pass (opaque), replaced on every put, so that a job restarted
-  // after a crash resumes from there instead of from zero.
-  virtual Status put_job_checkpoint(const std::string& tenant, const std::string& job_id,
-                                    const std::string& checkpoint) = 0;
-  // NOT_FOUND if the job has none.
-  virtual Result<std::string> get_job_checkpoint(const std::string& tenant, const std::string& job_id) = 0;
+  // Job checkpoints: one record (opaque) per completed pass of an
+  // identification job, so that a job restarted after a crash resumes after
+  // its last completed pass instead of from zero. One record per pass keeps
+  // what is written linear in the number of passes. Putting a pass again
+  // replaces it; NOT_FOUND if the job does not exist (for this tenant).
+  virtual Status put_job_pass(const std::string& tenant, const std::string& job_id, int pass,
+                              const std::string& record) = 0;
+  // The job's pass records, in pass order (none: empty).
+  virtual Result<std::vector<std::string>> list_job_passes(const std::string& tenant, const std::string& job_id) = 0;
 
   // Session snapshots: the latest state of a filter session, replaced on
   // every put, so that a session can be resumed (opaque bytes).

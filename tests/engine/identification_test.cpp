@@ -80,11 +80,12 @@ TEST_P(TwoTankHensen, LastPassMeanWithinOnePointFivePercentOfTruth) {
 
   int last_pass_seen = 0;
   Eigen::Index samples_seen = 0;
-  auto result = identify(builtin("two_tank"), data, hensen_two_tank(GetParam()),
-                         [&](const IdentificationProgress& p) {
-                           last_pass_seen = p.pass;
-                           samples_seen = p.sample;
-                         });
+  IdentificationHooks hooks;
+  hooks.progress = [&](const IdentificationProgress& p) {
+    last_pass_seen = p.pass;
+    samples_seen = p.sample;
+  };
+  auto result = identify(builtin("two_tank"), data, hensen_two_tank(GetParam()), hooks);
   ASSERT_TRUE(result.is_ok()) << result.status().to_string();
   const IdentificationResult& r = result.value();
 
@@ -141,18 +142,76 @@ TEST(Identification, CancelsBetweenSamples) {
   const Dataset data = load("two_tank.csv", {"F1", "F2"}, {"h1", "h2"});
   std::stop_source stop;
   Eigen::Index stopped_at = 0;
-  auto result = identify(builtin("two_tank"), data, hensen_two_tank(FilterKind::kEkf),
-                         [&](const IdentificationProgress& p) {
-                           if (p.pass == 2 && p.sample == 500) {
-                             stopped_at = p.sample;
-                             stop.request_stop();
-                           }
-                         },
-                         stop.get_token());
+  IdentificationHooks hooks;
+  hooks.progress = [&](const IdentificationProgress& p) {
+    if (p.pass == 2 && p.sample == 500) {
+      stopped_at = p.sample;
+      stop.request_stop();
+    }
+  };
+  hooks.stop = stop.get_token();
+  auto result = identify(builtin("two_tank"), data, hensen_two_tank(FilterKind::kEkf), hooks);
   ASSERT_FALSE(result.is_ok());
   EXPECT_EQ(result.status().code(), StatusCode::kCancelled);
   EXPECT_EQ(stopped_at, 500);
   EXPECT_NE(result.status().message().find("pass 2 at sample 501"), std::string::npos) << result.status().message();
+}
+
+// A run interrupted after a pass and resumed from its checkpoint ends exactly
+// where the uninterrupted run ends: what a daemon killed mid-job relies on.
+TEST(Identification, ResumingFromACheckpointGivesTheUninterruptedResult) {
+  const Dataset data = load("two_tank.csv", {"F1", "F2"}, {"h1", "h2"});
+  for (FilterKind kind : {FilterKind::kEkf, FilterKind::kUkf}) {
+    const IdentificationSettings settings = hensen_two_tank(kind);
+    ASSERT_GE(settings.passes, 3);
+    std::vector<PassResult> passes;
+    std::vector<Eigen::MatrixXd> covariances;
+    IdentificationHooks record;
+    record.pass_done = [&](int pass, const PassResult& result, const Eigen::MatrixXd& covariance) {
+      EXPECT_EQ(pass, static_cast<int>(passes.size()) + 1);
+      passes.push_back(result);
+      covariances.push_back(covariance);
+      return Status::ok();
+    };
+    auto full = identify(builtin("two_tank"), data, settings, record);
+    ASSERT_TRUE(full.is_ok()) << full.status().to_string();
+    ASSERT_EQ(passes.size(), static_cast<std::size_t>(settings.passes - 1));  // none after the last
+
+    // Killed during pass 3: resume from the checkpoint after pass 2.
+    IdentificationCheckpoint checkpoint{{passes[0], passes[1]}, covariances[1]};
+    IdentificationHooks resume;
+    resume.resume = &checkpoint;
+    int first_pass_run = 0;
+    resume.progress = [&](const IdentificationProgress& p) {
+      if (first_pass_run == 0) first_pass_run = p.pass;
+    };
+    auto resumed = identify(builtin("two_tank"), data, settings, resume);
+    ASSERT_TRUE(resumed.is_ok()) << resumed.status().to_string();
+    EXPECT_EQ(first_pass_run, 3);
+    const IdentificationResult& a = full.value();
+    const IdentificationResult& b = resumed.value();
+    ASSERT_EQ(b.passes.size(), a.passes.size());
+    EXPECT_EQ(b.theta, a.theta);  // bit for bit: the same arithmetic in the same order
+    EXPECT_EQ(b.covariance, a.covariance);
+    EXPECT_EQ(b.x_trace, a.x_trace);
+    for (std::size_t p = 0; p < a.passes.size(); ++p) EXPECT_EQ(b.passes[p].theta_trace, a.passes[p].theta_trace);
+  }
+}
+
+TEST(Identification, RefusesACheckpointOfAnotherRun) {
+  const Dataset data = load("two_tank.csv", {"F1", "F2"}, {"h1", "h2"});
+  IdentificationSettings settings = hensen_two_tank(FilterKind::kEkf);
+  IdentificationCheckpoint wrong;
+  wrong.passes.resize(1);
+  wrong.passes[0].theta_final = Eigen::VectorXd::Zero(4);
+  wrong.passes[0].theta_trace = Eigen::MatrixXd::Zero(4, 2000);
+  wrong.covariance = Eigen::MatrixXd::Zero(3, 3);  // the model has 6 states and parameters
+  IdentificationHooks hooks;
+  hooks.resume = &wrong;
+  auto r = identify(builtin("two_tank"), data, settings, hooks);
+  ASSERT_FALSE(r.is_ok());
+  EXPECT_EQ(r.status().code(), StatusCode::kInvalidArgument);
+  EXPECT_NE(r.status().message().find("checkpoint does not fit"), std::string::npos) << r.status().message();
 }
 
 TEST(Identification, TrialOnASliceOfTheData) {

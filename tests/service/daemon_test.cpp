@@ -382,6 +382,69 @@ TEST_F(DaemonTest, RestartKeepsDatasetsJobsAndResultsAndFinishesARunningJob) {
   EXPECT_EQ(result_of(slow.id()).identification().passes_size(), 300);
 }
 
+// kill -9 in the middle of a job: after the restart the job goes on from its
+// last completed pass (watchers never see it start over), and its result is
+// the uninterrupted run's, to the bit; nothing accepted before is lost.
+TEST_F(DaemonTest, KillDashNineMidJobResumesFromTheLastCompletedPass) {
+  constexpr int kPasses = 100;
+  const std::string dataset = upload_two_tank();
+  const v1::Job quick = submit(hensen(dataset, 1));
+  ASSERT_EQ(wait_for(quick.id()).state(), v1::JOB_STATE_SUCCEEDED);
+  const v1::Job slow = submit(hensen(dataset, kPasses));
+  std::uint32_t pass_at_kill = 0;
+  {
+    grpc::ClientContext ctx;
+    ctx.set_deadline(std::chrono::system_clock::now() + std::chrono::seconds(60));
+    v1::WatchJobRequest watch;
+    watch.set_id(slow.id());
+    auto reader = jobs_->WatchJob(&ctx, watch);
+    v1::Job job;
+    while (reader->Read(&job)) {
+      if (job.progress().pass() >= 10) break;
+    }
+    pass_at_kill = job.progress().pass();
+    ASSERT_GE(pass_at_kill, 10u) << "the job ended before it could be killed: " << job.ShortDebugString();
+    EXPECT_EQ(daemon_->kill_now(), 128 + SIGKILL);
+    ctx.TryCancel();
+  }
+
+  daemon_->start();
+  connect();
+  EXPECT_TRUE(result_of(quick.id()).has_identification());
+  std::uint32_t first_pass_after = 0;
+  v1::Job done;
+  {
+    grpc::ClientContext ctx;
+    ctx.set_deadline(std::chrono::system_clock::now() + std::chrono::seconds(120));
+    v1::WatchJobRequest watch;
+    watch.set_id(slow.id());
+    auto reader = jobs_->WatchJob(&ctx, watch);
+    while (reader->Read(&done)) {
+      if (first_pass_after == 0 && done.progress().pass() > 0) first_pass_after = done.progress().pass();
+      EXPECT_GE(done.progress().pass() + 1, pass_at_kill) << "the job started over";
+    }
+    ASSERT_TRUE(reader->Finish().ok());
+  }
+  ASSERT_EQ(done.state(), v1::JOB_STATE_SUCCEEDED) << done.error().message();
+  EXPECT_GE(first_pass_after + 1, pass_at_kill);
+
+  const v1::JobResult result = result_of(slow.id());
+  auto registry = ModelRegistry::load_directory(RICCATI_TEST_PLUGIN_DIR).value();
+  auto data = read_csv_file(kData + "/two_tank.csv", ColumnMapping{"t", {"F1", "F2"}, {"h1", "h2"}}).value();
+  auto uninterrupted = identify(registry.find("two_tank"), data, testing::two_tank_hensen(FilterKind::kEkf, kPasses));
+  ASSERT_TRUE(uninterrupted.is_ok());
+  const auto& remote = result.identification();
+  ASSERT_EQ(remote.passes_size(), kPasses);
+  for (int i = 0; i < 4; ++i) {
+    EXPECT_EQ(remote.theta(i), uninterrupted.value().theta[i]) << i;
+    EXPECT_EQ(remote.theta_mean(i), uninterrupted.value().theta_mean[i]) << i;
+  }
+  for (int p : {0, 10, kPasses - 1}) {
+    EXPECT_EQ(remote.passes(p).theta_final(0), uninterrupted.value().passes[static_cast<std::size_t>(p)].theta_final[0])
+        << "pass " << p + 1;
+  }
+}
+
 TEST_F(DaemonTest, CancelStopsARunningJob) {
   const std::string dataset = upload_two_tank();
   const v1::Job slow = submit(hensen(dataset, 1000));

@@ -189,18 +189,22 @@ TEST_P(StoreTest, JobsUpdateListAndUnfinishedStates) {
   EXPECT_EQ(listed[0].id, "job-3");
 }
 
-TEST_P(StoreTest, JobCheckpointsAreReplacedAndBelongToTheJobsTenant) {
+TEST_P(StoreTest, JobPassRecordsComeBackInPassOrderAndBelongToTheJobsTenant) {
   auto store = open();
   ASSERT_TRUE(store->put_job(job("job-1", "a", 1)).is_ok());
-  EXPECT_EQ(store->get_job_checkpoint("a", "job-1").status().code(), StatusCode::kNotFound);
-  ASSERT_TRUE(store->put_job_checkpoint("a", "job-1", std::string("\x00pass 1", 7)).is_ok());
-  ASSERT_TRUE(store->put_job_checkpoint("a", "job-1", std::string("\x00pass 2", 7)).is_ok());
-  EXPECT_EQ(store->get_job_checkpoint("a", "job-1").value(), std::string("\x00pass 2", 7));
-  // Another tenant can neither read nor overwrite it; no checkpoint without its job.
-  EXPECT_EQ(store->get_job_checkpoint("b", "job-1").status().code(), StatusCode::kNotFound);
-  EXPECT_EQ(store->put_job_checkpoint("b", "job-1", "theirs").code(), StatusCode::kNotFound);
-  EXPECT_EQ(store->put_job_checkpoint("a", "job-2", "none").code(), StatusCode::kNotFound);
-  EXPECT_EQ(store->get_job_checkpoint("a", "job-1").value(), std::string("\x00pass 2", 7));
+  EXPECT_TRUE(store->list_job_passes("a", "job-1").value().empty());
+  for (int pass : {2, 1, 10}) {  // out of order; 10 after 2 (not "10" < "2")
+    ASSERT_TRUE(store->put_job_pass("a", "job-1", pass, std::string("\x00pass ", 6) + std::to_string(pass)).is_ok());
+  }
+  ASSERT_TRUE(store->put_job_pass("a", "job-1", 2, std::string("\x00again", 6)).is_ok());  // replaces
+  EXPECT_EQ(store->list_job_passes("a", "job-1").value(),
+            (std::vector<std::string>{std::string("\x00pass 1", 7), std::string("\x00again", 6),
+                                      std::string("\x00pass 10", 8)}));
+  // Another tenant can neither read nor write them; no records without the job.
+  EXPECT_TRUE(store->list_job_passes("b", "job-1").value().empty());
+  EXPECT_EQ(store->put_job_pass("b", "job-1", 3, "theirs").code(), StatusCode::kNotFound);
+  EXPECT_EQ(store->put_job_pass("a", "job-2", 1, "none").code(), StatusCode::kNotFound);
+  EXPECT_EQ(store->list_job_passes("a", "job-1").value().size(), 3u);
 }
 
 TEST_P(StoreTest, ReopeningFindsEverything) {
@@ -210,13 +214,13 @@ TEST_P(StoreTest, ReopeningFindsEverything) {
     ASSERT_TRUE(store->put_dataset(record_for("ds-1", "t", d, 1), d).is_ok());
     ASSERT_TRUE(store->put_job(job("job-1", "t", 1)).is_ok());
     ASSERT_TRUE(store->put_result("t", "job-1", "r").is_ok());
-    ASSERT_TRUE(store->put_job_checkpoint("t", "job-1", "c").is_ok());
+    ASSERT_TRUE(store->put_job_pass("t", "job-1", 1, "c").is_ok());
   }
   auto store = open();
   EXPECT_TRUE(store->load_dataset("t", "ds-1").value().y.isApprox(d.y));
   EXPECT_EQ(store->get_job("t", "job-1").value().kind, "identification");
   EXPECT_EQ(store->get_result("t", "job-1").value(), "r");
-  EXPECT_EQ(store->get_job_checkpoint("t", "job-1").value(), "c");
+  EXPECT_EQ(store->list_job_passes("t", "job-1").value(), std::vector<std::string>{"c"});
 }
 
 TEST_P(StoreTest, ConcurrentWritersAndReaders) {
