@@ -134,10 +134,10 @@ v1::ModelInfo* cached_model(Client& c, const std::string& name, grpc::Status* st
 
 // Watches a job, with a progress bar on stderr when it is a terminal.
 int watch_until_done(Client& c, const std::string& id, v1::Job* last) {
-  grpc::ClientContext ctx;
+  auto ctx = c.stream_context();
   v1::WatchJobRequest request;
   request.set_id(id);
-  auto reader = c.jobs->WatchJob(&ctx, request);
+  auto reader = c.jobs->WatchJob(ctx.get(), request);
   const bool tty = isatty(STDERR_FILENO) != 0 && !c.json;
   uint32_t last_pass_printed = 0;
   while (reader->Read(last)) {
@@ -179,10 +179,11 @@ int exit_code_for(grpc::StatusCode code) {
   }
 }
 
-Client::Client(const std::string& address, double timeout, bool json_output) : timeout_s(timeout), json(json_output) {
+Client::Client(const Connection& connection, double timeout, bool json_output)
+    : timeout_s(timeout), json(json_output), token_(connection.token) {
   grpc::ChannelArguments args;
   args.SetMaxReceiveMessageSize(-1);  // results of long identifications are large
-  channel = grpc::CreateCustomChannel(address, grpc::InsecureChannelCredentials(), args);
+  channel = grpc::CreateCustomChannel(connection.server, connection.credentials(), args);
   models = v1::ModelService::NewStub(channel);
   datasets = v1::DatasetService::NewStub(channel);
   jobs = v1::JobService::NewStub(channel);
@@ -190,9 +191,15 @@ Client::Client(const std::string& address, double timeout, bool json_output) : t
 }
 
 std::unique_ptr<grpc::ClientContext> Client::context() const {
-  auto ctx = std::make_unique<grpc::ClientContext>();
+  auto ctx = stream_context();
   ctx->set_deadline(std::chrono::system_clock::now() +
                     std::chrono::milliseconds(static_cast<long long>(timeout_s * 1000)));
+  return ctx;
+}
+
+std::unique_ptr<grpc::ClientContext> Client::stream_context() const {
+  auto ctx = std::make_unique<grpc::ClientContext>();
+  if (!token_.empty()) ctx->AddMetadata("authorization", "Bearer " + token_);
   return ctx;
 }
 
@@ -347,9 +354,9 @@ int data_upload(Client& c, const UploadOptions& o, std::string* dataset_id) {
     std::fprintf(stderr, "riccati: cannot open %s\n", o.file.c_str());
     return kExitUsage;
   }
-  grpc::ClientContext ctx;
+  auto ctx = c.stream_context();
   v1::DatasetInfo info;
-  auto writer = c.datasets->UploadDataset(&ctx, &info);
+  auto writer = c.datasets->UploadDataset(ctx.get(), &info);
   v1::UploadDatasetRequest header;
   auto* h = header.mutable_header();
   h->set_name(o.name.empty() ? std::filesystem::path(o.file).filename().string() : o.name);
@@ -697,8 +704,8 @@ int stream(Client& c, const StreamOptions& o) {
                     (o.live == "auto" && isatty(STDERR_FILENO) != 0 && (out != stdout || isatty(STDOUT_FILENO) == 0));
   std::unique_ptr<LiveView> view = live ? std::make_unique<LiveView>(*info, stderr) : nullptr;
 
-  grpc::ClientContext ctx;
-  auto rpc = c.sessions->Stream(&ctx);
+  auto ctx = c.stream_context();
+  auto rpc = c.sessions->Stream(ctx.get());
   v1::StreamRequest open;
   open.mutable_open()->set_session_id(session.id());
   open.mutable_open()->set_full_covariance(o.full_covariance);

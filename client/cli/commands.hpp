@@ -12,6 +12,7 @@
 #include "riccati/v1/jobs.grpc.pb.h"
 #include "riccati/v1/models.grpc.pb.h"
 #include "riccati/v1/sessions.grpc.pb.h"
+#include "connection.hpp"
 #include "settings.hpp"
 
 namespace riccati::cli {
@@ -28,7 +29,7 @@ enum ExitCode : int {
 int exit_code_for(grpc::StatusCode code);
 
 struct Client {
-  Client(const std::string& address, double timeout_s, bool json);
+  Client(const Connection& connection, double timeout_s, bool json);
 
   std::shared_ptr<grpc::Channel> channel;
   std::unique_ptr<v1::ModelService::Stub> models;
@@ -38,10 +39,15 @@ struct Client {
   double timeout_s;
   bool json;
 
-  // A context with the unary deadline.
+  // A context with the token and the unary deadline.
   std::unique_ptr<grpc::ClientContext> context() const;
+  // A context with the token and no deadline: uploads, watches, streams.
+  std::unique_ptr<grpc::ClientContext> stream_context() const;
   // Prints "riccati: <what>: <message>" and returns the exit code for it.
   int fail(const std::string& what, const grpc::Status& status) const;
+
+ private:
+  std::string token_;
 };
 
 // A table of numbers read from a local CSV file (header row).

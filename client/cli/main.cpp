@@ -131,14 +131,21 @@ int main(int argc, char** argv) {
   CLI::App app{"riccati: identification and filtering of continuous-time models with riccatid"};
   app.footer(
       "Exit status: 0 success; 1 the operation failed (job failed or cancelled, input refused); 2 usage error;\n"
-      "3 riccatid unreachable; 4 not found.\nThe server address comes from --server, else RICCATI_SERVER, else "
-      "127.0.0.1:7531.");
+      "3 riccatid unreachable; 4 not found.\n"
+      "Connection settings come from the flags, else the environment (RICCATI_SERVER, RICCATI_TOKEN_FILE,\n"
+      "RICCATI_TOKEN, RICCATI_CA, RICCATI_CERT, RICCATI_KEY, RICCATI_TLS), else the config file\n"
+      "(RICCATI_CONFIG, else ~/.config/riccati/client.yaml: server, token_file, ca, cert, key, tls);\n"
+      "the server defaults to 127.0.0.1:7531. The token is never a flag: it stays out of shell history.");
   app.require_subcommand(1);
-  const char* env = std::getenv("RICCATI_SERVER");
-  std::string server = env != nullptr && env[0] != '\0' ? env : "127.0.0.1:7531";
+  ConnectionFlags connection_flags;
   bool json = false;
   double timeout = 30.0;
-  app.add_option("--server", server, "riccatid address (host:port)")->capture_default_str();
+  app.add_option("--server", connection_flags.server, "riccatid address (host:port)");
+  app.add_option("--token-file", connection_flags.token_file, "File holding the bearer token (mode 600)");
+  app.add_option("--ca", connection_flags.ca, "PEM CA certificate to trust: connect with TLS");
+  app.add_option("--cert", connection_flags.cert, "PEM client certificate (mutual TLS)");
+  app.add_option("--key", connection_flags.key, "PEM client key (mutual TLS)");
+  app.add_flag("--tls", connection_flags.tls, "Connect with TLS, trusting the system's CAs");
   app.add_flag("--json", json, "Machine-readable output (JSON)");
   app.add_option("--timeout", timeout, "Seconds to wait for each call")->capture_default_str();
 
@@ -242,7 +249,13 @@ int main(int argc, char** argv) {
     return app.exit(e) == 0 ? kExitOk : kExitUsage;
   }
 
-  Client client(server, timeout, json);
+  Connection connection;
+  if (auto error = resolve_connection(connection_flags, [](const char* name) { return std::getenv(name); },
+                                      &connection)) {
+    std::fprintf(stderr, "riccati: %s\n", error->c_str());
+    return kExitUsage;
+  }
+  Client client(connection, timeout, json);
   if (*models) return *models_show_cmd ? models_show(client, model_name) : models_list(client);
   if (*upload_cmd) return data_upload(client, upload);
   if (*data_list_cmd) return data_list(client);

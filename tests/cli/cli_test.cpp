@@ -3,8 +3,12 @@
 
 #include <filesystem>
 #include <fstream>
+#include <map>
+#include <optional>
+#include <unistd.h>
 
 #include "commands.hpp"
+#include "connection.hpp"
 #include "settings.hpp"
 
 namespace riccati::cli {
@@ -167,6 +171,115 @@ TEST(Tables, ParameterTableShowsTruthAndError) {
   const std::string table = parameter_table(r, {20.0}, {10.0});
   EXPECT_NE(table.find("A1"), std::string::npos);
   EXPECT_NE(table.find("-1.000"), std::string::npos) << table;  // (9.9 - 10) / 10 = -1 %
+}
+
+}  // namespace
+}  // namespace riccati::cli
+
+namespace riccati::cli {
+namespace {
+
+// The connection settings: flag over environment over config file, and the
+// token only ever from a file or the environment.
+class ConnectionTest : public ::testing::Test {
+ protected:
+  void SetUp() override {
+    dir_ = std::filesystem::temp_directory_path() / ("riccati-conn-" + std::to_string(::getpid()));
+    std::filesystem::create_directories(dir_);
+    env_["HOME"] = dir_.string();
+  }
+  void TearDown() override { std::filesystem::remove_all(dir_); }
+
+  std::string file(const std::string& name, const std::string& text, std::filesystem::perms perms =
+                                                                          std::filesystem::perms::owner_read |
+                                                                          std::filesystem::perms::owner_write) {
+    const auto path = dir_ / name;
+    std::filesystem::create_directories(path.parent_path());
+    std::ofstream(path) << text;
+    std::filesystem::permissions(path, perms);
+    return path.string();
+  }
+
+  std::optional<std::string> resolve(const ConnectionFlags& flags, Connection* out) {
+    return resolve_connection(
+        flags,
+        [this](const char* name) -> const char* {
+          auto it = env_.find(name);
+          return it == env_.end() ? nullptr : it->second.c_str();
+        },
+        out);
+  }
+
+  std::filesystem::path dir_;
+  std::map<std::string, std::string> env_;
+};
+
+TEST_F(ConnectionTest, FlagsBeatTheEnvironmentWhichBeatsTheConfigFile) {
+  file("ca.pem", "CA");
+  file("file-token", "from-file\n");
+  file("env-token", "from-env-file");
+  file(".config/riccati/client.yaml", "server: config:1\ntoken_file: ~/file-token\nca: ~/ca.pem\n");
+  Connection c;
+  ASSERT_EQ(resolve({}, &c), std::nullopt);
+  EXPECT_EQ(c.server, "config:1");
+  EXPECT_EQ(c.token, "from-file");  // the trailing newline is not part of it
+  EXPECT_TRUE(c.tls);
+  EXPECT_EQ(c.ca_pem, "CA");
+
+  env_["RICCATI_SERVER"] = "env:2";
+  env_["RICCATI_TOKEN_FILE"] = (dir_ / "env-token").string();
+  Connection e;
+  ASSERT_EQ(resolve({}, &e), std::nullopt);
+  EXPECT_EQ(e.server, "env:2");
+  EXPECT_EQ(e.token, "from-env-file");
+
+  ConnectionFlags flags;
+  flags.server = "flag:3";
+  flags.token_file = (dir_ / "file-token").string();
+  Connection f;
+  ASSERT_EQ(resolve(flags, &f), std::nullopt);
+  EXPECT_EQ(f.server, "flag:3");
+  EXPECT_EQ(f.token, "from-file");
+}
+
+TEST_F(ConnectionTest, NothingConfiguredIsPlainLoopbackWithoutAToken) {
+  Connection c;
+  ASSERT_EQ(resolve({}, &c), std::nullopt);
+  EXPECT_EQ(c.server, "127.0.0.1:7531");
+  EXPECT_TRUE(c.token.empty());
+  EXPECT_FALSE(c.tls);
+  env_["RICCATI_TOKEN"] = "in-the-environment";
+  Connection t;
+  ASSERT_EQ(resolve({}, &t), std::nullopt);
+  EXPECT_EQ(t.token, "in-the-environment");
+}
+
+TEST_F(ConnectionTest, RefusesATokenFileOthersCanReadAndUnknownConfigKeys) {
+  using std::filesystem::perms;
+  ConnectionFlags flags;
+  flags.token_file = file("open-token", "secret", perms::owner_read | perms::group_read | perms::others_read);
+  Connection c;
+  auto error = resolve(flags, &c);
+  ASSERT_TRUE(error.has_value());
+  EXPECT_NE(error->find("chmod 600"), std::string::npos) << *error;
+
+  file(".config/riccati/client.yaml", "server: a:1\ntoken: secret\n");
+  error = resolve({}, &c);
+  ASSERT_TRUE(error.has_value());
+  EXPECT_NE(error->find("unknown key \"token\""), std::string::npos) << *error;
+
+  env_["RICCATI_CONFIG"] = file("other.yaml", "server: [unclosed\n");
+  error = resolve({}, &c);
+  ASSERT_TRUE(error.has_value());
+  EXPECT_NE(error->find("other.yaml"), std::string::npos) << *error;
+
+  env_.erase("RICCATI_CONFIG");
+  std::filesystem::remove(dir_ / ".config/riccati/client.yaml");
+  flags = {};
+  flags.ca = (dir_ / "missing.pem").string();
+  error = resolve(flags, &c);
+  ASSERT_TRUE(error.has_value());
+  EXPECT_NE(error->find("missing.pem"), std::string::npos) << *error;
 }
 
 }  // namespace

@@ -26,14 +26,18 @@ struct CliRun {
 class CliTest : public ::testing::Test {
  protected:
   void SetUp() override {
-    daemon_ = std::make_unique<testing::DaemonProcess>(dir_.path() / "data");
+    daemon_ = std::make_unique<testing::DaemonProcess>(dir_.path() / "data", daemon_args());
     daemon_->start();
   }
+  virtual std::vector<std::string> daemon_args() { return {}; }
 
-  // Runs `riccati --server ADDR <args>`; stdout captured, stderr to a file.
+  // Runs `riccati --server ADDR <args>` with `env_` (VAR=value ...) in front;
+  // stdout captured, stderr to a file. HOME is the test's directory, so no
+  // config file of the user running the tests is read.
   CliRun riccati(const std::string& args) {
-    const std::string command = std::string(RICCATI_CLI_BIN) + " --server " + daemon_->address() + " " + args +
-                                " 2>" + (dir_.path() / "stderr").string();
+    const std::string command = "HOME=" + dir_.path().string() + " " + env_ + " " + std::string(RICCATI_CLI_BIN) +
+                                " --server " + daemon_->address() + " " + args + " 2>" +
+                                (dir_.path() / "stderr").string();
     CliRun run{0, ""};
     std::FILE* pipe = popen(command.c_str(), "r");
     std::array<char, 4096> buffer;
@@ -51,6 +55,7 @@ class CliTest : public ::testing::Test {
 
   testing::TempDir dir_;
   std::unique_ptr<testing::DaemonProcess> daemon_;
+  std::string env_;
 };
 
 TEST_F(CliTest, UploadIdentifyAndValidateTheTwoTank) {
@@ -116,6 +121,71 @@ TEST_F(CliTest, ExitCodesAndMessagesForBadInput) {
   // No daemon there: unreachable (3).
   const std::string command = std::string(RICCATI_CLI_BIN) + " --server 127.0.0.1:1 --timeout 2 models 2>/dev/null";
   EXPECT_EQ(WEXITSTATUS(std::system(command.c_str())), 3);
+}
+
+// A daemon with TLS and tokens, set up as an operator would: tokens hashed
+// with `riccatid --hash-token`, the CLI given the CA and a token file.
+class SecureCliTest : public CliTest {
+ protected:
+  std::vector<std::string> daemon_args() override {
+    const auto tokens = dir_.path() / "tokens";
+    const std::string hash = std::string("printf 'alpha-token-1' | ") + RICCATI_DAEMON_BIN +
+                             " --hash-token --tenant alpha > " + tokens.string();
+    EXPECT_EQ(std::system(hash.c_str()), 0);
+    const std::string tls = std::string(RICCATI_TEST_DATA_DIR) + "/tls";
+    return {"--tls-cert", tls + "/server.pem", "--tls-key", tls + "/server.key", "--tokens-file", tokens.string()};
+  }
+  std::string token_file(const std::string& token, std::filesystem::perms perms) {
+    const auto path = dir_.path() / "token";
+    std::ofstream(path) << token << "\n";
+    std::filesystem::permissions(path, perms);
+    return path.string();
+  }
+  const std::string ca_ = std::string(RICCATI_TEST_DATA_DIR) + "/tls/ca.pem";
+};
+
+TEST_F(SecureCliTest, TalksTlsWithATokenFromAFileOrTheEnvironment) {
+  using std::filesystem::perms;
+  env_ = "RICCATI_TOKEN_FILE=" + token_file("alpha-token-1", perms::owner_read | perms::owner_write);
+  CliRun r = riccati("--ca " + ca_ + " models");
+  EXPECT_EQ(r.exit_code, 0) << last_stderr();
+  EXPECT_NE(r.out.find("two_tank"), std::string::npos) << r.out;
+
+  env_ = "RICCATI_TOKEN=alpha-token-1 RICCATI_CA=" + ca_;
+  r = riccati("data upload " + kData + "/two_tank.csv --inputs F1,F2 --outputs h1,h2");  // a client stream
+  EXPECT_EQ(r.exit_code, 0) << last_stderr();
+
+  // The same through the config file in the user's home.
+  env_ = "";
+  const auto config = dir_.path() / ".config" / "riccati" / "client.yaml";
+  std::filesystem::create_directories(config.parent_path());
+  std::ofstream(config) << "ca: " << ca_ << "\ntoken_file: " << token_file("alpha-token-1", perms::owner_read)
+                        << "\n";
+  r = riccati("data list");
+  EXPECT_EQ(r.exit_code, 0) << last_stderr();
+  EXPECT_NE(r.out.find("two_tank.csv"), std::string::npos) << r.out;
+  std::filesystem::remove(config);
+}
+
+TEST_F(SecureCliTest, AWrongOrMissingTokenFailsWithTheReason) {
+  using std::filesystem::perms;
+  CliRun r = riccati("--ca " + ca_ + " models");
+  EXPECT_EQ(r.exit_code, 1);
+  EXPECT_NE(last_stderr().find("no bearer token"), std::string::npos) << last_stderr();
+  env_ = "RICCATI_TOKEN=not-the-token";
+  r = riccati("--ca " + ca_ + " models");
+  EXPECT_EQ(r.exit_code, 1);
+  EXPECT_NE(last_stderr().find("not valid"), std::string::npos) << last_stderr();
+  // A token file anyone can read is refused before anything is sent.
+  env_ = "";
+  r = riccati("--ca " + ca_ + " --token-file " + token_file("alpha-token-1", perms::owner_read | perms::others_read) +
+              " models");
+  EXPECT_EQ(r.exit_code, 2);
+  EXPECT_NE(last_stderr().find("chmod 600"), std::string::npos) << last_stderr();
+  // Plain text against the TLS port: unreachable.
+  env_ = "RICCATI_TOKEN=alpha-token-1";
+  r = riccati("--timeout 3 models");
+  EXPECT_EQ(r.exit_code, 3) << last_stderr();
 }
 
 TEST_F(CliTest, StreamReplaysAFileIntoASession) {
