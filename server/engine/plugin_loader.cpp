@@ -1,12 +1,15 @@
 #include "engine/plugin_loader.hpp"
 
 #include <dlfcn.h>
+#include <sys/stat.h>
 #include <unistd.h>
 
 #include <algorithm>
 #include <filesystem>
 #include <memory>
 #include <system_error>
+
+#include "engine/sha256.hpp"
 
 namespace riccati {
 
@@ -37,19 +40,60 @@ Result<ModelPtr> load_model_plugin(const std::string& path) {
   return Model::create(table, std::move(library), path);
 }
 
-Result<ModelRegistry> ModelRegistry::load_directory(const std::string& dir) {
-  std::error_code ec;
-  if (!fs::is_directory(dir, ec)) return not_found("models directory " + dir + " does not exist");
+namespace {
 
+// World-writable, or group-writable by a group other than ours. Group write
+// for our own group is let through: with the user-private groups of Debian
+// (umask 002) every file a user builds is group-writable by a group that
+// holds that user alone.
+bool writable_by_others(const struct stat& st) {
+  return (st.st_mode & S_IWOTH) != 0 || ((st.st_mode & S_IWGRP) != 0 && st.st_gid != ::getegid());
+}
+bool owned_by_us_or_root(const struct stat& st) { return st.st_uid == ::geteuid() || st.st_uid == 0; }
+
+// Why `path` (a plugin file) may not be loaded, or "" if it may.
+std::string unsafe_file(const fs::path& path) {
+  struct stat st {};
+  if (::lstat(path.c_str(), &st) != 0) return "cannot stat it";
+  if (S_ISLNK(st.st_mode)) return "it is a symbolic link: copy the plugin into the models directory";
+  if (!S_ISREG(st.st_mode)) return "it is not a regular file";
+  if (writable_by_others(st)) return "others can write to it (chmod go-w " + path.string() + ")";
+  if (!owned_by_us_or_root(st)) return "it is owned by uid " + std::to_string(st.st_uid) + ", not by this user or root";
+  return "";
+}
+
+}  // namespace
+
+Result<ModelRegistry> ModelRegistry::load_directory(const std::string& dir) {
+  struct stat st {};
+  if (::stat(dir.c_str(), &st) != 0 || !S_ISDIR(st.st_mode)) {
+    return not_found("models directory " + dir + " does not exist");
+  }
+  if (writable_by_others(st) || !owned_by_us_or_root(st)) {
+    return failed_precondition("models directory " + dir +
+                               " is writable by others or owned by another user: anyone who can write there can run "
+                               "code in riccatid (chmod go-w " + dir + ")");
+  }
+
+  std::error_code ec;
   std::vector<fs::path> files;
   for (const auto& entry : fs::directory_iterator(dir, ec)) {
-    if (entry.is_regular_file() && entry.path().extension() == ".so") files.push_back(entry.path());
+    if (entry.path().extension() == ".so") files.push_back(entry.path());
   }
   if (ec) return invalid_argument("cannot read models directory " + dir + ": " + ec.message());
   std::sort(files.begin(), files.end());
 
   ModelRegistry registry;
   for (const auto& file : files) {
+    if (const std::string why = unsafe_file(file); !why.empty()) {
+      registry.refused_.push_back({file.string(), "plugin " + file.string() + " refused: " + why});
+      continue;
+    }
+    auto checksum = file_sha256(file.string());
+    if (!checksum.is_ok()) {
+      registry.refused_.push_back({file.string(), "plugin " + file.string() + " refused: " + checksum.status().message()});
+      continue;
+    }
     auto loaded = load_model_plugin(file.string());
     if (!loaded.is_ok()) {
       registry.refused_.push_back({file.string(), loaded.status().message()});
@@ -62,8 +106,17 @@ Result<ModelRegistry> ModelRegistry::load_directory(const std::string& dir) {
       continue;
     }
     registry.models_.push_back(std::move(model));
+    registry.sha256_.push_back(std::move(checksum).value());
   }
   return registry;
+}
+
+const std::string& ModelRegistry::sha256(const Model& model) const {
+  static const std::string kNone;
+  for (std::size_t i = 0; i < models_.size(); ++i) {
+    if (models_[i].get() == &model) return sha256_[i];
+  }
+  return kNone;
 }
 
 ModelPtr ModelRegistry::find(std::string_view name) const {

@@ -24,17 +24,24 @@ struct RefusedPlugin {
 // directory, by name.
 class ModelRegistry {
  public:
-  // Loads every *.so in `dir` (sorted by file name). A missing directory is an
-  // error; a bad plugin is recorded in refused() and skipped, as is a second
-  // plugin with a name already taken.
+  // Loads every *.so in `dir` (sorted by file name). A plugin is code run
+  // inside the daemon, so only what the daemon's user (or root) controls is
+  // loaded: a missing directory, or one that others can write to, is an
+  // error; a file others can write to, a file owned by someone else, a
+  // symbolic link (it may lead out of the directory) or a bad plugin is
+  // recorded in refused() and skipped, as is a second plugin with a name
+  // already taken.
   static Result<ModelRegistry> load_directory(const std::string& dir);
 
   ModelPtr find(std::string_view name) const;
   const std::vector<ModelPtr>& models() const { return models_; }
   const std::vector<RefusedPlugin>& refused() const { return refused_; }
+  // SHA-256 of the file a loaded model came from (64 hex digits).
+  const std::string& sha256(const Model& model) const;
 
  private:
   std::vector<ModelPtr> models_;
+  std::vector<std::string> sha256_;  // of models_[i]'s file
   std::vector<RefusedPlugin> refused_;
 };
 

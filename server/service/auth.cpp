@@ -1,11 +1,11 @@
 #include "service/auth.hpp"
 
-#include <openssl/evp.h>
-
 #include <array>
 #include <cctype>
 #include <fstream>
 #include <sstream>
+
+#include "engine/sha256.hpp"
 
 namespace riccati::service {
 
@@ -18,28 +18,6 @@ bool is_public_method(std::string_view path) {
          path.rfind("/grpc.reflection.v1alpha.ServerReflection/", 0) == 0;
 }
 
-std::string hex(const unsigned char* bytes, unsigned int n) {
-  static constexpr char kDigits[] = "0123456789abcdef";
-  std::string out(2 * n, '0');
-  for (unsigned int i = 0; i < n; ++i) {
-    out[2 * i] = kDigits[bytes[i] >> 4];
-    out[2 * i + 1] = kDigits[bytes[i] & 0xf];
-  }
-  return out;
-}
-
-// SHA-256 over chunks fed by `feed` (which calls the given update function).
-template <typename Feed>
-std::string sha256(Feed&& feed) {
-  std::unique_ptr<EVP_MD_CTX, decltype(&EVP_MD_CTX_free)> ctx(EVP_MD_CTX_new(), &EVP_MD_CTX_free);
-  EVP_DigestInit_ex(ctx.get(), EVP_sha256(), nullptr);
-  feed([&](const void* data, std::size_t n) { EVP_DigestUpdate(ctx.get(), data, n); });
-  std::array<unsigned char, EVP_MAX_MD_SIZE> digest;
-  unsigned int length = 0;
-  EVP_DigestFinal_ex(ctx.get(), digest.data(), &length);
-  return hex(digest.data(), length);
-}
-
 Result<std::string> read_file(const std::string& path, const char* what) {
   std::ifstream in(path, std::ios::binary);
   if (!in) return invalid_argument(std::string(what) + " " + path + " cannot be read");
@@ -50,20 +28,7 @@ Result<std::string> read_file(const std::string& path, const char* what) {
 
 }  // namespace
 
-std::string token_digest(std::string_view token) {
-  return "sha256:" + sha256([&](auto update) { update(token.data(), token.size()); });
-}
-
-Result<std::string> file_sha256(const std::string& path) {
-  std::ifstream in(path, std::ios::binary);
-  if (!in) return not_found("cannot read " + path);
-  return sha256([&](auto update) {
-    std::array<char, 1 << 16> buffer;
-    while (in.read(buffer.data(), buffer.size()) || in.gcount() > 0) {
-      update(buffer.data(), static_cast<std::size_t>(in.gcount()));
-    }
-  });
-}
+std::string token_digest(std::string_view token) { return "sha256:" + sha256_hex(token); }
 
 Result<TokenTable> TokenTable::load(const std::string& path) {
   RICCATI_ASSIGN_OR_RETURN(const std::string text, read_file(path, "tokens file"));

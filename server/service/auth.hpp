@@ -47,8 +47,6 @@ class TokenTable {
 
 // "sha256:<64 hex digits>" of the token, as the tokens file holds it.
 std::string token_digest(std::string_view token);
-// SHA-256 of a file's bytes, as 64 hex digits.
-Result<std::string> file_sha256(const std::string& path);
 
 // Who a call is from. Holds the token table (none: authentication off, every
 // caller is kDefaultTenant). Shared by the auth processor, which refuses

@@ -65,7 +65,8 @@ Status Daemon::start() {
   const std::string models_dir = config_.models_dir.empty() ? default_models_dir() : config_.models_dir;
   RICCATI_ASSIGN_OR_RETURN(models_, ModelRegistry::load_directory(models_dir));
   for (const auto& m : models_.models()) {
-    spdlog::info("model loaded name={} version={} path={}", m->name(), m->version(), m->origin());
+    spdlog::info("model loaded name={} version={} path={} sha256={}", m->name(), m->version(), m->origin(),
+                 models_.sha256(*m));
   }
   for (const auto& r : models_.refused()) spdlog::warn("model refused path={} reason=\"{}\"", r.path, r.reason);
 

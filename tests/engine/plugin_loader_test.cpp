@@ -6,7 +6,9 @@
 #include <unistd.h>
 
 #include <cmath>
+#include <cstdio>
 #include <filesystem>
+#include <map>
 #include <set>
 #include <string>
 #include <vector>
@@ -286,6 +288,48 @@ TEST(ModelRegistryTest, SecondPluginWithTheSameModelNameIsRefused) {
   EXPECT_EQ(refused.path, (dir.path() / "b_two_tank.so").string());
   EXPECT_NE(refused.reason.find("\"two_tank\" is already provided by"), std::string::npos) << refused.reason;
   EXPECT_NE(refused.reason.find("a_two_tank.so"), std::string::npos) << refused.reason;
+}
+
+// sha256sum's digest of a file: an implementation independent of ours.
+std::string sha256sum(const fs::path& file) {
+  const std::string command = "sha256sum '" + file.string() + "'";
+  std::FILE* pipe = ::popen(command.c_str(), "r");
+  char digest[65] = {};
+  const bool read = pipe != nullptr && std::fscanf(pipe, "%64s", digest) == 1;
+  if (pipe != nullptr) ::pclose(pipe);
+  return read ? digest : "";
+}
+
+TEST(ModelRegistryTest, OnlyFilesNoOneElseCanWriteAreLoadedWithTheirChecksums) {
+  const ScratchDir dir;
+  fs::copy_file(builtin_plugin("two_tank.so"), dir.path() / "two_tank.so");
+  fs::copy_file(builtin_plugin("rotary_pendulum.so"), dir.path() / "rotary_pendulum.so");
+  fs::permissions(dir.path() / "rotary_pendulum.so", fs::perms::others_write, fs::perm_options::add);
+  fs::create_symlink(builtin_plugin("rotating_arm.so"), dir.path() / "rotating_arm.so");
+
+  auto registry = ModelRegistry::load_directory(dir.path().string());
+  ASSERT_TRUE(registry.is_ok()) << registry.status().to_string();
+  ASSERT_EQ(registry->models().size(), 1u);
+  const ModelPtr two_tank = registry->find("two_tank");
+  ASSERT_NE(two_tank, nullptr);
+  const std::string expected = sha256sum(dir.path() / "two_tank.so");
+  ASSERT_EQ(expected.size(), 64u);
+  EXPECT_EQ(registry->sha256(*two_tank), expected);
+
+  std::map<std::string, std::string> refused;
+  for (const RefusedPlugin& r : registry->refused()) refused[fs::path(r.path).filename().string()] = r.reason;
+  ASSERT_EQ(refused.size(), 2u);
+  EXPECT_NE(refused["rotary_pendulum.so"].find("others can write to it"), std::string::npos)
+      << refused["rotary_pendulum.so"];
+  EXPECT_NE(refused["rotating_arm.so"].find("symbolic link"), std::string::npos) << refused["rotating_arm.so"];
+
+  // A directory anyone can write to is refused as a whole: nothing loads.
+  fs::permissions(dir.path(), fs::perms::others_write, fs::perm_options::add);
+  auto open_dir = ModelRegistry::load_directory(dir.path().string());
+  ASSERT_FALSE(open_dir.is_ok());
+  EXPECT_EQ(open_dir.status().code(), StatusCode::kFailedPrecondition);
+  EXPECT_NE(open_dir.status().message().find(dir.path().string()), std::string::npos) << open_dir.status().message();
+  EXPECT_NE(open_dir.status().message().find("writable by others"), std::string::npos) << open_dir.status().message();
 }
 
 // The shared_ptr<const Model> keeps the plugin's library loaded: calling f
