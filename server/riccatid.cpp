@@ -8,7 +8,11 @@
 #include <CLI/CLI.hpp>
 #include <csignal>
 #include <cstdio>
+#include <algorithm>
 #include <fstream>
+#include <limits>
+#include <utility>
+#include <vector>
 #include <iostream>
 #include <spdlog/sinks/stdout_color_sinks.h>
 #include <spdlog/spdlog.h>
@@ -41,6 +45,16 @@ int main(int argc, char** argv) {
                "Read a token on standard input and print its line for the tokens file (needs --tenant)");
   std::string tenant;
   app.add_option("--tenant", tenant, "With --hash-token: the tenant the token belongs to");
+  // One flag per limit, from the same table as the config keys.
+  std::vector<std::pair<const riccati::service::LimitSpec*, CLI::Option*>> limit_flags;
+  for (const auto& spec : riccati::service::kLimitSpecs) {
+    std::string flag = std::string("--") + spec.key;
+    std::replace(flag.begin(), flag.end(), '_', '-');
+    const std::string help = std::string(spec.help) + " [" + std::to_string(DaemonConfig{}.limits.*(spec.value)) + "]";
+    limit_flags.emplace_back(&spec, app.add_option(flag, flags.limits.*(spec.value), help)
+                                        ->check(CLI::Range(std::int64_t{1}, std::numeric_limits<std::int64_t>::max()))
+                                        ->group("Limits"));
+  }
   CLI11_PARSE(app, argc, argv);
 
   if (hash_token) {
@@ -71,6 +85,9 @@ int main(int argc, char** argv) {
   if (*tls_client_ca) config.security.tls_client_ca = flags.security.tls_client_ca;
   if (*tokens_file) config.security.tokens_file = flags.security.tokens_file;
   if (idle_timeout_s >= 0) config.session_idle_timeout = std::chrono::seconds(idle_timeout_s);
+  for (const auto& [spec, option] : limit_flags) {
+    if (*option) config.limits.*(spec->value) = flags.limits.*(spec->value);
+  }
 
   auto logger = spdlog::stderr_color_mt("riccatid");
   logger->set_pattern("%Y-%m-%dT%H:%M:%S.%e %^%l%$ %v");

@@ -5,10 +5,23 @@
 #include <spdlog/spdlog.h>
 #include <yaml-cpp/yaml.h>
 
+#include <algorithm>
 #include <filesystem>
+#include <limits>
 #include <thread>
 
 namespace riccati::service {
+
+namespace {
+
+const LimitSpec* find_limit(const std::string& key) {
+  for (const LimitSpec& spec : kLimitSpecs) {
+    if (key == spec.key) return &spec;
+  }
+  return nullptr;
+}
+
+}  // namespace
 
 Status load_config_file(const std::string& path, DaemonConfig* c) {
   try {
@@ -27,12 +40,11 @@ Status load_config_file(const std::string& path, DaemonConfig* c) {
         c->workers = v.as<int>();
       } else if (key == "session_idle_timeout_s") {
         c->session_idle_timeout = std::chrono::seconds(v.as<long>());
-      } else if (key == "max_message_bytes") {
-        c->max_message_bytes = v.as<int>();
-      } else if (key == "max_dataset_bytes") {
-        c->limits.max_dataset_bytes = v.as<std::int64_t>();
-      } else if (key == "max_batch") {
-        c->limits.max_batch = v.as<int>();
+      } else if (const LimitSpec* limit = find_limit(key)) {
+        c->limits.*(limit->value) = v.as<std::int64_t>();
+        if (c->limits.*(limit->value) < 1) {
+          return invalid_argument("config " + path + ": " + key + " must be at least 1");
+        }
       } else if (key == "tls_cert") {
         c->security.tls_cert = v.as<std::string>();
       } else if (key == "tls_key") {
@@ -76,9 +88,9 @@ Status Daemon::start() {
 
   const int workers = config_.workers > 0 ? config_.workers
                                           : static_cast<int>(std::max(1u, std::thread::hardware_concurrency()));
-  jobs_ = std::make_unique<JobManager>(*store_, models_, workers);
+  jobs_ = std::make_unique<JobManager>(*store_, models_, workers, config_.limits);
   RICCATI_RETURN_IF_ERROR(jobs_->start());
-  sessions_ = std::make_unique<SessionManager>(models_, config_.session_idle_timeout);
+  sessions_ = std::make_unique<SessionManager>(models_, config_.session_idle_timeout, config_.limits);
 
   RICCATI_ASSIGN_OR_RETURN(auth_, Authenticator::create(config_.security.tokens_file));
   model_service_ = std::make_unique<ModelServiceImpl>(models_);
@@ -93,7 +105,8 @@ Status Daemon::start() {
   grpc::reflection::InitProtoReflectionServerBuilderPlugin();
   grpc::ServerBuilder builder;
   builder.AddListeningPort(config_.listen, credentials, &port_);
-  builder.SetMaxReceiveMessageSize(config_.max_message_bytes);
+  builder.SetMaxReceiveMessageSize(
+      static_cast<int>(std::min<std::int64_t>(config_.limits.max_message_bytes, std::numeric_limits<int>::max())));
   builder.RegisterService(model_service_.get());
   builder.RegisterService(dataset_service_.get());
   builder.RegisterService(job_service_.get());

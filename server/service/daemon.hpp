@@ -23,8 +23,7 @@ struct DaemonConfig {
   std::string models_dir;                 // empty: next to the binary (default_models_dir())
   int workers = 0;                        // job worker threads; 0: one per core
   std::chrono::seconds session_idle_timeout{600};
-  int max_message_bytes = 64 << 20;  // largest gRPC message received
-  ServiceLimits limits;
+  Limits limits;
   SecurityConfig security;  // TLS and bearer tokens (auth.hpp)
   std::string log_level = "info";
 };

@@ -21,8 +21,8 @@ Result<ModelPtr> find_model(const ModelRegistry& models, const std::string& name
 
 }  // namespace
 
-JobManager::JobManager(Store& store, const ModelRegistry& models, int workers)
-    : store_(store), models_(models), worker_count_(std::max(1, workers)) {}
+JobManager::JobManager(Store& store, const ModelRegistry& models, int workers, Limits limits)
+    : store_(store), models_(models), limits_(limits), worker_count_(std::max(1, workers)) {}
 
 JobManager::~JobManager() { shutdown(); }
 
@@ -58,6 +58,9 @@ void JobManager::shutdown() {
 
 Result<JobRecord> JobManager::submit_identification(const std::string& tenant, const v1::IdentificationSpec& spec) {
   RICCATI_ASSIGN_OR_RETURN(const ModelPtr model, find_model(models_, spec.model()));
+  if (spec.passes() > limits_.max_passes) {
+    return limit_reached("max_passes", limits_.max_passes, "the job asks for " + std::to_string(spec.passes()) + " passes");
+  }
   RICCATI_ASSIGN_OR_RETURN(const IdentificationSettings settings, from_proto(spec, *model));
   RICCATI_ASSIGN_OR_RETURN(const DatasetRecord dataset, store_.get_dataset(tenant, spec.dataset_id()));
   JobRecord job;
@@ -94,6 +97,19 @@ Result<JobRecord> JobManager::submit_validation(const std::string& tenant, const
 Result<JobRecord> JobManager::enqueue(JobRecord job) {
   job.state = JobState::kQueued;
   job.created_ms = now_ms();
+  {
+    // live_ holds exactly the queued and running jobs.
+    std::lock_guard lock(mu_);
+    if (static_cast<std::int64_t>(live_.size()) >= limits_.max_jobs) {
+      return limit_reached("max_jobs", limits_.max_jobs, "riccatid has that many jobs queued or running");
+    }
+    const auto own = std::count_if(live_.begin(), live_.end(),
+                                   [&](const auto& entry) { return entry.second.record.tenant == job.tenant; });
+    if (own >= limits_.max_tenant_jobs) {
+      return limit_reached("max_tenant_jobs", limits_.max_tenant_jobs,
+                           "this tenant has that many jobs queued or running; wait for one to end or cancel one");
+    }
+  }
   RICCATI_RETURN_IF_ERROR(store_.put_job(job));
   {
     std::lock_guard lock(mu_);

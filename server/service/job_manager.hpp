@@ -10,6 +10,8 @@
 // progress change (progress is published at most every kProgressInterval).
 #pragma once
 
+#include "service/limits.hpp"
+
 #include <atomic>
 #include <chrono>
 #include <condition_variable>
@@ -31,7 +33,7 @@ namespace riccati::service {
 
 class JobManager {
  public:
-  JobManager(Store& store, const ModelRegistry& models, int workers);
+  JobManager(Store& store, const ModelRegistry& models, int workers, Limits limits = {});
   ~JobManager();
   JobManager(const JobManager&) = delete;
   JobManager& operator=(const JobManager&) = delete;
@@ -77,6 +79,7 @@ class JobManager {
 
   Store& store_;
   const ModelRegistry& models_;
+  const Limits limits_;  // max_jobs, max_tenant_jobs, max_passes
   const int worker_count_;
 
   std::mutex mu_;

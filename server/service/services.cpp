@@ -75,8 +75,8 @@ grpc::Status DatasetServiceImpl::UploadDataset(grpc::ServerContext* context,
   while (reader->Read(&part)) {
     if (!part.has_chunk()) return to_grpc(invalid_argument("only one header per upload"));
     if (static_cast<std::int64_t>(bytes.size() + part.chunk().size()) > limits_.max_dataset_bytes) {
-      return to_grpc({StatusCode::kResourceExhausted, "dataset larger than the limit of " +
-                                                          std::to_string(limits_.max_dataset_bytes) + " bytes"});
+      return to_grpc(limit_reached("max_dataset_bytes", limits_.max_dataset_bytes,
+                                   "the upload of " + header.name() + " is larger"));
     }
     bytes += part.chunk();
   }
@@ -121,10 +121,28 @@ grpc::Status DatasetServiceImpl::UploadDataset(grpc::ServerContext* context,
   }();
   if (!parsed.is_ok()) return to_grpc(parsed.status());
   const Dataset& data = parsed.value();
+  if (data.size() > limits_.max_dataset_samples) {
+    return to_grpc(limit_reached("max_dataset_samples", limits_.max_dataset_samples,
+                                 name + " has " + std::to_string(data.size()) + " samples"));
+  }
+  const std::string tenant = auth_.tenant(*context);
+  {
+    // Checked before storing, so concurrent uploads of one tenant may pass
+    // it together: a soft limit, by at most one upload per connection.
+    auto stored = store_.list_datasets(tenant);
+    if (!stored.is_ok()) return to_grpc(stored.status());
+    std::int64_t used = static_cast<std::int64_t>(bytes.size());
+    for (const DatasetRecord& r : stored.value()) used += r.size_bytes;
+    if (used > limits_.max_tenant_dataset_bytes) {
+      return to_grpc(limit_reached("max_tenant_dataset_bytes", limits_.max_tenant_dataset_bytes,
+                                   "this tenant's datasets would take " + std::to_string(used) +
+                                       " bytes; delete some (DeleteDataset) first"));
+    }
+  }
 
   DatasetRecord record;
   record.id = new_id("ds");
-  record.tenant = auth_.tenant(*context);
+  record.tenant = tenant;
   record.name = name;
   record.format = format == v1::DATASET_FORMAT_MAT ? "mat" : "csv";
   record.input_names = data.input_names;
@@ -335,8 +353,8 @@ grpc::Status SessionServiceImpl::Stream(grpc::ServerContext* context,
     if (!request.has_batch()) return to_grpc(invalid_argument("after StreamOpen, only measurement batches"));
     const auto& measurements = request.batch().measurements();
     if (measurements.size() > limits_.max_batch) {
-      return to_grpc({StatusCode::kResourceExhausted, "a batch holds at most " + std::to_string(limits_.max_batch) +
-                                                          " measurements, got " + std::to_string(measurements.size())});
+      return to_grpc(limit_reached("max_batch", limits_.max_batch,
+                                   "a message holds " + std::to_string(measurements.size()) + " measurements"));
     }
     response.Clear();
     Status diverged;

@@ -14,15 +14,12 @@
 #include "riccati/v1/sessions.grpc.pb.h"
 #include "service/auth.hpp"
 #include "service/job_manager.hpp"
+#include "service/limits.hpp"
 #include "service/session_manager.hpp"
 #include "store/store.hpp"
 
 namespace riccati::service {
 
-struct ServiceLimits {
-  std::int64_t max_dataset_bytes = 256ll << 20;  // an upload larger than this is refused
-  int max_batch = 4096;                          // measurements per stream message
-};
 
 class ModelServiceImpl final : public v1::ModelService::Service {
  public:
@@ -37,7 +34,7 @@ class ModelServiceImpl final : public v1::ModelService::Service {
 
 class DatasetServiceImpl final : public v1::DatasetService::Service {
  public:
-  DatasetServiceImpl(const Authenticator& auth, Store& store, std::string scratch_dir, ServiceLimits limits)
+  DatasetServiceImpl(const Authenticator& auth, Store& store, std::string scratch_dir, Limits limits)
       : auth_(auth), store_(store), scratch_dir_(std::move(scratch_dir)), limits_(limits) {}
   grpc::Status UploadDataset(grpc::ServerContext*, grpc::ServerReader<v1::UploadDatasetRequest>*,
                              v1::DatasetInfo*) override;
@@ -51,7 +48,7 @@ class DatasetServiceImpl final : public v1::DatasetService::Service {
   const Authenticator& auth_;
   Store& store_;
   const std::string scratch_dir_;  // where MAT uploads are written for matio to read
-  const ServiceLimits limits_;
+  const Limits limits_;
 };
 
 class JobServiceImpl final : public v1::JobService::Service {
@@ -73,7 +70,7 @@ class JobServiceImpl final : public v1::JobService::Service {
 
 class SessionServiceImpl final : public v1::SessionService::Service {
  public:
-  SessionServiceImpl(const Authenticator& auth, SessionManager& sessions, ServiceLimits limits)
+  SessionServiceImpl(const Authenticator& auth, SessionManager& sessions, Limits limits)
       : auth_(auth), sessions_(sessions), limits_(limits) {}
   grpc::Status CreateSession(grpc::ServerContext*, const v1::CreateSessionRequest*, v1::SessionInfo*) override;
   grpc::Status GetSession(grpc::ServerContext*, const v1::GetSessionRequest*, v1::SessionInfo*) override;
@@ -84,7 +81,7 @@ class SessionServiceImpl final : public v1::SessionService::Service {
  private:
   const Authenticator& auth_;
   SessionManager& sessions_;
-  const ServiceLimits limits_;
+  const Limits limits_;
 };
 
 // The job as the API shows it (spec decoded from the store's bytes).

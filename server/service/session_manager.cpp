@@ -152,8 +152,8 @@ v1::SessionInfo Session::info() const {
   return info;
 }
 
-SessionManager::SessionManager(const ModelRegistry& models, std::chrono::seconds idle_timeout)
-    : models_(models), idle_timeout_(idle_timeout) {
+SessionManager::SessionManager(const ModelRegistry& models, std::chrono::seconds idle_timeout, Limits limits)
+    : models_(models), idle_timeout_(idle_timeout), limits_(limits) {
   reaper_ = std::thread([this] {
     std::unique_lock lock(mu_);
     const auto period = std::max<std::chrono::milliseconds>(std::chrono::milliseconds(200),
@@ -205,6 +205,15 @@ Result<std::shared_ptr<Session>> SessionManager::create(const std::string& tenan
   auto session = std::make_shared<Session>(new_id("ses"), tenant, model, std::move(filter), mode, x0, theta0, P0);
   {
     std::lock_guard lock(mu_);
+    if (static_cast<std::int64_t>(sessions_.size()) >= limits_.max_sessions) {
+      return limit_reached("max_sessions", limits_.max_sessions, "riccatid has that many sessions open");
+    }
+    const auto own = std::count_if(sessions_.begin(), sessions_.end(),
+                                   [&](const auto& entry) { return entry.second->tenant() == tenant; });
+    if (own >= limits_.max_tenant_sessions) {
+      return limit_reached("max_tenant_sessions", limits_.max_tenant_sessions,
+                           "this tenant has that many sessions open; close one (CloseSession) first");
+    }
     sessions_[session->id()] = session;
   }
   spdlog::info("session created id={} model={} tenant={}", session->id(), model->name(), tenant);

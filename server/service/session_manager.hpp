@@ -10,6 +10,8 @@
 // measurements and reports why.
 #pragma once
 
+#include "service/limits.hpp"
+
 #include <chrono>
 #include <condition_variable>
 #include <cstdint>
@@ -75,7 +77,7 @@ class Session {
 
 class SessionManager {
  public:
-  explicit SessionManager(const ModelRegistry& models, std::chrono::seconds idle_timeout);
+  SessionManager(const ModelRegistry& models, std::chrono::seconds idle_timeout, Limits limits = {});
   ~SessionManager();
 
   Result<std::shared_ptr<Session>> create(const std::string& tenant, const v1::CreateSessionRequest& request);
@@ -90,6 +92,7 @@ class SessionManager {
  private:
   const ModelRegistry& models_;
   const std::chrono::seconds idle_timeout_;
+  const Limits limits_;  // max_sessions, max_tenant_sessions
   std::mutex mu_;
   std::map<std::string, std::shared_ptr<Session>> sessions_;
   std::condition_variable stop_cv_;

@@ -1,0 +1,52 @@
+// What one tenant, and the daemon as a whole, may use. Every limit has a
+// config key and a flag of the same name (--max-..., from kLimitSpecs, so
+// the two cannot drift apart); a request past one is answered
+// RESOURCE_EXHAUSTED with a message that names the limit and its value.
+#pragma once
+
+#include <cstdint>
+#include <string>
+
+#include "engine/status.hpp"
+
+namespace riccati::service {
+
+struct Limits {
+  std::int64_t max_message_bytes = 64ll << 20;         // largest gRPC message received
+  std::int64_t max_dataset_bytes = 256ll << 20;        // one upload
+  std::int64_t max_dataset_samples = 10'000'000;       // samples of one dataset
+  std::int64_t max_tenant_dataset_bytes = 4ll << 30;   // all of a tenant's stored datasets
+  std::int64_t max_batch = 4096;                       // measurements per stream message
+  std::int64_t max_sessions = 1000;                    // open sessions, all tenants
+  std::int64_t max_tenant_sessions = 100;              // open sessions of one tenant
+  std::int64_t max_jobs = 1000;                        // queued and running jobs, all tenants
+  std::int64_t max_tenant_jobs = 100;                  // queued and running jobs of one tenant
+  std::int64_t max_passes = 10'000;                    // passes of one identification
+};
+
+struct LimitSpec {
+  const char* key;  // config key; the flag is --key with '-' for '_'
+  std::int64_t Limits::*value;
+  const char* help;
+};
+
+inline constexpr LimitSpec kLimitSpecs[] = {
+    {"max_message_bytes", &Limits::max_message_bytes, "Largest gRPC message received (bytes)"},
+    {"max_dataset_bytes", &Limits::max_dataset_bytes, "Largest upload (bytes)"},
+    {"max_dataset_samples", &Limits::max_dataset_samples, "Most samples in one dataset"},
+    {"max_tenant_dataset_bytes", &Limits::max_tenant_dataset_bytes, "All of a tenant's datasets (bytes uploaded)"},
+    {"max_batch", &Limits::max_batch, "Most measurements in one stream message"},
+    {"max_sessions", &Limits::max_sessions, "Most open sessions, all tenants"},
+    {"max_tenant_sessions", &Limits::max_tenant_sessions, "Most open sessions of one tenant"},
+    {"max_jobs", &Limits::max_jobs, "Most queued and running jobs, all tenants"},
+    {"max_tenant_jobs", &Limits::max_tenant_jobs, "Most queued and running jobs of one tenant"},
+    {"max_passes", &Limits::max_passes, "Most passes of one identification"},
+};
+
+// RESOURCE_EXHAUSTED: "limit <key> = <limit> reached: <what>".
+inline Status limit_reached(const char* key, std::int64_t limit, const std::string& what) {
+  return {StatusCode::kResourceExhausted,
+          std::string("limit ") + key + " = " + std::to_string(limit) + " reached: " + what};
+}
+
+}  // namespace riccati::service

@@ -1,0 +1,182 @@
+// Limits of a real riccatid with two tenants: past each one the call gets
+// RESOURCE_EXHAUSTED naming the limit, other tenants are not affected, and
+// freeing the resource lets the tenant go on.
+#include <gtest/gtest.h>
+
+#include <cmath>
+#include <fstream>
+#include <sstream>
+
+#include "engine/sha256.hpp"
+#include "riccati/v1/datasets.grpc.pb.h"
+#include "riccati/v1/jobs.grpc.pb.h"
+#include "riccati/v1/sessions.grpc.pb.h"
+#include "service/daemon_fixture.hpp"
+#include "support/requests.hpp"
+
+namespace riccati {
+namespace {
+
+using testing::DaemonProcess;
+using testing::TempDir;
+
+const std::string kData = RICCATI_TEST_DATA_DIR;
+
+// A two-tank-shaped CSV of n samples (t, F1, F2, h1, h2).
+std::string small_csv(int n) {
+  std::ostringstream csv;
+  csv << "t,F1,F2,h1,h2\n";
+  for (int k = 0; k < n; ++k) csv << 0.1 * k << ",1,1," << 1 + 0.01 * std::sin(k) << ",1\n";
+  return csv.str();
+}
+
+class LimitsTest : public ::testing::Test {
+ protected:
+  void SetUp() override {
+    const auto tokens = dir_.path() / "tokens";
+    std::ofstream(tokens) << "alpha sha256:" << sha256_hex("alpha-token") << "\n"
+                          << "beta sha256:" << sha256_hex("beta-token") << "\n";
+    csv_ = small_csv(500);
+    const auto csv_bytes = static_cast<std::int64_t>(csv_.size());
+    daemon_ = std::make_unique<DaemonProcess>(
+        dir_.path() / "data",
+        std::vector<std::string>{"--tokens-file", tokens.string(),
+                                 "--max-tenant-sessions", "2", "--max-sessions", "3",
+                                 "--max-tenant-jobs", "1", "--max-passes", "400",
+                                 "--max-dataset-samples", "1000",
+                                 "--max-tenant-dataset-bytes", std::to_string(csv_bytes * 5 / 2),
+                                 "--max-batch", "4", "--max-message-bytes", std::to_string(256 << 10)});
+    daemon_->start();
+    datasets_ = v1::DatasetService::NewStub(daemon_->channel());
+    jobs_ = v1::JobService::NewStub(daemon_->channel());
+    sessions_ = v1::SessionService::NewStub(daemon_->channel());
+  }
+
+  static std::unique_ptr<grpc::ClientContext> as(const std::string& tenant) {
+    auto ctx = std::make_unique<grpc::ClientContext>();
+    ctx->AddMetadata("authorization", "Bearer " + tenant + "-token");
+    ctx->set_deadline(std::chrono::system_clock::now() + std::chrono::seconds(30));
+    return ctx;
+  }
+
+  grpc::Status upload(const std::string& tenant, const std::string& bytes, v1::DatasetInfo* info,
+                      std::size_t chunk_size = 64 << 10) {
+    auto ctx = as(tenant);
+    auto writer = datasets_->UploadDataset(ctx.get(), info);
+    v1::UploadDatasetRequest header;
+    header.mutable_header()->set_name("data.csv");
+    for (const char* i : {"F1", "F2"}) header.mutable_header()->add_input_columns(i);
+    for (const char* o : {"h1", "h2"}) header.mutable_header()->add_output_columns(o);
+    writer->Write(header);
+    for (std::size_t at = 0; at < bytes.size(); at += chunk_size) {
+      v1::UploadDatasetRequest chunk;
+      chunk.set_chunk(bytes.substr(at, chunk_size));
+      if (!writer->Write(chunk)) break;
+    }
+    writer->WritesDone();
+    return writer->Finish();
+  }
+
+  static void expect_limit(const grpc::Status& s, const std::string& limit) {
+    EXPECT_EQ(s.error_code(), grpc::StatusCode::RESOURCE_EXHAUSTED) << limit << ": " << s.error_message();
+    EXPECT_NE(s.error_message().find(limit), std::string::npos) << s.error_message();
+  }
+
+  TempDir dir_;
+  std::string csv_;
+  std::unique_ptr<DaemonProcess> daemon_;
+  std::unique_ptr<v1::DatasetService::Stub> datasets_;
+  std::unique_ptr<v1::JobService::Stub> jobs_;
+  std::unique_ptr<v1::SessionService::Stub> sessions_;
+};
+
+TEST_F(LimitsTest, SessionsPerTenantAndInAll) {
+  std::vector<v1::SessionInfo> alpha(3);
+  ASSERT_TRUE(sessions_->CreateSession(as("alpha").get(), testing::two_tank_session(), &alpha[0]).ok());
+  ASSERT_TRUE(sessions_->CreateSession(as("alpha").get(), testing::two_tank_session(), &alpha[1]).ok());
+  expect_limit(sessions_->CreateSession(as("alpha").get(), testing::two_tank_session(), &alpha[2]),
+               "max_tenant_sessions = 2");
+  v1::SessionInfo beta;
+  ASSERT_TRUE(sessions_->CreateSession(as("beta").get(), testing::two_tank_session(), &beta).ok());
+  expect_limit(sessions_->CreateSession(as("beta").get(), testing::two_tank_session(), &beta), "max_sessions = 3");
+  // Closing one frees its place.
+  v1::CloseSessionRequest close;
+  close.set_id(alpha[0].id());
+  v1::CloseSessionResponse closed;
+  ASSERT_TRUE(sessions_->CloseSession(as("alpha").get(), close, &closed).ok());
+  EXPECT_TRUE(sessions_->CreateSession(as("beta").get(), testing::two_tank_session(), &beta).ok());
+}
+
+TEST_F(LimitsTest, JobsPerTenantAndPassesPerJob) {
+  v1::DatasetInfo data;
+  ASSERT_TRUE(upload("alpha", csv_, &data).ok());
+  v1::Job job;
+  expect_limit(jobs_->SubmitIdentification(as("alpha").get(), testing::hensen_spec(data.id(), 401), &job),
+               "max_passes = 400");
+  v1::Job running;
+  ASSERT_TRUE(jobs_->SubmitIdentification(as("alpha").get(), testing::hensen_spec(data.id(), 400), &running).ok());
+  expect_limit(jobs_->SubmitIdentification(as("alpha").get(), testing::hensen_spec(data.id(), 1), &job),
+               "max_tenant_jobs = 1");
+  // Beta is not held back by alpha's job.
+  v1::DatasetInfo beta_data;
+  ASSERT_TRUE(upload("beta", csv_, &beta_data).ok());
+  v1::Job beta_job;
+  EXPECT_TRUE(jobs_->SubmitIdentification(as("beta").get(), testing::hensen_spec(beta_data.id(), 1), &beta_job).ok());
+  // Once alpha's job has ended, alpha may submit again.
+  v1::CancelJobRequest cancel;
+  cancel.set_id(running.id());
+  ASSERT_TRUE(jobs_->CancelJob(as("alpha").get(), cancel, &job).ok());
+  grpc::Status again;
+  for (int i = 0; i < 200; ++i) {
+    again = jobs_->SubmitIdentification(as("alpha").get(), testing::hensen_spec(data.id(), 1), &job);
+    if (again.ok()) break;
+    std::this_thread::sleep_for(std::chrono::milliseconds(20));
+  }
+  EXPECT_TRUE(again.ok()) << again.error_message();
+}
+
+TEST_F(LimitsTest, DatasetSamplesTenantBytesAndMessageSize) {
+  v1::DatasetInfo info;
+  expect_limit(upload("alpha", small_csv(1001), &info), "max_dataset_samples = 1000");
+  ASSERT_TRUE(upload("alpha", csv_, &info).ok());
+  ASSERT_TRUE(upload("alpha", csv_, &info).ok());
+  expect_limit(upload("alpha", csv_, &info), "max_tenant_dataset_bytes");
+  EXPECT_TRUE(upload("beta", csv_, &info).ok()) << "another tenant's quota is its own";
+  // A message over max_message_bytes: gRPC refuses it before any handler.
+  const grpc::Status big = upload("beta", std::string(300 << 10, '1'), &info, 300 << 10);
+  EXPECT_EQ(big.error_code(), grpc::StatusCode::RESOURCE_EXHAUSTED) << big.error_message();
+  // Deleting frees the quota.
+  v1::ListDatasetsResponse list;
+  ASSERT_TRUE(datasets_->ListDatasets(as("alpha").get(), {}, &list).ok());
+  v1::DeleteDatasetRequest del;
+  del.set_id(list.datasets(0).id());
+  v1::DeleteDatasetResponse deleted;
+  ASSERT_TRUE(datasets_->DeleteDataset(as("alpha").get(), del, &deleted).ok());
+  EXPECT_TRUE(upload("alpha", csv_, &info).ok());
+}
+
+TEST_F(LimitsTest, MeasurementsPerMessage) {
+  v1::SessionInfo session;
+  ASSERT_TRUE(sessions_->CreateSession(as("alpha").get(), testing::two_tank_session(), &session).ok());
+  auto ctx = as("alpha");
+  auto stream = sessions_->Stream(ctx.get());
+  v1::StreamRequest open;
+  open.mutable_open()->set_session_id(session.id());
+  ASSERT_TRUE(stream->Write(open));
+  v1::StreamRequest batch;
+  for (int k = 0; k < 5; ++k) {
+    v1::Measurement* m = batch.mutable_batch()->add_measurements();
+    m->set_t(0.1 * k);
+    for (double u : {1.0, 1.0}) m->add_u(u);
+    for (double y : {1.0, 1.0}) m->add_y(y);
+  }
+  stream->Write(batch);
+  stream->WritesDone();
+  v1::StreamResponse response;
+  while (stream->Read(&response)) {
+  }
+  expect_limit(stream->Finish(), "max_batch = 4");
+}
+
+}  // namespace
+}  // namespace riccati
