@@ -126,7 +126,15 @@ Status Daemon::start() {
 void Daemon::shutdown(std::chrono::milliseconds grace) {
   if (server_ != nullptr) {
     spdlog::info("riccatid shutting down grace_ms={}", grace.count());
-    server_->Shutdown(std::chrono::system_clock::now() + grace);
+    const auto deadline = std::chrono::steady_clock::now() + grace;
+    // Streams and watches would otherwise hold the server until the grace
+    // ends: end them now with UNAVAILABLE. Workers stop between samples; a
+    // running job keeps its per-pass checkpoint and resumes at the next start.
+    session_service_->drain(deadline);
+    if (jobs_ != nullptr) jobs_->shutdown();
+    server_->Shutdown(std::chrono::system_clock::now() +
+                      std::chrono::duration_cast<std::chrono::system_clock::duration>(
+                          std::max(deadline - std::chrono::steady_clock::now(), std::chrono::steady_clock::duration{})));
     server_.reset();
   }
   if (jobs_ != nullptr) jobs_->shutdown();

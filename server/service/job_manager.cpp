@@ -170,6 +170,9 @@ Result<JobRecord> JobManager::wait_for_change(const std::string& tenant, const s
     auto found = live_.find(id);
     return stopping_ || found == live_.end() || found->second.version > *version;
   });
+  if (stopping_) {
+    return Status(StatusCode::kUnavailable, "riccatid is shutting down; the job goes on after it restarts: watch again");
+  }
   auto found = live_.find(id);
   if (found == live_.end()) {
     lock.unlock();

@@ -1,5 +1,7 @@
 #include "service/services.hpp"
 
+#include <optional>
+
 #include <spdlog/spdlog.h>
 
 #include <chrono>
@@ -246,13 +248,16 @@ grpc::Status JobServiceImpl::WatchJob(grpc::ServerContext* context, const v1::Wa
     // Short waits, so a client that went away or a deadline is noticed.
     const auto until = std::chrono::steady_clock::now() + std::chrono::milliseconds(500);
     auto job = jobs_.wait_for_change(tenant, request->id(), &version, until);
-    if (!job.is_ok()) return to_grpc(job.status());
+    if (!job.is_ok()) {
+      spdlog::debug("watch ended job={} status=\"{}\"", request->id(), job.status().to_string());
+      return to_grpc(job.status());
+    }
     if (context->IsCancelled()) return {grpc::StatusCode::CANCELLED, "watch cancelled by the client"};
     if (!writer->Write(to_proto(job.value()))) return {grpc::StatusCode::CANCELLED, "client went away"};
     if (is_terminal(job.value().state)) return grpc::Status::OK;
     if (version == UINT64_MAX) {
       // Not live any more but not terminal: the daemon is shutting down.
-      return {grpc::StatusCode::UNAVAILABLE, "riccatid is shutting down; watch again after it restarts"};
+      return {grpc::StatusCode::UNAVAILABLE, "riccatid is shutting down; the job goes on after it restarts: watch again"};
     }
   }
 }
@@ -332,41 +337,128 @@ grpc::Status SessionServiceImpl::CloseSession(grpc::ServerContext* context, cons
   return to_grpc(sessions_.close(auth_.tenant(*context), request->id()));
 }
 
-grpc::Status SessionServiceImpl::Stream(grpc::ServerContext* context,
-                                        grpc::ServerReaderWriter<v1::StreamResponse, v1::StreamRequest>* stream) {
-  v1::StreamRequest request;
-  if (!stream->Read(&request)) return grpc::Status::OK;  // the client closed before opening
-  if (!request.has_open()) return to_grpc(invalid_argument("the first message of a stream must be StreamOpen"));
-  const bool full_covariance = request.open().full_covariance();
-  auto found = sessions_.get(auth_.tenant(*context), request.open().session_id());
-  if (!found.is_ok()) return to_grpc(found.status());
-  const std::shared_ptr<Session> session = found.value();
-  const Status attached = session->attach();
-  if (!attached.is_ok()) return to_grpc(attached);
-  struct Detach {
-    Session& s;
-    ~Detach() { s.detach(); }
-  } detach{*session};
-
-  v1::StreamResponse response;
-  while (stream->Read(&request)) {
-    if (!request.has_batch()) return to_grpc(invalid_argument("after StreamOpen, only measurement batches"));
-    const auto& measurements = request.batch().measurements();
-    if (measurements.size() > limits_.max_batch) {
-      return to_grpc(limit_reached("max_batch", limits_.max_batch,
-                                   "a message holds " + std::to_string(measurements.size()) + " measurements"));
+class SessionServiceImpl::StreamReactor final : public grpc::ServerBidiReactor<v1::StreamRequest, v1::StreamResponse> {
+ public:
+  StreamReactor(SessionServiceImpl& service, grpc::CallbackServerContext* context)
+      : service_(service), tenant_(service.auth_.tenant(*context)) {
+    {
+      std::lock_guard lock(service_.streams_mu_);
+      if (!service_.draining_) service_.streams_.insert(this);
+      registered_ = !service_.draining_;
     }
-    response.Clear();
-    Status diverged;
-    for (const auto& m : measurements) {
-      diverged = session->process(m, full_covariance, response.add_results());
-      if (!diverged.is_ok()) break;
+    spdlog::debug("stream opened registered={}", registered_);
+    if (!registered_) {
+      finish({grpc::StatusCode::UNAVAILABLE, "riccatid is shutting down; open the stream again after it restarts"});
+      return;
     }
-    // Written without holding the session's lock (process() releases it).
-    if (!stream->Write(response)) return grpc::Status::OK;  // the client went away
-    if (!diverged.is_ok()) return to_grpc(diverged);
+    StartRead(&request_);
   }
-  return grpc::Status::OK;
+
+  void OnReadDone(bool ok) override {
+    if (!ok) return finish(grpc::Status::OK);  // the client is done sending (or gone)
+    if (session_ == nullptr) return open();
+    if (!request_.has_batch()) return finish(to_grpc(invalid_argument("after StreamOpen, only measurement batches")));
+    const auto& measurements = request_.batch().measurements();
+    if (measurements.size() > service_.limits_.max_batch) {
+      return finish(to_grpc(limit_reached("max_batch", service_.limits_.max_batch,
+                                          "a message holds " + std::to_string(measurements.size()) + " measurements")));
+    }
+    response_.Clear();
+    for (const auto& m : measurements) {
+      diverged_ = session_->process(m, full_covariance_, response_.add_results());
+      if (!diverged_.is_ok()) break;
+    }
+    std::lock_guard lock(mu_);
+    if (finished_) return;  // drained meanwhile: the status is on its way
+    writing_ = true;
+    StartWrite(&response_);
+  }
+
+  void OnWriteDone(bool ok) override {
+    std::optional<grpc::Status> pending;
+    {
+      std::lock_guard lock(mu_);
+      writing_ = false;
+      pending.swap(pending_finish_);
+    }
+    if (pending) return finish(*pending);
+    if (!ok) return finish(grpc::Status::OK);  // the client went away
+    if (!diverged_.is_ok()) return finish(to_grpc(diverged_));
+    StartRead(&request_);
+  }
+
+  void OnCancel() override { finish({grpc::StatusCode::CANCELLED, "stream cancelled"}); }
+
+  void OnDone() override {
+    spdlog::debug("stream done session={}", session_ != nullptr ? session_->id() : "");
+    if (session_ != nullptr) session_->detach();
+    if (registered_) {
+      std::lock_guard lock(service_.streams_mu_);
+      service_.streams_.erase(this);
+      service_.streams_done_.notify_all();
+    }
+    delete this;
+  }
+
+  void drain() {
+    finish({grpc::StatusCode::UNAVAILABLE,
+            "riccatid is shutting down; the session ends with it: create a session again (from the last estimate) "
+            "after it restarts"});
+  }
+
+ private:
+  void open() {
+    if (!request_.has_open()) return finish(to_grpc(invalid_argument("the first message of a stream must be StreamOpen")));
+    full_covariance_ = request_.open().full_covariance();
+    auto found = service_.sessions_.get(tenant_, request_.open().session_id());
+    if (!found.is_ok()) return finish(to_grpc(found.status()));
+    const Status attached = found.value()->attach();
+    if (!attached.is_ok()) return finish(to_grpc(attached));
+    session_ = found.value();
+    StartRead(&request_);
+  }
+
+  // Finishes once; while a write is in flight, when it completes.
+  void finish(const grpc::Status& status) {
+    std::lock_guard lock(mu_);
+    if (finished_) return;
+    if (writing_) {
+      if (!pending_finish_) pending_finish_ = status;
+      return;
+    }
+    finished_ = true;
+    Finish(status);
+  }
+
+  SessionServiceImpl& service_;
+  const std::string tenant_;
+  bool registered_ = false;
+  std::shared_ptr<Session> session_;
+  bool full_covariance_ = false;
+  v1::StreamRequest request_;
+  v1::StreamResponse response_;
+  Status diverged_;
+  std::mutex mu_;  // finish() may come from drain() on another thread
+  bool writing_ = false;
+  bool finished_ = false;
+  std::optional<grpc::Status> pending_finish_;
+};
+
+grpc::ServerBidiReactor<v1::StreamRequest, v1::StreamResponse>* SessionServiceImpl::Stream(
+    grpc::CallbackServerContext* context) {
+  return new StreamReactor(*this, context);
 }
+
+void SessionServiceImpl::drain(std::chrono::steady_clock::time_point deadline) {
+  std::unique_lock lock(streams_mu_);
+  draining_ = true;
+  // Finish() never runs OnDone on this thread (gRPC completes it on its
+  // own), so holding streams_mu_ here cannot deadlock with OnDone.
+  for (StreamReactor* stream : streams_) stream->drain();
+  streams_done_.wait_until(lock, deadline, [&] { return streams_.empty(); });
+  spdlog::info("streams drained open={}", streams_.size());
+}
+
+SessionServiceImpl::~SessionServiceImpl() = default;
 
 }  // namespace riccati::service

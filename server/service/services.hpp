@@ -5,7 +5,11 @@
 
 #include <grpcpp/grpcpp.h>
 
+#include <chrono>
+#include <condition_variable>
 #include <cstdint>
+#include <mutex>
+#include <set>
 
 #include "engine/plugin_loader.hpp"
 #include "riccati/v1/datasets.grpc.pb.h"
@@ -68,20 +72,35 @@ class JobServiceImpl final : public v1::JobService::Service {
   Store& store_;
 };
 
-class SessionServiceImpl final : public v1::SessionService::Service {
+// Stream uses gRPC's callback API (a reactor per stream): no thread is held
+// by an idle stream, a response is written before the next message is read
+// (back-pressure: a client that does not read its responses stops being
+// read, so its memory on the server stays bounded), and drain() can end
+// every stream at once with UNAVAILABLE when the daemon stops.
+class SessionServiceImpl final : public v1::SessionService::WithCallbackMethod_Stream<v1::SessionService::Service> {
  public:
   SessionServiceImpl(const Authenticator& auth, SessionManager& sessions, Limits limits)
       : auth_(auth), sessions_(sessions), limits_(limits) {}
+  ~SessionServiceImpl() override;
   grpc::Status CreateSession(grpc::ServerContext*, const v1::CreateSessionRequest*, v1::SessionInfo*) override;
   grpc::Status GetSession(grpc::ServerContext*, const v1::GetSessionRequest*, v1::SessionInfo*) override;
   grpc::Status ListSessions(grpc::ServerContext*, const v1::ListSessionsRequest*, v1::ListSessionsResponse*) override;
   grpc::Status CloseSession(grpc::ServerContext*, const v1::CloseSessionRequest*, v1::CloseSessionResponse*) override;
-  grpc::Status Stream(grpc::ServerContext*, grpc::ServerReaderWriter<v1::StreamResponse, v1::StreamRequest>*) override;
+  grpc::ServerBidiReactor<v1::StreamRequest, v1::StreamResponse>* Stream(grpc::CallbackServerContext*) override;
+
+  // Ends every open stream with UNAVAILABLE and refuses new ones; returns
+  // once all have ended or `deadline` has passed.
+  void drain(std::chrono::steady_clock::time_point deadline);
 
  private:
+  class StreamReactor;
   const Authenticator& auth_;
   SessionManager& sessions_;
   const Limits limits_;
+  std::mutex streams_mu_;
+  std::condition_variable streams_done_;
+  std::set<StreamReactor*> streams_;  // open streams, for drain()
+  bool draining_ = false;
 };
 
 // The job as the API shows it (spec decoded from the store's bytes).

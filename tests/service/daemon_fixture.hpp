@@ -8,6 +8,7 @@
 #include <unistd.h>
 
 #include <chrono>
+#include <cstdlib>
 #include <filesystem>
 #include <fstream>
 #include <limits>
@@ -36,7 +37,7 @@ class DaemonProcess {
                                      "--models-dir", RICCATI_TEST_PLUGIN_DIR,
                                      "--port-file", port_file.string(),
                                      "--workers", "2",
-                                     "--log-level", "warn"};
+                                     "--log-level", log_level()};
     args.insert(args.end(), extra_args_.begin(), extra_args_.end());
     pid_ = fork();
     if (pid_ == 0) {
@@ -61,6 +62,12 @@ class DaemonProcess {
     grpc::ChannelArguments channel_args;
     channel_args.SetMaxReceiveMessageSize(-1);  // unlimited: results of long identifications are large
     channel_ = grpc::CreateCustomChannel(address(), grpc::InsecureChannelCredentials(), channel_args);
+  }
+
+  // The daemon's log level: warn, or RICCATI_TEST_LOG_LEVEL (to debug a test).
+  static std::string log_level() {
+    const char* level = std::getenv("RICCATI_TEST_LOG_LEVEL");
+    return level != nullptr && level[0] != '\0' ? level : "warn";
   }
 
   // SIGTERM, then wait; returns the exit status (0 for a clean stop).

@@ -3,6 +3,8 @@
 // engine run in-process on the same data.
 #include <gtest/gtest.h>
 
+#include <future>
+
 #include <fstream>
 #include <nlohmann/json.hpp>
 #include <sstream>
@@ -443,6 +445,57 @@ TEST_F(DaemonTest, KillDashNineMidJobResumesFromTheLastCompletedPass) {
     EXPECT_EQ(remote.passes(p).theta_final(0), uninterrupted.value().passes[static_cast<std::size_t>(p)].theta_final[0])
         << "pass " << p + 1;
   }
+}
+
+// SIGTERM with a stream open and a job being watched: both end with
+// UNAVAILABLE and a message saying what to do (not cancelled when the grace
+// period runs out), the daemon exits 0, and the job finishes after the
+// restart.
+TEST_F(DaemonTest, SigtermEndsStreamsAndWatchesWithUnavailableAndExitsCleanly) {
+  const std::string dataset = upload_two_tank();
+  const v1::Job slow = submit(hensen(dataset, 100));
+  v1::SessionInfo session;
+  {
+    grpc::ClientContext ctx;
+    ASSERT_TRUE(sessions_->CreateSession(&ctx, two_tank_session(), &session).ok());
+  }
+  grpc::ClientContext stream_ctx;
+  auto stream = sessions_->Stream(&stream_ctx);
+  v1::StreamRequest open;
+  open.mutable_open()->set_session_id(session.id());
+  ASSERT_TRUE(stream->Write(open));
+  grpc::ClientContext watch_ctx;
+  v1::WatchJobRequest watch;
+  watch.set_id(slow.id());
+  auto watcher = jobs_->WatchJob(&watch_ctx, watch);
+  v1::Job seen;
+  ASSERT_TRUE(watcher->Read(&seen));  // the watch is in place
+  // Clients blocked reading, as a rig and a watching user are.
+  auto streamed = std::async(std::launch::async, [&] {
+    v1::StreamResponse response;
+    while (stream->Read(&response)) {
+    }
+    return stream->Finish();
+  });
+  auto watched = std::async(std::launch::async, [&] {
+    while (watcher->Read(&seen)) {
+    }
+    return watcher->Finish();
+  });
+
+  EXPECT_EQ(daemon_->stop(), 0);
+
+  const grpc::Status stream_status = streamed.get();
+  EXPECT_EQ(stream_status.error_code(), grpc::StatusCode::UNAVAILABLE) << stream_status.error_message();
+  EXPECT_NE(stream_status.error_message().find("shutting down"), std::string::npos) << stream_status.error_message();
+  const grpc::Status watch_status = watched.get();
+  EXPECT_EQ(watch_status.error_code(), grpc::StatusCode::UNAVAILABLE) << watch_status.error_message();
+  EXPECT_NE(watch_status.error_message().find("watch again"), std::string::npos) << watch_status.error_message();
+
+  daemon_->start();
+  connect();
+  const v1::Job done = wait_for(slow.id());
+  EXPECT_EQ(done.state(), v1::JOB_STATE_SUCCEEDED) << done.error().message();
 }
 
 TEST_F(DaemonTest, CancelStopsARunningJob) {
