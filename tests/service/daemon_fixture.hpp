@@ -82,6 +82,16 @@ class DaemonProcess {
     return grpc::CreateChannel(address(), credentials);
   }
   const std::filesystem::path& data_dir() const { return data_dir_; }
+  pid_t pid() const { return pid_; }
+  // Resident memory of the daemon (VmRSS), in KiB.
+  long rss_kib() const {
+    std::ifstream status("/proc/" + std::to_string(pid_) + "/status");
+    std::string line;
+    while (std::getline(status, line)) {
+      if (line.rfind("VmRSS:", 0) == 0) return std::stol(line.substr(6));
+    }
+    return -1;
+  }
 
  private:
   int signal_and_wait(int sig) {
