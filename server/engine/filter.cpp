@@ -65,10 +65,6 @@ const char* optimal_form_name(OptimalForm form) {
 
 int optimal_equation_count(const Model& model) { return model.ndof() + model.nu() + model.ny(); }
 
-namespace {
-
-// A covariance-like matrix: right size, finite, symmetric, no negative
-// eigenvalue beyond rounding. `what` names it in messages.
 Status check_covariance(const Eigen::MatrixXd& M, Eigen::Index n, const std::string& what) {
   if (M.rows() != n || M.cols() != n) {
     return invalid_argument(what + " must be " + std::to_string(n) + " x " + std::to_string(n) + ", got " +
@@ -91,8 +87,6 @@ Status check_covariance(const Eigen::MatrixXd& M, Eigen::Index n, const std::str
   }
   return Status::ok();
 }
-
-}  // namespace
 
 namespace {
 

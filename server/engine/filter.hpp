@@ -95,6 +95,10 @@ int optimal_equation_count(const Model& model);
 // Checks sizes, symmetry, finiteness and semi-definiteness against a model.
 Status validate(const FilterSettings& settings, const Model& model);
 
+// A covariance-like matrix: n x n, finite, symmetric, no negative eigenvalue
+// beyond rounding. `what` names it in messages.
+Status check_covariance(const Eigen::MatrixXd& M, Eigen::Index n, const std::string& what);
+
 class Filter {
  public:
   virtual ~Filter() = default;

@@ -103,6 +103,7 @@ Status validate(const IdentificationSettings& s, const Model& model) {
     return invalid_argument("P0 must be " + std::to_string(model.nz()) + " x " + std::to_string(model.nz()) +
                             " (states and parameters)");
   }
+  RICCATI_RETURN_IF_ERROR(check_covariance(s.P0, model.nz(), "initial covariance P0"));
   constexpr int kMaxPasses = 100000;
   if (s.passes < 1 || s.passes > kMaxPasses) {
     return invalid_argument("passes must be between 1 and " + std::to_string(kMaxPasses) + ", got " +

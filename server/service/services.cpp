@@ -391,7 +391,6 @@ class SessionServiceImpl::StreamReactor final : public grpc::ServerBidiReactor<v
 
   void OnDone() override {
     spdlog::debug("stream done session={}", session_ != nullptr ? session_->id() : "");
-    if (session_ != nullptr) session_->detach();
     if (registered_) {
       std::lock_guard lock(service_.streams_mu_);
       service_.streams_.erase(this);
@@ -414,7 +413,14 @@ class SessionServiceImpl::StreamReactor final : public grpc::ServerBidiReactor<v
     if (!found.is_ok()) return finish(to_grpc(found.status()));
     const Status attached = found.value()->attach();
     if (!attached.is_ok()) return finish(to_grpc(attached));
-    session_ = found.value();
+    {
+      std::lock_guard lock(mu_);
+      if (finished_) {  // drained meanwhile
+        found.value()->detach();
+        return;
+      }
+      session_ = found.value();
+    }
     StartRead(&request_);
   }
 
@@ -427,6 +433,9 @@ class SessionServiceImpl::StreamReactor final : public grpc::ServerBidiReactor<v
       return;
     }
     finished_ = true;
+    // Detached before the client hears the status, so that a client that
+    // reconnects at once finds the session free.
+    if (session_ != nullptr) session_->detach();
     Finish(status);
   }
 

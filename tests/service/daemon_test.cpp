@@ -4,6 +4,7 @@
 #include <gtest/gtest.h>
 
 #include <atomic>
+#include <functional>
 #include <future>
 
 #include <fstream>
@@ -558,6 +559,73 @@ TEST_F(DaemonTest, ASlowConsumerIsHeldBackNotBuffered) {
   std::printf("daemon RSS: %ld KiB before, %ld KiB while the client did not read (%d of %d messages accepted)\n",
               rss_before, rss_held, accepted_unread, kMessages);
   EXPECT_LT(rss_held - rss_before, 32 * 1024);
+}
+
+// Every field of a request is checked before it is used: each bad value is
+// refused with INVALID_ARGUMENT naming the field, and nothing is stored.
+// (docs/bad-inputs.md lists these cases.)
+TEST_F(DaemonTest, RequestFieldsAreValidatedBeforeUse) {
+  const std::string dataset = upload_two_tank();
+  struct Case {
+    const char* what;
+    std::function<void(v1::IdentificationSpec&)> spoil;
+    const char* named;  // in the message
+  };
+  const std::vector<Case> cases = {
+      {"unknown filter kind", [](auto& s) { s.mutable_filter()->set_kind(static_cast<v1::FilterKind>(99)); }, "kind"},
+      {"unknown integrator kind",
+       [](auto& s) { s.mutable_filter()->mutable_integrator()->set_kind(static_cast<v1::IntegratorKind>(42)); },
+       "integrator"},
+      {"unknown hold order", [](auto& s) { s.mutable_filter()->set_hold(static_cast<v1::HoldOrder>(7)); }, "hold"},
+      {"negative measurement variance", [](auto& s) { s.mutable_filter()->mutable_r()->mutable_diagonal()->set_values(0, -1e-3); }, "r"},
+      {"NaN measurement variance",
+       [](auto& s) { s.mutable_filter()->mutable_r()->mutable_diagonal()->set_values(1, std::nan("")); }, "r"},
+      {"infinite theta0", [](auto& s) { s.set_theta0(0, std::numeric_limits<double>::infinity()); }, "theta0"},
+      {"negative initial variance", [](auto& s) { s.mutable_p0()->mutable_diagonal()->set_values(2, -10.0); }, "P0"},
+      {"indefinite initial covariance", [](auto& s) {
+         s.mutable_p0()->clear_diagonal();
+         auto* full = s.mutable_p0()->mutable_full();
+         full->set_rows(6);
+         full->set_cols(6);
+         for (int i = 0; i < 36; ++i) full->add_values(i % 7 == 0 ? 1.0 : 0.0);
+         full->set_values(2 * 6 + 3, 5.0);  // P(2,3) = P(3,2) = 5 > sqrt(P22 P33)
+         full->set_values(3 * 6 + 2, 5.0);
+       }, "positive semi-definite"},
+      {"negative process noise", [](auto& s) {
+         for (double q : {0.0, 0.0, 0.0, 0.0, 0.0, -1.0}) s.mutable_filter()->mutable_q()->mutable_diagonal()->add_values(q);
+       }, "process noise Q"},
+      {"negative tolerance", [](auto& s) {
+         s.mutable_filter()->mutable_integrator()->set_kind(v1::INTEGRATOR_KIND_CVODE_BDF);
+         s.mutable_filter()->mutable_integrator()->set_rtol(-1.0);
+       }, "rtol"},
+      {"huge substeps", [](auto& s) { s.mutable_filter()->mutable_integrator()->set_substeps(4'000'000'000u); }, "substeps"},
+      {"full covariance of the wrong size", [](auto& s) {
+         s.mutable_p0()->clear_diagonal();
+         s.mutable_p0()->mutable_full()->set_rows(2);
+         s.mutable_p0()->mutable_full()->set_cols(2);
+         for (int i = 0; i < 4; ++i) s.mutable_p0()->mutable_full()->add_values(1.0);
+       }, "p0"},
+      {"a matrix whose values do not match its size", [](auto& s) {
+         s.mutable_p0()->clear_diagonal();
+         s.mutable_p0()->mutable_full()->set_rows(6);
+         s.mutable_p0()->mutable_full()->set_cols(6);
+         s.mutable_p0()->mutable_full()->add_values(1.0);
+       }, "p0"},
+  };
+  for (const Case& c : cases) {
+    v1::IdentificationSpec spec = hensen(dataset);
+    c.spoil(spec);
+    grpc::ClientContext ctx;
+    v1::Job job;
+    const grpc::Status s = jobs_->SubmitIdentification(&ctx, spec, &job);
+    EXPECT_EQ(s.error_code(), grpc::StatusCode::INVALID_ARGUMENT) << c.what << ": " << s.error_message();
+    EXPECT_NE(s.error_message().find(c.named), std::string::npos) << c.what << ": " << s.error_message();
+  }
+  grpc::ClientContext ctx;
+  v1::ListJobsResponse jobs;
+  ASSERT_TRUE(jobs_->ListJobs(&ctx, {}, &jobs).ok());
+  EXPECT_EQ(jobs.jobs_size(), 0) << "a refused job was stored";
+  expect_serving();
 }
 
 TEST_F(DaemonTest, CancelStopsARunningJob) {
