@@ -169,13 +169,7 @@ class Statement {
   int index_ = 0;
 };
 
-JobState parse_state(const std::string& s) {
-  for (JobState st : {JobState::kQueued, JobState::kRunning, JobState::kSucceeded, JobState::kFailed,
-                      JobState::kCancelled}) {
-    if (s == job_state_name(st)) return st;
-  }
-  return JobState::kFailed;
-}
+JobState parse_state(const std::string& s) { return parse_job_state(s).value_or(JobState::kFailed); }
 
 constexpr const char* kJobColumns =
     "id, tenant, kind, state, spec, pass, passes, sample, samples, theta, error_code, error_message, created_ms, "
