@@ -92,7 +92,8 @@ class Store {
   // starting up must run again.
   virtual Result<std::vector<JobRecord>> jobs_in_states(const std::vector<JobState>& states) = 0;
 
-  // Results: at most one per job, written once (ALREADY_EXISTS after).
+  // Results: at most one per job, written once (ALREADY_EXISTS after);
+  // NOT_FOUND if the tenant has no such job.
   virtual Status put_result(const std::string& tenant, const std::string& job_id, const std::string& result) = 0;
   virtual Result<std::string> get_result(const std::string& tenant, const std::string& job_id) = 0;
 

@@ -196,6 +196,7 @@ TEST_P(StoreTest, TenantsSeeOnlyTheirOwnRecords) {
   EXPECT_EQ(store->get_result("bob", "job-a").status().code(), StatusCode::kNotFound);
   EXPECT_EQ(store->get_session_snapshot("bob", "ses-a").status().code(), StatusCode::kNotFound);
   EXPECT_EQ(store->put_session_snapshot("bob", "ses-a", "overwrite").code(), StatusCode::kNotFound);
+  EXPECT_EQ(store->put_result("bob", "job-a", "theirs").code(), StatusCode::kNotFound);
   // Another tenant's id reads exactly as a missing one: no hint that it exists.
   EXPECT_EQ(store->get_job("bob", "job-a").status().message(), "no job job-a");
   // Alice still has everything, unchanged.
@@ -213,6 +214,7 @@ TEST_P(StoreTest, DuplicatesAndMissingRecords) {
   ASSERT_TRUE(store->put_result("t", "job-1", "first").is_ok());
   EXPECT_EQ(store->put_result("t", "job-1", "second").code(), StatusCode::kAlreadyExists);
   EXPECT_EQ(store->get_result("t", "job-1").value(), "first");
+  EXPECT_EQ(store->put_result("t", "job-2", "no job").code(), StatusCode::kNotFound);
   EXPECT_EQ(store->update_job(job("job-2", "t", 1)).code(), StatusCode::kNotFound);
   EXPECT_EQ(store->delete_dataset("t", "ds-2").code(), StatusCode::kNotFound);
   ASSERT_TRUE(store->delete_dataset("t", "ds-1").is_ok());
