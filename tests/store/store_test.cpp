@@ -69,6 +69,9 @@ struct StoreKind {
   std::function<std::unique_ptr<StorePlace>()> make_place;
 };
 
+// For test names and messages: the kind, not the struct's bytes.
+void PrintTo(const StoreKind& kind, std::ostream* out) { *out << kind.name; }
+
 class StoreTest : public ::testing::TestWithParam<StoreKind> {
  protected:
   void SetUp() override {
