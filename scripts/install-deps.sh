@@ -13,6 +13,7 @@ packages=(
   libgrpc++-dev protobuf-compiler-grpc                  # gRPC (server, client, code generator)
   libprotobuf-dev protobuf-compiler                     # Protocol Buffers
   libsqlite3-dev                                        # the embedded store
+  libpqxx-dev                                           # the PostgreSQL store (libpqxx 6.4, with libpq)
   libssl-dev                                            # SHA-256 (token digests, plugin checksums)
   libyaml-cpp-dev                                       # config and job files
   nlohmann-json3-dev                                    # JSON (dataset metadata in tests)

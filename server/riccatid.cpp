@@ -1,6 +1,7 @@
 // riccatid: the riccati daemon.
 //
-//   riccatid [--config riccatid.yaml] [--listen 127.0.0.1:7531] [--data-dir DIR] [--models-dir DIR] ...
+//   riccatid [--config riccatid.yaml] [--listen 127.0.0.1:7531] [--data-dir DIR]
+//            [--database sqlite|postgresql://...] [--models-dir DIR] ...
 //
 // Flags override the config file. SIGTERM or SIGINT: stop accepting calls,
 // let running calls finish (a few seconds), leave running jobs stored to run
@@ -27,7 +28,10 @@ int main(int argc, char** argv) {
   long idle_timeout_s = -1;
   app.add_option("--config", config_file, "YAML config file (keys as the long flags, with _)");
   auto* listen = app.add_option("--listen", flags.listen, "Address to listen on (host:port; port 0: any free)");
-  auto* data_dir = app.add_option("--data-dir", flags.data_dir, "Directory of the database");
+  auto* data_dir = app.add_option("--data-dir", flags.data_dir, "Directory of the SQLite database and scratch files");
+  auto* database = app.add_option("--database", flags.database,
+                                  "sqlite (default: riccati.db in the data directory) or a PostgreSQL URL, "
+                                  "postgresql://user:password@host:port/dbname");
   auto* models_dir = app.add_option("--models-dir", flags.models_dir, "Directory of model plugins");
   auto* workers = app.add_option("--workers", flags.workers, "Job worker threads (0: one per core)");
   app.add_option("--session-idle-timeout", idle_timeout_s, "Seconds before an idle session expires");
@@ -77,6 +81,7 @@ int main(int argc, char** argv) {
   }
   if (*listen) config.listen = flags.listen;
   if (*data_dir) config.data_dir = flags.data_dir;
+  if (*database) config.database = flags.database;
   if (*models_dir) config.models_dir = flags.models_dir;
   if (*workers) config.workers = flags.workers;
   if (*log_level) config.log_level = flags.log_level;

@@ -10,6 +10,8 @@
 #include <limits>
 #include <thread>
 
+#include "store/postgres_store.hpp"
+
 namespace riccati::service {
 
 namespace {
@@ -34,6 +36,8 @@ Status load_config_file(const std::string& path, DaemonConfig* c) {
         c->listen = v.as<std::string>();
       } else if (key == "data_dir") {
         c->data_dir = v.as<std::string>();
+      } else if (key == "database") {
+        c->database = v.as<std::string>();
       } else if (key == "models_dir") {
         c->models_dir = v.as<std::string>();
       } else if (key == "workers") {
@@ -66,6 +70,29 @@ Status load_config_file(const std::string& path, DaemonConfig* c) {
   return Status::ok();
 }
 
+namespace {
+
+// The store the config names: SQLite in the data directory by default, or
+// PostgreSQL. Logged without the database's password.
+Result<std::unique_ptr<Store>> open_store(const DaemonConfig& config) {
+  const std::string& database = config.database;
+  if (database.empty() || database == "sqlite") {
+    const std::string path = config.data_dir + "/riccati.db";
+    RICCATI_ASSIGN_OR_RETURN(std::unique_ptr<Store> store, open_sqlite_store(path));
+    spdlog::info("store opened kind=sqlite path={}", path);
+    return store;
+  }
+  if (database.rfind("postgresql://", 0) == 0 || database.rfind("postgres://", 0) == 0) {
+    RICCATI_ASSIGN_OR_RETURN(std::unique_ptr<Store> store, open_postgres_store(database));
+    spdlog::info("store opened kind=postgresql database={}", redact_database_url(database));
+    return store;
+  }
+  return invalid_argument("database \"" + redact_database_url(database) +
+                          "\": expected sqlite (the default) or a postgresql:// URL");
+}
+
+}  // namespace
+
 Daemon::Daemon(DaemonConfig config) : config_(std::move(config)) {}
 
 Daemon::~Daemon() { shutdown(std::chrono::milliseconds(0)); }
@@ -82,9 +109,7 @@ Status Daemon::start() {
   }
   for (const auto& r : models_.refused()) spdlog::warn("model refused path={} reason=\"{}\"", r.path, r.reason);
 
-  const std::string db = config_.data_dir + "/riccati.db";
-  RICCATI_ASSIGN_OR_RETURN(store_, open_sqlite_store(db));
-  spdlog::info("store opened kind=sqlite path={}", db);
+  RICCATI_ASSIGN_OR_RETURN(store_, open_store(config_));
 
   const int workers = config_.workers > 0 ? config_.workers
                                           : static_cast<int>(std::max(1u, std::thread::hardware_concurrency()));

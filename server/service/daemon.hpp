@@ -20,6 +20,9 @@ namespace riccati::service {
 struct DaemonConfig {
   std::string listen = "127.0.0.1:7531";  // host:port; port 0 picks a free one
   std::string data_dir = "riccati-data";  // the SQLite database and scratch files
+  // The store: empty or "sqlite" for SQLite in data_dir/riccati.db, or a
+  // PostgreSQL URL (postgresql://user:password@host:port/dbname?...).
+  std::string database;
   std::string models_dir;                 // empty: next to the binary (default_models_dir())
   int workers = 0;                        // job worker threads; 0: one per core
   std::chrono::seconds session_idle_timeout{600};

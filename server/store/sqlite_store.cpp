@@ -171,13 +171,7 @@ class Statement {
   int index_ = 0;
 };
 
-JobState parse_state(const std::string& s) {
-  for (JobState st : {JobState::kQueued, JobState::kRunning, JobState::kSucceeded, JobState::kFailed,
-                      JobState::kCancelled}) {
-    if (s == job_state_name(st)) return st;
-  }
-  return JobState::kFailed;
-}
+JobState parse_state(const std::string& s) { return parse_job_state(s).value_or(JobState::kFailed); }
 
 constexpr const char* kJobColumns =
     "id, tenant, kind, state, spec, pass, passes, sample, samples, theta, error_code, error_message, created_ms, "
@@ -394,9 +388,13 @@ class SqliteStore final : public Store {
 
   Status put_result(const std::string& tenant, const std::string& job_id, const std::string& result) override {
     std::lock_guard lock(mu_);
-    Statement q(db_.get(), "INSERT INTO results (job_id, tenant, result) VALUES (?, ?, ?)");
-    q.text(job_id).text(tenant).blob(result);
-    return done(q, "storing the result of job " + job_id);
+    // Through the job's row, so that a result belongs to its job's tenant.
+    Statement q(db_.get(),
+                "INSERT INTO results (job_id, tenant, result) SELECT id, tenant, ? FROM jobs WHERE id = ? AND tenant = ?");
+    q.blob(result).text(job_id).text(tenant);
+    RICCATI_RETURN_IF_ERROR(done(q, "storing the result of job " + job_id));
+    if (sqlite3_changes(db_.get()) == 0) return not_found("no job " + job_id);
+    return Status::ok();
   }
 
   Result<std::string> get_result(const std::string& tenant, const std::string& job_id) override {

@@ -13,6 +13,14 @@ const char* job_state_name(JobState state) {
   return "unknown";
 }
 
+std::optional<JobState> parse_job_state(const std::string& name) {
+  for (JobState state : {JobState::kQueued, JobState::kRunning, JobState::kSucceeded, JobState::kFailed,
+                         JobState::kCancelled}) {
+    if (name == job_state_name(state)) return state;
+  }
+  return std::nullopt;
+}
+
 bool is_terminal(JobState state) {
   return state == JobState::kSucceeded || state == JobState::kFailed || state == JobState::kCancelled;
 }

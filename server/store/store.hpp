@@ -2,8 +2,8 @@
 //
 // Datasets (their samples), jobs (spec, state, progress), job results and
 // session snapshots. SQLite (a file in the data directory) is the embedded
-// default; PostgreSQL comes later behind the same interface, so nothing here
-// may depend on SQLite: records are plain values, ids are strings chosen by
+// default; PostgreSQL (postgres_store.hpp) implements the same interface, so
+// nothing here may depend on either: records are plain values, ids are strings chosen by
 // the caller, times are Unix milliseconds, and what the store does not need
 // to look into (a job's spec, a result, a snapshot) is an opaque byte string
 // that the service layer encodes (protobuf).
@@ -44,6 +44,8 @@ struct DatasetRecord {
 enum class JobState { kQueued, kRunning, kSucceeded, kFailed, kCancelled };
 
 const char* job_state_name(JobState state);  // "queued", "running", ...
+// The state named so by job_state_name; nullopt for any other name.
+std::optional<JobState> parse_job_state(const std::string& name);
 bool is_terminal(JobState state);
 
 struct JobRecord {
@@ -90,7 +92,8 @@ class Store {
   // starting up must run again.
   virtual Result<std::vector<JobRecord>> jobs_in_states(const std::vector<JobState>& states) = 0;
 
-  // Results: at most one per job, written once (ALREADY_EXISTS after).
+  // Results: at most one per job, written once (ALREADY_EXISTS after);
+  // NOT_FOUND if the tenant has no such job.
   virtual Status put_result(const std::string& tenant, const std::string& job_id, const std::string& result) = 0;
   virtual Result<std::string> get_result(const std::string& tenant, const std::string& job_id) = 0;
 

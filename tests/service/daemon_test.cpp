@@ -3,6 +3,8 @@
 // engine run in-process on the same data.
 #include <gtest/gtest.h>
 
+#include <google/protobuf/util/message_differencer.h>
+
 #include <atomic>
 #include <functional>
 #include <future>
@@ -14,6 +16,7 @@
 
 #include "service/daemon_fixture.hpp"
 #include "support/requests.hpp"
+#include "support/postgres.hpp"
 #include "support/two_tank_hensen.hpp"
 #include "engine/identification.hpp"
 #include "engine/plugin_loader.hpp"
@@ -854,6 +857,72 @@ TEST(DaemonConfig, IdleSessionsExpireAndBadConfigFilesAreRefused) {
                               (dir.path() / "err").string();
   EXPECT_EQ(WEXITSTATUS(std::system(command.c_str())), 2);
   EXPECT_NE(read_file((dir.path() / "err").string()).find("unknown key \"workerz\""), std::string::npos);
+}
+
+// The daemon on PostgreSQL (--database), in a schema of the test's own.
+class PostgresDaemonTest : public DaemonTest {
+ protected:
+  void SetUp() override {
+    RICCATI_SKIP_WITHOUT_POSTGRES();
+    schema_ = std::make_unique<testing::PostgresSchema>();
+    daemon_ = std::make_unique<DaemonProcess>(dir_.path() / "data",
+                                              std::vector<std::string>{"--database", schema_->url()});
+    daemon_->start();
+    connect();
+  }
+  // The daemon goes before its schema is dropped.
+  void TearDown() override { daemon_.reset(); }
+
+  std::unique_ptr<testing::PostgresSchema> schema_;
+};
+
+TEST_F(PostgresDaemonTest, AnIdentificationAndItsDataSurviveARestart) {
+  const std::string dataset = upload_two_tank();
+  const v1::Job job = submit(hensen(dataset, 2));
+  const v1::Job done = wait_for(job.id());
+  ASSERT_EQ(done.state(), v1::JOB_STATE_SUCCEEDED) << done.error().message();
+  const v1::JobResult before = result_of(job.id());
+  ASSERT_TRUE(before.has_identification());
+  ASSERT_EQ(before.identification().passes_size(), 2);
+
+  EXPECT_EQ(daemon_->stop(), 0);
+  daemon_->start();
+  connect();
+  {
+    grpc::ClientContext ctx;
+    v1::GetDatasetRequest get;
+    get.set_id(dataset);
+    v1::DatasetInfo info;
+    ASSERT_TRUE(datasets_->GetDataset(&ctx, get, &info).ok());
+    EXPECT_EQ(info.samples(), 2000u);
+  }
+  {
+    grpc::ClientContext ctx;
+    v1::GetJobRequest get;
+    get.set_id(job.id());
+    v1::Job again;
+    ASSERT_TRUE(jobs_->GetJob(&ctx, get, &again).ok());
+    EXPECT_EQ(again.state(), v1::JOB_STATE_SUCCEEDED);
+  }
+  const v1::JobResult after = result_of(job.id());
+  EXPECT_TRUE(google::protobuf::util::MessageDifferencer::Equals(before, after));
+  // It was all in PostgreSQL: no SQLite database, the job's row in the schema.
+  EXPECT_FALSE(std::filesystem::exists(daemon_->data_dir() / "riccati.db"));
+  EXPECT_EQ(schema_->exec("SELECT state FROM jobs WHERE id = '" + job.id() + "'")[0][0].as<std::string>(),
+            "succeeded");
+}
+
+TEST(DaemonConfig, AnUnknownDatabaseIsRefusedWithoutEchoingItsPassword) {
+  TempDir dir;
+  const std::string command = std::string(RICCATI_DAEMON_BIN) + " --listen 127.0.0.1:0 --data-dir " +
+                              (dir.path() / "data").string() + " --database mysql://u:s3cret@h/db 2>" +
+                              (dir.path() / "err").string();
+  EXPECT_EQ(WEXITSTATUS(std::system(command.c_str())), 1);
+  const std::string err = read_file((dir.path() / "err").string());
+  EXPECT_NE(err.find("database \"mysql://u:***@h/db\": expected sqlite (the default) or a postgresql:// URL"),
+            std::string::npos)
+      << err;
+  EXPECT_EQ(err.find("s3cret"), std::string::npos) << err;
 }
 
 }  // namespace

@@ -1,5 +1,7 @@
-// The Store contract, run against every implementation (today SQLite; the
-// PostgreSQL store joins the parameter list when it exists).
+// The Store contract, run against every implementation: SQLite, and
+// PostgreSQL on the server of RICCATI_TEST_POSTGRES_URL (skipped without
+// one, unless RICCATI_REQUIRE_POSTGRES=1; scripts/with-postgres.sh runs a
+// command beside a throw-away server).
 #include <gtest/gtest.h>
 
 #include <cmath>
@@ -7,13 +9,17 @@
 #include <functional>
 #include <limits>
 #include <atomic>
+#include <bit>
 #include <cstring>
+#include <latch>
 #include <random>
 #include <thread>
 
 #include <sqlite3.h>
 
+#include "store/postgres_store.hpp"
 #include "store/store.hpp"
+#include "support/postgres.hpp"
 
 namespace riccati {
 namespace {
@@ -31,16 +37,50 @@ class TempDir {
   std::filesystem::path path_;
 };
 
+using testing::PostgresSchema;
+
+// Where a test keeps its store: made for the test, removed after it.
+class StorePlace {
+ public:
+  virtual ~StorePlace() = default;
+  // Opens the store kept here (every open finds the same data).
+  virtual Result<std::unique_ptr<Store>> open() = 0;
+};
+
+class SqlitePlace final : public StorePlace {
+ public:
+  Result<std::unique_ptr<Store>> open() override { return open_sqlite_store((dir_.path() / "riccati.db").string()); }
+
+ private:
+  TempDir dir_;
+};
+
+class PostgresPlace final : public StorePlace {
+ public:
+  Result<std::unique_ptr<Store>> open() override { return open_postgres_store(schema_.url()); }
+
+ private:
+  PostgresSchema schema_;
+};
+
 struct StoreKind {
   const char* name;
-  // Opens the store kept at `dir` (the same dir gives the same data).
-  std::function<Result<std::unique_ptr<Store>>(const std::filesystem::path& dir)> open;
+  bool needs_postgres;
+  std::function<std::unique_ptr<StorePlace>()> make_place;
 };
+
+// For test names and messages: the kind, not the struct's bytes.
+void PrintTo(const StoreKind& kind, std::ostream* out) { *out << kind.name; }
 
 class StoreTest : public ::testing::TestWithParam<StoreKind> {
  protected:
+  void SetUp() override {
+    if (GetParam().needs_postgres) RICCATI_SKIP_WITHOUT_POSTGRES();
+    place_ = GetParam().make_place();
+  }
+
   std::unique_ptr<Store> open() {
-    auto s = GetParam().open(dir_.path());
+    auto s = place_->open();
     EXPECT_TRUE(s.is_ok()) << s.status().to_string();
     return std::move(s).value();
   }
@@ -94,7 +134,7 @@ class StoreTest : public ::testing::TestWithParam<StoreKind> {
     return j;
   }
 
-  TempDir dir_;
+  std::unique_ptr<StorePlace> place_;
 };
 
 TEST_P(StoreTest, DatasetRoundTripIsBitExact) {
@@ -112,6 +152,31 @@ TEST_P(StoreTest, DatasetRoundTripIsBitExact) {
   ASSERT_TRUE(rec.is_ok());
   EXPECT_EQ(rec.value().samples, 500);
   EXPECT_EQ(rec.value().output_names, std::vector<std::string>{"y"});
+  EXPECT_EQ(std::bit_cast<std::uint64_t>(rec.value().t_end), std::bit_cast<std::uint64_t>(d.t[499]));
+}
+
+TEST_P(StoreTest, NamesAndMetadataSurviveAnyCharacters) {
+  auto store = open();
+  Dataset d = random_dataset(3, 5);
+  d.input_names = {"a,b", "q\"uote", "back\\slash"};
+  d.output_names = {"NULL", "{brace} sp ace", "\u00fcnic\u00f6de", "'single'", "", "trailing\\"};
+  d.u.resize(3, 3);
+  d.u.setConstant(0.1);
+  d.y.resize(6, 3);
+  d.y.setConstant(1.0 / 3.0);
+  DatasetRecord r = record_for("ds-odd", "tenant with spaces", d, 1);
+  r.name = "file \"name\".csv";
+  r.t_start = 0.1 + 0.2;  // 0.30000000000000004: every bit kept
+  ASSERT_TRUE(store->put_dataset(r, d).is_ok());
+  const DatasetRecord back = store->get_dataset("tenant with spaces", "ds-odd").value();
+  EXPECT_EQ(back.input_names, d.input_names);
+  EXPECT_EQ(back.output_names, d.output_names);
+  EXPECT_EQ(back.name, r.name);
+  EXPECT_EQ(back.t_start, 0.1 + 0.2);
+  const Dataset loaded = store->load_dataset("tenant with spaces", "ds-odd").value();
+  EXPECT_EQ(loaded.output_names, d.output_names);
+  EXPECT_EQ(loaded.y, d.y);
+  EXPECT_EQ(store->list_datasets("tenant with spaces").value().size(), 1u);
 }
 
 TEST_P(StoreTest, TenantsSeeOnlyTheirOwnRecords) {
@@ -134,6 +199,7 @@ TEST_P(StoreTest, TenantsSeeOnlyTheirOwnRecords) {
   EXPECT_EQ(store->get_result("bob", "job-a").status().code(), StatusCode::kNotFound);
   EXPECT_EQ(store->get_session_snapshot("bob", "ses-a").status().code(), StatusCode::kNotFound);
   EXPECT_EQ(store->put_session_snapshot("bob", "ses-a", "overwrite").code(), StatusCode::kNotFound);
+  EXPECT_EQ(store->put_result("bob", "job-a", "theirs").code(), StatusCode::kNotFound);
   // Another tenant's id reads exactly as a missing one: no hint that it exists.
   EXPECT_EQ(store->get_job("bob", "job-a").status().message(), "no job job-a");
   // Alice still has everything, unchanged.
@@ -151,6 +217,7 @@ TEST_P(StoreTest, DuplicatesAndMissingRecords) {
   ASSERT_TRUE(store->put_result("t", "job-1", "first").is_ok());
   EXPECT_EQ(store->put_result("t", "job-1", "second").code(), StatusCode::kAlreadyExists);
   EXPECT_EQ(store->get_result("t", "job-1").value(), "first");
+  EXPECT_EQ(store->put_result("t", "job-2", "no job").code(), StatusCode::kNotFound);
   EXPECT_EQ(store->update_job(job("job-2", "t", 1)).code(), StatusCode::kNotFound);
   EXPECT_EQ(store->delete_dataset("t", "ds-2").code(), StatusCode::kNotFound);
   ASSERT_TRUE(store->delete_dataset("t", "ds-1").is_ok());
@@ -244,10 +311,8 @@ TEST_P(StoreTest, ConcurrentWritersAndReaders) {
 
 INSTANTIATE_TEST_SUITE_P(
     Stores, StoreTest,
-    ::testing::Values(StoreKind{"sqlite",
-                                [](const std::filesystem::path& dir) {
-                                  return open_sqlite_store((dir / "riccati.db").string());
-                                }}),
+    ::testing::Values(StoreKind{"sqlite", false, [] { return std::unique_ptr<StorePlace>(new SqlitePlace); }},
+                      StoreKind{"postgres", true, [] { return std::unique_ptr<StorePlace>(new PostgresPlace); }}),
     [](const auto& test_info) { return std::string(test_info.param.name); });
 
 TEST(SqliteStore, RefusesANewerSchemaAndAMissingDirectory) {
@@ -267,6 +332,107 @@ TEST(SqliteStore, RefusesANewerSchemaAndAMissingDirectory) {
   auto missing = open_sqlite_store((dir.path() / "no" / "such" / "dir" / "riccati.db").string());
   ASSERT_FALSE(missing.is_ok());
   EXPECT_NE(missing.status().message().find("no/such/dir"), std::string::npos) << missing.status().message();
+}
+
+TEST(PostgresStore, StoresOpeningAtOnceOnAnEmptyDatabaseAllSucceed) {
+  RICCATI_SKIP_WITHOUT_POSTGRES();
+  PostgresSchema schema;
+  // Several instances starting together race to create the schema: the
+  // advisory lock makes one migrate and the others find it done.
+  constexpr int kStores = 4;
+  std::latch start(kStores);
+  std::vector<Result<std::unique_ptr<Store>>> opened;
+  for (int i = 0; i < kStores; ++i) opened.emplace_back(Status{StatusCode::kInternal, "not run"});
+  std::vector<std::thread> threads;
+  for (int i = 0; i < kStores; ++i) {
+    threads.emplace_back([&, i] {
+      start.arrive_and_wait();
+      opened[i] = open_postgres_store(schema.url());
+    });
+  }
+  for (auto& t : threads) t.join();
+  for (int i = 0; i < kStores; ++i) ASSERT_TRUE(opened[i].is_ok()) << i << ": " << opened[i].status().to_string();
+  const pqxx::result versions = schema.exec("SELECT version FROM riccati_schema_migrations ORDER BY version");
+  ASSERT_EQ(versions.size(), 1u);  // each migration applied once
+  EXPECT_EQ(versions[0][0].as<int>(), 1);
+  // And they share one database: what one stores, another reads.
+  ASSERT_TRUE(opened[0].value()->put_job_pass("t", "none", 1, "c").code() == StatusCode::kNotFound);
+  JobRecord j;
+  j.id = "job-1";
+  j.tenant = "t";
+  j.kind = "identification";
+  ASSERT_TRUE(opened[0].value()->put_job(j).is_ok());
+  EXPECT_EQ(opened[kStores - 1].value()->get_job("t", "job-1").value().kind, "identification");
+}
+
+TEST(PostgresStore, RefusesANewerSchemaNamingTheDatabaseWithoutItsPassword) {
+  RICCATI_SKIP_WITHOUT_POSTGRES();
+  PostgresSchema schema;
+  ASSERT_TRUE(open_postgres_store(schema.url()).is_ok());
+  ASSERT_TRUE(open_postgres_store(schema.url()).is_ok());  // migrations are idempotent
+  schema.exec("INSERT INTO riccati_schema_migrations (version) VALUES (999)");
+  auto newer = open_postgres_store(schema.url());
+  ASSERT_FALSE(newer.is_ok());
+  EXPECT_EQ(newer.status().code(), StatusCode::kFailedPrecondition);
+  const std::string& message = newer.status().message();
+  EXPECT_NE(message.find("schema version 999"), std::string::npos) << message;
+  EXPECT_NE(message.find("upgrade riccatid"), std::string::npos) << message;
+  EXPECT_NE(message.find(redact_database_url(schema.url())), std::string::npos) << message;
+  // Refused inside the transaction: nothing was changed.
+  EXPECT_EQ(schema.exec("SELECT count(*) FROM riccati_schema_migrations")[0][0].as<int>(), 2);
+}
+
+TEST(PostgresStore, AnUnreachableServerIsUnavailableAndNamedWithoutThePassword) {
+  // Port 1 on loopback: nothing listens there; no test server needed.
+  auto store = open_postgres_store("postgresql://riccati:s3cret@127.0.0.1:1/riccati");
+  ASSERT_FALSE(store.is_ok());
+  EXPECT_EQ(store.status().code(), StatusCode::kUnavailable);
+  const std::string& message = store.status().message();
+  EXPECT_NE(message.find("cannot connect to PostgreSQL at postgresql://riccati:***@127.0.0.1:1/riccati"),
+            std::string::npos)
+      << message;
+  EXPECT_EQ(message.find("s3cret"), std::string::npos) << message;
+}
+
+TEST(PostgresStore, RedactsPasswordsInUrls) {
+  EXPECT_EQ(redact_database_url("postgresql://u:pw@h:5432/db"), "postgresql://u:***@h:5432/db");
+  EXPECT_EQ(redact_database_url("postgres://u:p@w@h/db?sslmode=require"), "postgres://u:***@h/db?sslmode=require");
+  EXPECT_EQ(redact_database_url("postgresql://u@h/db"), "postgresql://u@h/db");
+  EXPECT_EQ(redact_database_url("postgresql://h/db"), "postgresql://h/db");
+  EXPECT_EQ(redact_database_url("postgresql://h/db?user=u&password=pw&sslmode=disable"),
+            "postgresql://h/db?user=u&password=***&sslmode=disable");
+  EXPECT_EQ(redact_database_url("host=h password=pw dbname=d"), "host=h password=*** dbname=d");
+  EXPECT_EQ(redact_database_url("host=h sslpassword=x"), "host=h sslpassword=x");
+}
+
+TEST(PostgresStore, ReconnectsAfterTheServerDropsItsConnections) {
+  RICCATI_SKIP_WITHOUT_POSTGRES();
+  PostgresSchema schema;
+  // Our own application name, so that only this test's connections are cut.
+  auto store = open_postgres_store(schema.url("application_name=" + schema.name())).value();
+  JobRecord j;
+  j.id = "job-1";
+  j.tenant = "t";
+  j.kind = "identification";
+  ASSERT_TRUE(store->put_job(j).is_ok());
+  const auto cut = [&] {
+    return schema.exec("SELECT pg_terminate_backend(pid) FROM pg_stat_activity WHERE application_name = '" +
+                       schema.name() + "'")
+        .size();
+  };
+  ASSERT_GE(cut(), 1u);
+  // A read is tried again on a new connection: the caller sees nothing.
+  auto job = store->get_job("t", "job-1");
+  ASSERT_TRUE(job.is_ok()) << job.status().to_string();
+  ASSERT_GE(cut(), 1u);
+  // A write that cannot safely be repeated fails once as UNAVAILABLE...
+  j.id = "job-2";
+  const Status lost = store->put_job(j);
+  EXPECT_EQ(lost.code(), StatusCode::kUnavailable) << lost.to_string();
+  EXPECT_NE(lost.message().find("storing job job-2"), std::string::npos) << lost.message();
+  // ...and the next call works on a new connection.
+  EXPECT_TRUE(store->put_job(j).is_ok());
+  EXPECT_EQ(store->list_jobs("t").value().size(), 2u);
 }
 
 }  // namespace
