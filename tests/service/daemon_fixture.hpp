@@ -7,6 +7,7 @@
 #include <sys/wait.h>
 #include <unistd.h>
 
+#include <algorithm>
 #include <chrono>
 #include <cstdlib>
 #include <filesystem>
@@ -16,6 +17,7 @@
 #include <stdexcept>
 #include <string>
 #include <thread>
+#include <utility>
 #include <vector>
 
 namespace riccati::testing {
@@ -31,13 +33,17 @@ class DaemonProcess {
     const auto port_file = data_dir_ / "port";
     std::filesystem::create_directories(data_dir_);
     std::filesystem::remove(port_file);
-    std::vector<std::string> args = {RICCATI_DAEMON_BIN,
-                                     "--listen", "127.0.0.1:0",
-                                     "--data-dir", data_dir_.string(),
-                                     "--models-dir", RICCATI_TEST_PLUGIN_DIR,
-                                     "--port-file", port_file.string(),
-                                     "--workers", "2",
-                                     "--log-level", log_level()};
+    // Defaults, unless the test gives the flag itself.
+    const std::vector<std::pair<std::string, std::string>> defaults = {
+        {"--models-dir", RICCATI_TEST_PLUGIN_DIR}, {"--workers", "2"}, {"--log-level", log_level()}};
+    std::vector<std::string> args = {RICCATI_DAEMON_BIN, "--listen", "127.0.0.1:0", "--data-dir", data_dir_.string(),
+                                     "--port-file", port_file.string()};
+    for (const auto& [flag, value] : defaults) {
+      if (std::find(extra_args_.begin(), extra_args_.end(), flag) == extra_args_.end()) {
+        args.push_back(flag);
+        args.push_back(value);
+      }
+    }
     args.insert(args.end(), extra_args_.begin(), extra_args_.end());
     pid_ = fork();
     if (pid_ == 0) {

@@ -631,6 +631,102 @@ TEST_F(DaemonTest, RequestFieldsAreValidatedBeforeUse) {
   expect_serving();
 }
 
+// A model that returns NaN: the session streaming it ends with
+// FAILED_PRECONDITION naming the state, a job on it fails the same way, and
+// a session of another model on the same daemon streams on.
+TEST(DaemonFaults, AFailingModelEndsOnlyItsOwnSessionAndJob) {
+  TempDir dir;
+  const auto models = dir.path() / "models";
+  std::filesystem::create_directories(models);
+  std::filesystem::copy_file(std::string(RICCATI_TEST_PLUGIN_DIR) + "/two_tank.so", models / "two_tank.so");
+  std::filesystem::copy_file(std::string(RICCATI_TEST_BAD_PLUGIN_DIR) + "/nan_f.so", models / "nan_f.so");
+  DaemonProcess daemon(dir.path() / "data", {"--models-dir", models.string()});
+  daemon.start();
+  auto sessions = v1::SessionService::NewStub(daemon.channel());
+  auto datasets = v1::DatasetService::NewStub(daemon.channel());
+  auto jobs = v1::JobService::NewStub(daemon.channel());
+
+  auto open_stream = [&](const v1::CreateSessionRequest& create, grpc::ClientContext* ctx) {
+    v1::SessionInfo info;
+    grpc::ClientContext create_ctx;
+    EXPECT_TRUE(sessions->CreateSession(&create_ctx, create, &info).ok());
+    auto stream = sessions->Stream(ctx);
+    v1::StreamRequest open;
+    open.mutable_open()->set_session_id(info.id());
+    stream->Write(open);
+    return stream;
+  };
+  auto measurement = [](double t, std::vector<double> u, std::vector<double> y) {
+    v1::StreamRequest r;
+    v1::Measurement* m = r.mutable_batch()->add_measurements();
+    m->set_t(t);
+    for (double v : u) m->add_u(v);
+    for (double v : y) m->add_y(v);
+    return r;
+  };
+
+  grpc::ClientContext good_ctx;
+  auto good = open_stream(testing::two_tank_session(), &good_ctx);
+  v1::CreateSessionRequest nan_session;
+  nan_session.set_model("nan_f");
+  nan_session.mutable_filter()->mutable_r()->mutable_diagonal()->add_values(1e-3);
+  for (double x : {0.0, 0.0}) nan_session.mutable_initial_state()->add_x0(x);
+  for (double p : {1e-2, 1e-2, 1e-2}) nan_session.mutable_p0()->mutable_diagonal()->add_values(p);
+  grpc::ClientContext bad_ctx;
+  auto bad = open_stream(nan_session, &bad_ctx);
+
+  v1::StreamResponse response;
+  ASSERT_TRUE(good->Write(measurement(0.0, {0.1, 0.03}, {0.4, 0.15})) && good->Read(&response));
+  ASSERT_TRUE(bad->Write(measurement(0.0, {}, {0.0})) && bad->Read(&response));  // the first one only updates
+  ASSERT_TRUE(bad->Write(measurement(0.1, {}, {0.0})));  // the prediction meets the NaN
+  while (bad->Read(&response)) {
+  }
+  const grpc::Status failed = bad->Finish();
+  EXPECT_EQ(failed.error_code(), grpc::StatusCode::FAILED_PRECONDITION) << failed.error_message();
+  EXPECT_NE(failed.error_message().find("velocity"), std::string::npos) << failed.error_message();
+
+  // A job on the failing model fails with the same kind of message.
+  {
+    grpc::ClientContext ctx;
+    v1::DatasetInfo info;
+    auto writer = datasets->UploadDataset(&ctx, &info);
+    v1::UploadDatasetRequest part;
+    part.mutable_header()->set_name("nan.csv");
+    part.mutable_header()->add_output_columns("position");
+    writer->Write(part);
+    part.set_chunk("t,position\n0,0\n0.1,0\n0.2,0\n");
+    writer->Write(part);
+    writer->WritesDone();
+    ASSERT_TRUE(writer->Finish().ok());
+    v1::IdentificationSpec spec;
+    spec.set_model("nan_f");
+    spec.set_dataset_id(info.id());
+    spec.mutable_filter()->mutable_r()->mutable_diagonal()->add_values(1e-3);
+    for (double p : {1e-2, 1e-2, 1e-2}) spec.mutable_p0()->mutable_diagonal()->add_values(p);
+    for (double x : {0.0, 0.0}) spec.mutable_initial_state()->add_x0(x);
+    grpc::ClientContext submit_ctx;
+    v1::Job job;
+    ASSERT_TRUE(jobs->SubmitIdentification(&submit_ctx, spec, &job).ok());
+    grpc::ClientContext watch_ctx;
+    v1::WatchJobRequest watch;
+    watch.set_id(job.id());
+    auto reader = jobs->WatchJob(&watch_ctx, watch);
+    while (reader->Read(&job)) {
+    }
+    EXPECT_EQ(job.state(), v1::JOB_STATE_FAILED);
+    EXPECT_EQ(job.error().code(), static_cast<int>(grpc::StatusCode::FAILED_PRECONDITION));
+    EXPECT_NE(job.error().message().find("velocity"), std::string::npos) << job.error().message();
+  }
+
+  // The other session goes on.
+  ASSERT_TRUE(good->Write(measurement(1.0, {0.1, 0.03}, {0.41, 0.15})));
+  ASSERT_TRUE(good->Read(&response));
+  ASSERT_EQ(response.results_size(), 1);
+  EXPECT_TRUE(response.results(0).has_estimate());
+  good->WritesDone();
+  EXPECT_TRUE(good->Finish().ok());
+}
+
 TEST_F(DaemonTest, CancelStopsARunningJob) {
   const std::string dataset = upload_two_tank();
   const v1::Job slow = submit(hensen(dataset, 1000));
