@@ -25,17 +25,29 @@ int main(int argc, char** argv) {
   CLI::App app{"riccatid: the riccati estimation daemon"};
   std::string config_file, port_file;
   DaemonConfig flags;
-  long idle_timeout_s = -1;
+  long idle_timeout_s = flags.session_idle_timeout.count();
   app.add_option("--config", config_file, "YAML config file (keys as the long flags, with _)");
-  auto* listen = app.add_option("--listen", flags.listen, "Address to listen on (host:port; port 0: any free)");
-  auto* data_dir = app.add_option("--data-dir", flags.data_dir, "Directory of the SQLite database and scratch files");
+  // Defaults are shown in --help (capture_default_str): the configuration
+  // reference in docs/operations.md is generated from it
+  // (scripts/gen-config-reference.sh).
+  auto* listen = app.add_option("--listen", flags.listen, "Address to listen on (host:port; port 0: any free)")
+                     ->capture_default_str();
+  auto* data_dir = app.add_option("--data-dir", flags.data_dir, "Directory of the SQLite database and scratch files")
+                       ->capture_default_str();
   auto* database = app.add_option("--database", flags.database,
                                   "sqlite (default: riccati.db in the data directory) or a PostgreSQL URL, "
                                   "postgresql://user:password@host:port/dbname");
-  auto* models_dir = app.add_option("--models-dir", flags.models_dir, "Directory of model plugins");
-  auto* workers = app.add_option("--workers", flags.workers, "Job worker threads (0: one per core)");
-  app.add_option("--session-idle-timeout", idle_timeout_s, "Seconds before an idle session expires");
-  auto* log_level = app.add_option("--log-level", flags.log_level, "trace, debug, info, warn, error, off");
+  auto* models_dir =
+      app.add_option("--models-dir", flags.models_dir, "Directory of model plugins (default: ../lib/riccati/models "
+                                                       "from the directory of riccatid)");
+  auto* workers =
+      app.add_option("--workers", flags.workers, "Job worker threads (0: one per core)")->capture_default_str();
+  auto* idle_timeout = app.add_option("--session-idle-timeout", idle_timeout_s,
+                                      "Seconds before an idle session expires (config key session_idle_timeout_s)")
+                           ->check(CLI::Range(0L, std::numeric_limits<long>::max()).description("NONNEGATIVE"))
+                           ->capture_default_str();
+  auto* log_level =
+      app.add_option("--log-level", flags.log_level, "trace, debug, info, warn, error, off")->capture_default_str();
   app.add_option("--port-file", port_file, "Write the bound port to this file once listening");
   auto* tls_cert = app.add_option("--tls-cert", flags.security.tls_cert, "TLS certificate chain (PEM)");
   auto* tls_key = app.add_option("--tls-key", flags.security.tls_key, "TLS private key (PEM)");
@@ -54,9 +66,10 @@ int main(int argc, char** argv) {
   for (const auto& spec : riccati::service::kLimitSpecs) {
     std::string flag = std::string("--") + spec.key;
     std::replace(flag.begin(), flag.end(), '_', '-');
-    const std::string help = std::string(spec.help) + " [" + std::to_string(DaemonConfig{}.limits.*(spec.value)) + "]";
-    limit_flags.emplace_back(&spec, app.add_option(flag, flags.limits.*(spec.value), help)
-                                        ->check(CLI::Range(std::int64_t{1}, std::numeric_limits<std::int64_t>::max()))
+    limit_flags.emplace_back(&spec, app.add_option(flag, flags.limits.*(spec.value), spec.help)
+                                        ->check(CLI::Range(std::int64_t{1}, std::numeric_limits<std::int64_t>::max())
+                                                    .description("POSITIVE"))
+                                        ->default_str(std::to_string(DaemonConfig{}.limits.*(spec.value)))
                                         ->group("Limits"));
   }
   CLI11_PARSE(app, argc, argv);
@@ -89,7 +102,7 @@ int main(int argc, char** argv) {
   if (*tls_key) config.security.tls_key = flags.security.tls_key;
   if (*tls_client_ca) config.security.tls_client_ca = flags.security.tls_client_ca;
   if (*tokens_file) config.security.tokens_file = flags.security.tokens_file;
-  if (idle_timeout_s >= 0) config.session_idle_timeout = std::chrono::seconds(idle_timeout_s);
+  if (*idle_timeout) config.session_idle_timeout = std::chrono::seconds(idle_timeout_s);
   for (const auto& [spec, option] : limit_flags) {
     if (*option) config.limits.*(spec->value) = flags.limits.*(spec->value);
   }
