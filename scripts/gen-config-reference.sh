@@ -70,8 +70,8 @@ options() {
 # Table cell text: | and < > would be read as Markdown or HTML.
 markdown() {
   local text=${1//|/\\|}
-  text=${text//</&lt;}
-  echo "${text//>/&gt;}"
+  text=${text//</\&lt;}
+  echo "${text//>/\&gt;}"
 }
 
 reference() {
