@@ -13,6 +13,8 @@
 #              entrypoint) on loopback with a temporary data directory finds its
 #              4 built-in models by itself; riccati health says SERVING; SIGTERM
 #              stops it cleanly
+#   sdk        a model plugin built outside the tree with find_package(riccati)
+#              from the install loads into that riccatid
 #   configs    the riccatid.yaml and client.yaml of the image, of compose, of the
 #              Kubernetes ConfigMap and of systemd, each run by that riccatid
 #              with TLS and tokens from compose/make-dev-secrets.sh (paths moved
@@ -202,6 +204,30 @@ install_layout() {
   return $status
 }
 
+# A plugin built outside the tree against the installed SDK (find_package(riccati),
+# riccati_add_model_plugin) loads into the installed riccatid.
+sdk_plugin() {
+  mkdir -p "$work/sdk" "$work/sdk-models"
+  cp models/two_tank/two_tank.cpp "$work/sdk/my_model.cpp"
+  cat >"$work/sdk/CMakeLists.txt" <<'CMAKE'
+cmake_minimum_required(VERSION 3.22)
+project(my_model CXX)
+find_package(riccati REQUIRED)
+riccati_add_model_plugin(my_model my_model.cpp)
+CMAKE
+  cmake -S "$work/sdk" -B "$work/sdk/build" -G Ninja -DCMAKE_BUILD_TYPE=Release -DCMAKE_PREFIX_PATH="$prefix" \
+    >"$work/sdk.log" 2>&1 && ninja -C "$work/sdk/build" >>"$work/sdk.log" 2>&1 ||
+    { sed 's/^/   | /' "$work/sdk.log" >&2; return 1; }
+  cp "$work/sdk/build/my_model.so" "$work/sdk-models/"
+  start sdk --models-dir "$work/sdk-models" || return 1
+  local out status=0
+  out=$(riccati --server "127.0.0.1:$port" models 2>&1) || status=1
+  grep -q '^two_tank ' <<<"$out" || { echo "   the plugin did not load: $out" >&2; status=1; }
+  stop "$pid" || status=1
+  [ $status -eq 0 ] && echo "   my_model.so, built with find_package(riccati), loads as two_tank"
+  return $status
+}
+
 # A deployment's riccatid.yaml and client.yaml with their paths moved here.
 map_paths() {
   sed -e "s|/etc/riccati/tls/tls.crt|$secrets/tls.crt|g" -e "s|/etc/riccati/tls/tls.key|$secrets/tls.key|g" \
@@ -350,6 +376,7 @@ check image "the build stage's script installs riccati" image_build
 if [ -x "$prefix/bin/riccatid" ]; then
   check image "the runtime packages provide every library the install links" image_runtime_packages
   check install "riccatid from the install: its models, SERVING, a clean SIGTERM" install_layout
+  check sdk "a plugin built against the installed SDK loads" sdk_plugin
   have_npm=0
   check tools "npm ci of deploy/package-lock.json" npm_tools && have_npm=1
   if [ $have_npm -eq 1 ]; then
