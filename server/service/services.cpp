@@ -82,6 +82,11 @@ grpc::Status DatasetServiceImpl::UploadDataset(grpc::ServerContext* context,
     }
     bytes += part.chunk();
   }
+  // Read() also ends when the client cancels or its deadline passes: what
+  // arrived may be cut at a line boundary and parse, so store nothing.
+  if (context->IsCancelled()) {
+    return {grpc::StatusCode::CANCELLED, "upload of " + header.name() + " cancelled by the client: nothing stored"};
+  }
   if (bytes.empty()) return to_grpc(invalid_argument("upload of " + header.name() + " is empty"));
 
   const std::string name = header.name().empty() ? "upload" : header.name();
