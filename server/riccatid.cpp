@@ -35,6 +35,16 @@ int main(int argc, char** argv) {
   auto* models_dir = app.add_option("--models-dir", flags.models_dir, "Directory of model plugins");
   auto* workers = app.add_option("--workers", flags.workers, "Job worker threads (0: one per core)");
   app.add_option("--session-idle-timeout", idle_timeout_s, "Seconds before an idle session expires");
+  auto* instance_id = app.add_option("--instance-id", flags.job_queue.instance_id,
+                                     "Owner of the jobs this instance claims, unique among instances sharing a "
+                                     "database (default: <hostname>-<random>)");
+  long job_lease_s = -1, job_poll_ms = -1;
+  app.add_option("--job-lease-seconds", job_lease_s,
+                 "A claimed job is taken over by another instance this long after its instance stopped renewing "
+                 "it [15]")
+      ->check(CLI::Range(1L, 86400L));
+  app.add_option("--job-poll-ms", job_poll_ms, "How often idle workers look for jobs submitted elsewhere [500]")
+      ->check(CLI::Range(10L, 60000L));
   auto* log_level = app.add_option("--log-level", flags.log_level, "trace, debug, info, warn, error, off");
   app.add_option("--port-file", port_file, "Write the bound port to this file once listening");
   auto* tls_cert = app.add_option("--tls-cert", flags.security.tls_cert, "TLS certificate chain (PEM)");
@@ -90,6 +100,9 @@ int main(int argc, char** argv) {
   if (*tls_client_ca) config.security.tls_client_ca = flags.security.tls_client_ca;
   if (*tokens_file) config.security.tokens_file = flags.security.tokens_file;
   if (idle_timeout_s >= 0) config.session_idle_timeout = std::chrono::seconds(idle_timeout_s);
+  if (*instance_id) config.job_queue.instance_id = flags.job_queue.instance_id;
+  if (job_lease_s > 0) config.job_queue.lease = std::chrono::seconds(job_lease_s);
+  if (job_poll_ms > 0) config.job_queue.poll = std::chrono::milliseconds(job_poll_ms);
   for (const auto& [spec, option] : limit_flags) {
     if (*option) config.limits.*(spec->value) = flags.limits.*(spec->value);
   }

@@ -57,21 +57,7 @@ class DaemonTest : public ::testing::Test {
 
   grpc::Status upload(const std::string& name, const std::string& bytes, std::vector<std::string> inputs,
                       std::vector<std::string> outputs, v1::DatasetInfo* info) {
-    grpc::ClientContext ctx;
-    auto writer = datasets_->UploadDataset(&ctx, info);
-    v1::UploadDatasetRequest header;
-    header.mutable_header()->set_name(name);
-    for (const auto& i : inputs) header.mutable_header()->add_input_columns(i);
-    for (const auto& o : outputs) header.mutable_header()->add_output_columns(o);
-    writer->Write(header);
-    constexpr std::size_t kChunk = 64 * 1024;
-    for (std::size_t at = 0; at < bytes.size(); at += kChunk) {
-      v1::UploadDatasetRequest chunk;
-      chunk.set_chunk(bytes.substr(at, kChunk));
-      writer->Write(chunk);
-    }
-    writer->WritesDone();
-    return writer->Finish();
+    return testing::upload_dataset(*datasets_, name, bytes, inputs, outputs, info);
   }
 
   std::string upload_two_tank() {
