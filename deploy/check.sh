@@ -292,11 +292,11 @@ postgres_topology() {
   local database="postgresql://$pg_user@$pg_host:$pg_port/$db" status=0 one two port_one
   export RICCATI_DATABASE_PASSWORD_FILE=$work/postgres_password
   RICCATI_PREFIX=$prefix "$root/deploy/container/entrypoint.sh" --config "$work/pg-riccatid.yaml" --database "$database" \
-    --listen 127.0.0.1:0 --port-file "$work/pg-1.port" --data-dir "$work/data-pg-1" --log-level warn 2>"$work/pg-1.log" &
+    --instance-id riccatid-1 --listen 127.0.0.1:0 --port-file "$work/pg-1.port" --data-dir "$work/data-pg-1" --log-level warn 2>"$work/pg-1.log" &
   one=$!
   pids+=("$one")
   RICCATI_PREFIX=$prefix "$root/deploy/container/entrypoint.sh" --config "$work/pg-riccatid.yaml" --database "$database" \
-    --listen 127.0.0.1:0 --port-file "$work/pg-2.port" --data-dir "$work/data-pg-2" --log-level warn 2>"$work/pg-2.log" &
+    --instance-id riccatid-2 --listen 127.0.0.1:0 --port-file "$work/pg-2.port" --data-dir "$work/data-pg-2" --log-level warn 2>"$work/pg-2.log" &
   two=$!
   pids+=("$two")
   unset RICCATI_DATABASE_PASSWORD_FILE

@@ -46,6 +46,20 @@ int main(int argc, char** argv) {
                                       "Seconds before an idle session expires (config key session_idle_timeout_s)")
                            ->check(CLI::Range(0L, std::numeric_limits<long>::max()).description("NONNEGATIVE"))
                            ->capture_default_str();
+  auto* instance_id = app.add_option("--instance-id", flags.job_queue.instance_id,
+                                     "Owner of the jobs this instance claims, unique among instances sharing a "
+                                     "database (default: <hostname>-<random>)");
+  long job_lease_s = std::chrono::duration_cast<std::chrono::seconds>(flags.job_queue.lease).count();
+  long job_poll_ms = flags.job_queue.poll.count();
+  auto* job_lease = app.add_option("--job-lease-seconds", job_lease_s,
+                                   "A claimed job is taken over by another instance this long after its instance "
+                                   "stopped renewing it (config key job_lease_s)")
+                        ->check(CLI::Range(1L, 86400L))
+                        ->capture_default_str();
+  auto* job_poll =
+      app.add_option("--job-poll-ms", job_poll_ms, "How often idle workers look for jobs submitted elsewhere")
+          ->check(CLI::Range(10L, 60000L))
+          ->capture_default_str();
   auto* log_level =
       app.add_option("--log-level", flags.log_level, "trace, debug, info, warn, error, off")->capture_default_str();
   app.add_option("--port-file", port_file, "Write the bound port to this file once listening");
@@ -103,6 +117,9 @@ int main(int argc, char** argv) {
   if (*tls_client_ca) config.security.tls_client_ca = flags.security.tls_client_ca;
   if (*tokens_file) config.security.tokens_file = flags.security.tokens_file;
   if (*idle_timeout) config.session_idle_timeout = std::chrono::seconds(idle_timeout_s);
+  if (*instance_id) config.job_queue.instance_id = flags.job_queue.instance_id;
+  if (*job_lease) config.job_queue.lease = std::chrono::seconds(job_lease_s);
+  if (*job_poll) config.job_queue.poll = std::chrono::milliseconds(job_poll_ms);
   for (const auto& [spec, option] : limit_flags) {
     if (*option) config.limits.*(spec->value) = flags.limits.*(spec->value);
   }

@@ -20,6 +20,7 @@ enum class StatusCode {
   kAlreadyExists = 6,
   kResourceExhausted = 8,
   kFailedPrecondition = 9,  // e.g. a filter that diverged
+  kAborted = 10,            // e.g. a job whose lease another instance took
   kOutOfRange = 11,
   kInternal = 13,
   kUnavailable = 14,

@@ -44,6 +44,18 @@ Status load_config_file(const std::string& path, DaemonConfig* c) {
         c->workers = v.as<int>();
       } else if (key == "session_idle_timeout_s") {
         c->session_idle_timeout = std::chrono::seconds(v.as<long>());
+      } else if (key == "instance_id") {
+        c->job_queue.instance_id = v.as<std::string>();
+      } else if (key == "job_lease_s") {
+        c->job_queue.lease = std::chrono::seconds(v.as<long>());
+        if (c->job_queue.lease < std::chrono::seconds(1)) {
+          return invalid_argument("config " + path + ": job_lease_s must be at least 1");
+        }
+      } else if (key == "job_poll_ms") {
+        c->job_queue.poll = std::chrono::milliseconds(v.as<long>());
+        if (c->job_queue.poll < std::chrono::milliseconds(10)) {
+          return invalid_argument("config " + path + ": job_poll_ms must be at least 10");
+        }
       } else if (const LimitSpec* limit = find_limit(key)) {
         c->limits.*(limit->value) = v.as<std::int64_t>();
         if (c->limits.*(limit->value) < 1) {
@@ -113,7 +125,9 @@ Status Daemon::start() {
 
   const int workers = config_.workers > 0 ? config_.workers
                                           : static_cast<int>(std::max(1u, std::thread::hardware_concurrency()));
-  jobs_ = std::make_unique<JobManager>(*store_, models_, workers, config_.limits);
+  JobQueueOptions queue = config_.job_queue;
+  queue.exclusive_store = config_.database.empty() || config_.database == "sqlite";
+  jobs_ = std::make_unique<JobManager>(*store_, models_, workers, config_.limits, queue);
   RICCATI_RETURN_IF_ERROR(jobs_->start());
   sessions_ = std::make_unique<SessionManager>(models_, config_.session_idle_timeout, config_.limits);
 

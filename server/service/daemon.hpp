@@ -26,6 +26,9 @@ struct DaemonConfig {
   std::string models_dir;                 // empty: next to the binary (default_models_dir())
   int workers = 0;                        // job worker threads; 0: one per core
   std::chrono::seconds session_idle_timeout{600};
+  // The job queue (job_manager.hpp): instance id, lease and poll interval.
+  // exclusive_store is set from `database` (SQLite: this instance's alone).
+  JobQueueOptions job_queue;
   Limits limits;
   SecurityConfig security;  // TLS and bearer tokens (auth.hpp)
   std::string log_level = "info";

@@ -1,6 +1,10 @@
 #include "service/job_manager.hpp"
 
 #include <spdlog/spdlog.h>
+#include <unistd.h>
+
+#include <cstdio>
+#include <random>
 
 #include "engine/identification.hpp"
 #include "engine/validation.hpp"
@@ -19,27 +23,39 @@ Result<ModelPtr> find_model(const ModelRegistry& models, const std::string& name
   return m;
 }
 
+// <hostname>-<random>: unique among the instances sharing a store.
+std::string default_instance_id() {
+  char host[256] = {};
+  if (gethostname(host, sizeof host - 1) != 0 || host[0] == '\0') std::snprintf(host, sizeof host, "riccatid");
+  std::random_device random;
+  char suffix[16];
+  std::snprintf(suffix, sizeof suffix, "%08x", random());
+  return std::string(host) + "-" + suffix;
+}
+
 }  // namespace
 
-JobManager::JobManager(Store& store, const ModelRegistry& models, int workers, Limits limits)
-    : store_(store), models_(models), limits_(limits), worker_count_(std::max(1, workers)) {}
+JobManager::JobManager(Store& store, const ModelRegistry& models, int workers, Limits limits, JobQueueOptions queue)
+    : store_(store),
+      models_(models),
+      limits_(limits),
+      worker_count_(std::max(1, workers)),
+      queue_(queue),
+      instance_(queue.instance_id.empty() ? default_instance_id() : queue.instance_id) {}
 
 JobManager::~JobManager() { shutdown(); }
 
 Status JobManager::start() {
-  RICCATI_ASSIGN_OR_RETURN(const std::vector<JobRecord> unfinished,
-                           store_.jobs_in_states({JobState::kQueued, JobState::kRunning}));
-  for (JobRecord job : unfinished) {
-    spdlog::info("job requeued id={} kind={} was={}", job.id, job.kind, job_state_name(job.state));
-    job.state = JobState::kQueued;
-    job.started_ms = 0;
-    RICCATI_RETURN_IF_ERROR(store_.update_job(job));
-    std::lock_guard lock(mu_);
-    queue_.push_back(job.id);
-    live_[job.id].record = std::move(job);
-  }
+  // With a store of its own, every job left running was this instance's
+  // (killed, or stopped mid-job); with a shared one, only those of this
+  // instance's id: the others belong to live instances or wait for their
+  // leases to expire.
+  RICCATI_ASSIGN_OR_RETURN(const int released, store_.release_jobs(queue_.exclusive_store ? "" : instance_));
+  if (released > 0) spdlog::info("jobs queued again count={} (left running by an earlier run)", released);
+  spdlog::info("job queue instance={} lease_ms={} poll_ms={}", instance_, queue_.lease.count(), queue_.poll.count());
   std::lock_guard lock(mu_);
   for (int i = 0; i < worker_count_; ++i) workers_.emplace_back([this] { worker_loop(); });
+  renewals_ = std::thread([this] { lease_loop(); });
   return Status::ok();
 }
 
@@ -52,8 +68,14 @@ void JobManager::shutdown() {
   }
   work_ready_.notify_all();
   changed_.notify_all();
+  stopped_.notify_all();
   for (auto& w : workers_) w.join();
   workers_.clear();
+  if (renewals_.joinable()) renewals_.join();
+  // The interrupted jobs go back to the queue now rather than when their
+  // leases expire: another instance, or the next start, resumes them.
+  auto released = store_.release_jobs(instance_);
+  if (!released.is_ok()) spdlog::warn("interrupted jobs not released error=\"{}\"", released.status().message());
 }
 
 Result<JobRecord> JobManager::submit_identification(const std::string& tenant, const v1::IdentificationSpec& spec) {
@@ -98,24 +120,24 @@ Result<JobRecord> JobManager::enqueue(JobRecord job) {
   job.state = JobState::kQueued;
   job.created_ms = now_ms();
   {
-    // live_ holds exactly the queued and running jobs.
-    std::lock_guard lock(mu_);
-    if (static_cast<std::int64_t>(live_.size()) >= limits_.max_jobs) {
-      return limit_reached("max_jobs", limits_.max_jobs, "riccatid has that many jobs queued or running");
+    std::lock_guard submit(submit_mu_);
+    // Queued or running, on every instance sharing the store.
+    RICCATI_ASSIGN_OR_RETURN(const std::vector<JobRecord> unfinished,
+                             store_.jobs_in_states({JobState::kQueued, JobState::kRunning}));
+    if (static_cast<std::int64_t>(unfinished.size()) >= limits_.max_jobs) {
+      return limit_reached("max_jobs", limits_.max_jobs, "that many jobs are queued or running");
     }
-    const auto own = std::count_if(live_.begin(), live_.end(),
-                                   [&](const auto& entry) { return entry.second.record.tenant == job.tenant; });
+    const auto own = std::count_if(unfinished.begin(), unfinished.end(),
+                                   [&](const JobRecord& other) { return other.tenant == job.tenant; });
     if (own >= limits_.max_tenant_jobs) {
       return limit_reached("max_tenant_jobs", limits_.max_tenant_jobs,
                            "this tenant has that many jobs queued or running; wait for one to end or cancel one");
     }
+    RICCATI_RETURN_IF_ERROR(store_.put_job(job));
   }
-  RICCATI_RETURN_IF_ERROR(store_.put_job(job));
   {
     std::lock_guard lock(mu_);
-    if (stopping_) return Status(StatusCode::kUnavailable, "riccatid is shutting down; the job is stored and will run");
-    queue_.push_back(job.id);
-    live_[job.id].record = job;
+    ++submitted_;
   }
   work_ready_.notify_one();
   spdlog::info("job queued id={} kind={} tenant={}", job.id, job.kind, job.tenant);
@@ -132,142 +154,206 @@ Result<JobRecord> JobManager::get(const std::string& tenant, const std::string& 
 }
 
 Result<JobRecord> JobManager::cancel(const std::string& tenant, const std::string& id) {
-  bool was_queued = false;
   {
     std::lock_guard lock(mu_);
     auto it = live_.find(id);
-    if (it == live_.end() || it->second.record.tenant != tenant) {
-      // Not live: finished already (or unknown, which get() reports).
-      return store_.get_job(tenant, id);
+    if (it != live_.end() && it->second.record.tenant == tenant) {
+      it->second.cancel_requested = true;
+      it->second.stop.request_stop();
+      return it->second.record;
     }
-    it->second.cancel_requested = true;
-    it->second.stop.request_stop();
-    was_queued = it->second.record.state == JobState::kQueued;
   }
-  if (was_queued) {
-    // No worker will see it: settle it here (a worker popping it skips it).
-    RICCATI_RETURN_IF_ERROR(update(id, true, [](JobRecord& r) {
-      r.state = JobState::kCancelled;
-      r.error_code = static_cast<int>(StatusCode::kCancelled);
-      r.error_message = "cancelled before it started";
-      r.finished_ms = now_ms();
-    }));
-  }
-  return get(tenant, id);
+  // Queued (cancelled at once) or running on another instance (which sees
+  // the request at its next renewal), or ended (left as it is).
+  return store_.cancel_job(tenant, id);
 }
+
+namespace {
+
+// A watcher's version of a job it reads from the store: changes when the
+// state or the progress does. The top bit keeps it apart from the counters
+// of jobs running here.
+std::uint64_t stored_version(const JobRecord& job) {
+  std::uint64_t h = std::hash<std::string>{}(job.id);
+  for (std::int64_t v : {static_cast<std::int64_t>(job.state), static_cast<std::int64_t>(job.pass), job.sample,
+                         job.started_ms, job.finished_ms}) {
+    h = (h ^ static_cast<std::uint64_t>(v)) * 1099511628211ull;
+  }
+  return (h | (1ull << 63)) & ~1ull;  // never UINT64_MAX
+}
+
+}  // namespace
 
 Result<JobRecord> JobManager::wait_for_change(const std::string& tenant, const std::string& id,
                                               std::uint64_t* version,
                                               std::chrono::steady_clock::time_point deadline) {
+  // Not running here: the store has it. How often a watcher reads it.
+  constexpr auto kStorePoll = std::chrono::milliseconds(200);
   std::unique_lock lock(mu_);
-  auto it = live_.find(id);
-  if (it == live_.end() || it->second.record.tenant != tenant) {
+  for (;;) {
+    if (stopping_) {
+      return Status(StatusCode::kUnavailable, "riccatid is shutting down; the job goes on after it restarts: watch again");
+    }
+    auto it = live_.find(id);
+    if (it != live_.end() && it->second.record.tenant == tenant) {
+      changed_.wait_until(lock, deadline, [&] {
+        auto found = live_.find(id);
+        return stopping_ || found == live_.end() || found->second.version != *version;
+      });
+      if (stopping_) continue;
+      auto found = live_.find(id);
+      if (found != live_.end()) {
+        *version = found->second.version;
+        return found->second.record;
+      }
+    }
     lock.unlock();
-    *version = UINT64_MAX;  // not live: it will not change any more
-    return store_.get_job(tenant, id);
+    RICCATI_ASSIGN_OR_RETURN(JobRecord stored, store_.get_job(tenant, id));
+    const std::uint64_t v = stored_version(stored);
+    if (v != *version || is_terminal(stored.state) || std::chrono::steady_clock::now() >= deadline) {
+      *version = v;
+      return stored;
+    }
+    lock.lock();
+    // A claim by a worker here ends the wait early (changed_ is notified).
+    changed_.wait_until(lock, std::min(deadline, std::chrono::steady_clock::now() + kStorePoll),
+                        [&] { return stopping_ || live_.count(id) > 0; });
   }
-  changed_.wait_until(lock, deadline, [&] {
-    auto found = live_.find(id);
-    return stopping_ || found == live_.end() || found->second.version > *version;
-  });
-  if (stopping_) {
-    return Status(StatusCode::kUnavailable, "riccatid is shutting down; the job goes on after it restarts: watch again");
-  }
-  auto found = live_.find(id);
-  if (found == live_.end()) {
-    lock.unlock();
-    *version = UINT64_MAX;
-    return store_.get_job(tenant, id);
-  }
-  *version = found->second.version;
-  return found->second.record;
 }
 
 template <typename Change>
-Status JobManager::update(const std::string& id, bool persist, Change&& change) {
-  JobRecord copy;
+std::optional<JobRecord> JobManager::update(const std::string& id, Change&& change) {
+  std::optional<JobRecord> copy;
   {
     std::lock_guard lock(mu_);
     auto it = live_.find(id);
-    if (it == live_.end()) return Status::ok();
+    if (it == live_.end()) return std::nullopt;
     change(it->second.record);
     ++it->second.version;
     copy = it->second.record;
-    if (is_terminal(copy.state)) live_.erase(it);  // the store has the final word
   }
-  Status stored = persist ? store_.update_job(copy) : Status::ok();
   changed_.notify_all();
-  if (!stored.is_ok()) spdlog::error("job update not stored id={} error=\"{}\"", id, stored.message());
-  return stored;
+  return copy;
 }
 
 void JobManager::worker_loop() {
   for (;;) {
-    std::string id;
     {
-      std::unique_lock lock(mu_);
-      work_ready_.wait(lock, [&] { return stopping_ || !queue_.empty(); });
+      std::lock_guard lock(mu_);
       if (stopping_) return;
-      id = std::move(queue_.front());
-      queue_.pop_front();
     }
-    run(id);
+    auto claimed = store_.claim_job(instance_, queue_.lease.count());
+    if (claimed.is_ok() && claimed.value().has_value()) {
+      run(std::move(*claimed.value()));
+      continue;
+    }
+    if (!claimed.is_ok()) spdlog::warn("no job claimed error=\"{}\"", claimed.status().message());
+    std::unique_lock lock(mu_);
+    work_ready_.wait_for(lock, queue_.poll, [&] { return stopping_ || submitted_ > 0; });
+    if (submitted_ > 0) --submitted_;
   }
 }
 
-void JobManager::run(const std::string& id) {
-  JobRecord job;
+void JobManager::lease_loop() {
+  const auto every = std::min<std::chrono::milliseconds>(queue_.lease / 3, std::chrono::seconds(1));
+  std::unique_lock lock(mu_);
+  while (!stopped_.wait_for(lock, every, [&] { return stopping_; })) {
+    std::vector<JobRecord> running;
+    for (const auto& [id, job] : live_) running.push_back(job.record);
+    lock.unlock();
+    for (const JobRecord& job : running) renew(job);
+    lock.lock();
+  }
+}
+
+void JobManager::renew(const JobRecord& job) {
+  auto renewed = store_.renew_job(job, instance_, queue_.lease.count());
+  if (renewed.is_ok() && !renewed.value()) return;
+  std::lock_guard lock(mu_);
+  auto it = live_.find(job.id);
+  if (it == live_.end()) return;
+  if (renewed.is_ok()) {  // a client cancelled it through another instance
+    it->second.cancel_requested = true;
+    it->second.stop.request_stop();
+  } else if (renewed.status().code() == StatusCode::kAborted) {
+    spdlog::warn("job lease lost id={} instance={}: another instance runs it", job.id, instance_);
+    it->second.lease_lost = true;
+    it->second.stop.request_stop();
+  } else {
+    // The store is unreachable: keep running; if it stays so past the
+    // lease, another instance takes the job and this outcome is dropped.
+    spdlog::warn("job lease not renewed id={} error=\"{}\"", job.id, renewed.status().message());
+  }
+}
+
+void JobManager::run(JobRecord job) {
+  const std::string id = job.id;
+  if (job.cancel_requested) {
+    // Cancelled while its earlier instance ran it, which died before it
+    // could stop it.
+    finish(std::move(job), cancelled("cancelled"));
+    return;
+  }
   std::stop_token stop;
   {
     std::lock_guard lock(mu_);
-    auto it = live_.find(id);
-    if (it == live_.end() || it->second.record.state != JobState::kQueued) return;  // cancelled meanwhile
-    job = it->second.record;
-    stop = it->second.stop.get_token();
+    LiveJob& live = live_[id];
+    live.record = job;
+    stop = live.stop.get_token();
+    if (stopping_) live.stop.request_stop();
   }
-  (void)update(id, true, [](JobRecord& r) {
-    r.state = JobState::kRunning;
-    r.started_ms = now_ms();
-  });
-  spdlog::info("job started id={} kind={}", id, job.kind);
+  changed_.notify_all();
+  spdlog::info("job started id={} kind={} instance={}", id, job.kind, instance_);
 
   Result<std::string> result = execute(job, stop);
-  bool cancel_requested = false;
+  LiveJob outcome;
   bool stopping = false;
   {
     std::lock_guard lock(mu_);
-    auto it = live_.find(id);
-    cancel_requested = it != live_.end() && it->second.cancel_requested;
+    outcome.record = live_[id].record;
+    outcome.cancel_requested = live_[id].cancel_requested;
+    outcome.lease_lost = live_[id].lease_lost;
     stopping = stopping_;
   }
-  if (!result.is_ok() && result.status().code() == StatusCode::kCancelled && stopping && !cancel_requested) {
-    // Interrupted by shutdown: leave it "running" in the store, so that the
-    // next start runs it again.
-    spdlog::info("job interrupted by shutdown id={} (runs again at the next start)", id);
-    std::lock_guard lock(mu_);
-    live_.erase(id);
+  const bool interrupted = !result.is_ok() && result.status().code() == StatusCode::kCancelled &&
+                           !outcome.cancel_requested;
+  if (outcome.lease_lost || (interrupted && stopping)) {
+    // Another instance holds it, or shutdown: leave it to the queue.
+    spdlog::info("job left to the queue id={} reason={}", id, outcome.lease_lost ? "lease lost" : "shutdown");
+    {
+      std::lock_guard lock(mu_);
+      live_.erase(id);
+    }
+    changed_.notify_all();
     return;
   }
-  if (result.is_ok()) {
-    Status stored = store_.put_result(job.tenant, id, result.value());
-    if (!stored.is_ok()) result = stored;
-  }
+  finish(std::move(outcome.record), result);
+}
+
+void JobManager::finish(JobRecord job, const Result<std::string>& result) {
   const Status outcome = result.status();
-  (void)update(id, true, [&](JobRecord& r) {
-    r.finished_ms = now_ms();
-    if (outcome.is_ok()) {
-      r.state = JobState::kSucceeded;
-    } else {
-      r.state = outcome.code() == StatusCode::kCancelled ? JobState::kCancelled : JobState::kFailed;
-      r.error_code = static_cast<int>(outcome.code());
-      r.error_message = outcome.message();
-    }
-  });
+  job.finished_ms = now_ms();
   if (outcome.is_ok()) {
-    spdlog::info("job succeeded id={}", id);
+    job.state = JobState::kSucceeded;
   } else {
-    spdlog::info("job ended id={} state={} error=\"{}\"", id,
-                 outcome.code() == StatusCode::kCancelled ? "cancelled" : "failed", outcome.message());
+    job.state = outcome.code() == StatusCode::kCancelled ? JobState::kCancelled : JobState::kFailed;
+    job.error_code = static_cast<int>(outcome.code());
+    job.error_message = outcome.message();
+  }
+  const Status stored = store_.finish_job(job, instance_, result.is_ok() ? &result.value() : nullptr);
+  {
+    std::lock_guard lock(mu_);
+    live_.erase(job.id);  // watchers read the end from the store
+  }
+  changed_.notify_all();
+  if (!stored.is_ok()) {
+    // ABORTED: another instance holds it now and writes the end itself.
+    // Otherwise the store failed: the lease expires and the job runs again.
+    spdlog::warn("job end not stored id={} error=\"{}\"", job.id, stored.message());
+  } else if (outcome.is_ok()) {
+    spdlog::info("job succeeded id={}", job.id);
+  } else {
+    spdlog::info("job ended id={} state={} error=\"{}\"", job.id, job_state_name(job.state), outcome.message());
   }
 }
 
@@ -323,14 +409,16 @@ Result<std::string> JobManager::execute_identification(const JobRecord& job, std
     const bool pass_done = p.sample == p.samples;
     if (!pass_done && now - last_publish < kProgressInterval) return;
     last_publish = now;
-    // Progress is for watchers; the store gets it at the end of each pass.
-    (void)update(job.id, pass_done, [&](JobRecord& r) {
+    // Progress is for watchers here; the store gets it at every lease
+    // renewal and at the end of each pass (for watchers elsewhere).
+    const auto changed = update(job.id, [&](JobRecord& r) {
       r.pass = p.pass;
       r.passes = p.passes;
       r.sample = p.sample;
       r.samples = p.samples;
       r.theta.assign(p.theta->data() + model->nx(), p.theta->data() + p.theta->size());
     });
+    if (pass_done && changed) renew(*changed);
   };
   IdentificationHooks hooks;
   hooks.progress = progress;

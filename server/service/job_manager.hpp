@@ -1,13 +1,21 @@
 // JobManager: runs identification and validation jobs on a worker pool.
 //
-// Jobs are stored before they are queued, so none is lost: at start() every
-// job the store has as queued or running is queued again. An identification
-// stores a checkpoint record after every pass (Store::put_job_pass), so a
-// daemon that was stopped, or killed, mid-job resumes it after its last
-// completed pass, with the result the uninterrupted run would have given. Workers are the
-// only threads that run the engine; RPC threads submit, read and wait.
-// Watchers wait on a version number that changes with every state or
-// progress change (progress is published at most every kProgressInterval).
+// The store is the queue: a submitted job is stored as queued, and idle
+// workers claim jobs from the store (Store::claim_job) under a lease that a
+// renewal thread extends while they run. So several riccatid sharing one
+// PostgreSQL database share the work, any of them answers for any job, and
+// a job whose instance died (its lease expired) is taken over by another.
+// An identification stores a checkpoint record after every pass
+// (Store::put_job_pass), so a job taken over, or run again after a restart,
+// resumes after its last completed pass with the result the uninterrupted
+// run would have given; its result is written once, by the holder of the
+// lease (Store::finish_job). Workers are the only threads that run the
+// engine; RPC threads submit, read and wait.
+//
+// Watchers of a job running here wait on a version number that changes with
+// every state or progress change (progress is published at most every
+// kProgressInterval); watchers of a job queued or running elsewhere poll the
+// store, which has its progress at every lease renewal and pass.
 #pragma once
 
 #include "service/limits.hpp"
@@ -20,6 +28,7 @@
 #include <map>
 #include <memory>
 #include <mutex>
+#include <optional>
 #include <stop_token>
 #include <string>
 #include <thread>
@@ -31,18 +40,39 @@
 
 namespace riccati::service {
 
+// How this instance takes part in the shared job queue.
+struct JobQueueOptions {
+  // Owner of the jobs this instance claims; unique among running instances.
+  // Empty: <hostname>-<random>. A stable id (a StatefulSet pod's name, say)
+  // lets a restarted instance take its own jobs back at once instead of
+  // after their leases expire.
+  std::string instance_id;
+  // A claim holds this long unless renewed (renewed every third of it, at
+  // least every second): how long a dead instance's jobs wait to be taken over.
+  std::chrono::milliseconds lease{15000};
+  // How often an idle worker looks for jobs submitted to other instances
+  // (jobs submitted here wake a worker at once).
+  std::chrono::milliseconds poll{500};
+  // The store is this instance's alone (SQLite): at start, every job left
+  // running is queued again at once; none can be another live instance's.
+  bool exclusive_store = true;
+};
+
 class JobManager {
  public:
-  JobManager(Store& store, const ModelRegistry& models, int workers, Limits limits = {});
+  JobManager(Store& store, const ModelRegistry& models, int workers, Limits limits = {}, JobQueueOptions queue = {});
   ~JobManager();
   JobManager(const JobManager&) = delete;
   JobManager& operator=(const JobManager&) = delete;
 
-  // Re-queues unfinished jobs from the store and starts the workers.
+  // Takes back the jobs left running by this instance's previous life (every
+  // running job, with an exclusive store) and starts the workers.
   Status start();
-  // Stops the workers. Running jobs are interrupted but stay "running" in the
-  // store, so the next start() runs them again.
+  // Stops the workers. Running jobs are interrupted and queued again in the
+  // store, for another instance or the next start() (from their last pass).
   void shutdown();
+
+  const std::string& instance_id() const { return instance_; }
 
   // Checks the spec against the model and the dataset, stores the job and queues it.
   Result<JobRecord> submit_identification(const std::string& tenant, const v1::IdentificationSpec& spec);
@@ -58,37 +88,51 @@ class JobManager {
   static constexpr std::chrono::milliseconds kProgressInterval{100};
 
  private:
+  // A job running on this instance.
   struct LiveJob {
     JobRecord record;
     std::uint64_t version = 1;
     std::stop_source stop;
     bool cancel_requested = false;
+    bool lease_lost = false;  // another instance holds it now: drop the outcome
   };
 
   Result<JobRecord> enqueue(JobRecord record);
   void worker_loop();
-  void run(const std::string& id);
-  // The job's result (encoded JobResult), or why it failed.
+  void lease_loop();
+  void run(JobRecord job);
+  // Ends a claimed job in the store (state, error, result) and for watchers.
+  void finish(JobRecord job, const Result<std::string>& result);
+  // Renews the lease of a running job and publishes its progress; marks the
+  // job lost (and stops it) if another instance holds it now, or cancelled if
+  // a client asked for that through another instance.
+  void renew(const JobRecord& job);
+  // The result (encoded JobResult), or why the job failed.
   Result<std::string> execute(const JobRecord& job, std::stop_token stop);
   Result<std::string> execute_identification(const JobRecord& job, std::stop_token stop);
   Result<std::string> execute_validation(const JobRecord& job, std::stop_token stop);
-  // Applies `change` to the live record, bumps the version, wakes watchers;
-  // writes to the store when `persist`.
+  // Applies `change` to a running job's record, bumps its version and wakes
+  // watchers; returns the changed record (nullopt: not running here).
   template <typename Change>
-  Status update(const std::string& id, bool persist, Change&& change);
+  std::optional<JobRecord> update(const std::string& id, Change&& change);
 
   Store& store_;
   const ModelRegistry& models_;
   const Limits limits_;  // max_jobs, max_tenant_jobs, max_passes
   const int worker_count_;
+  const JobQueueOptions queue_;
+  const std::string instance_;
 
+  std::mutex submit_mu_;  // a limit check and the insert it allows go together
   std::mutex mu_;
-  std::condition_variable changed_;     // a live job changed (watchers)
-  std::condition_variable work_ready_;  // the queue has work (workers)
-  std::map<std::string, LiveJob> live_;  // queued or running jobs
-  std::deque<std::string> queue_;
+  std::condition_variable changed_;     // a running job changed (watchers), or shutdown
+  std::condition_variable work_ready_;  // a job was submitted here, or shutdown (workers)
+  std::condition_variable stopped_;     // shutdown (the renewal thread)
+  std::map<std::string, LiveJob> live_;  // the jobs running on this instance
+  int submitted_ = 0;                    // submissions not yet looked for by a worker
   bool stopping_ = false;
   std::vector<std::thread> workers_;
+  std::thread renewals_;
 };
 
 }  // namespace riccati::service

@@ -82,6 +82,11 @@ grpc::Status DatasetServiceImpl::UploadDataset(grpc::ServerContext* context,
     }
     bytes += part.chunk();
   }
+  // Read() also ends when the client cancels or its deadline passes: what
+  // arrived may be cut at a line boundary and parse, so store nothing.
+  if (context->IsCancelled()) {
+    return {grpc::StatusCode::CANCELLED, "upload of " + header.name() + " cancelled by the client: nothing stored"};
+  }
   if (bytes.empty()) return to_grpc(invalid_argument("upload of " + header.name() + " is empty"));
 
   const std::string name = header.name().empty() ? "upload" : header.name();
@@ -255,10 +260,6 @@ grpc::Status JobServiceImpl::WatchJob(grpc::ServerContext* context, const v1::Wa
     if (context->IsCancelled()) return {grpc::StatusCode::CANCELLED, "watch cancelled by the client"};
     if (!writer->Write(to_proto(job.value()))) return {grpc::StatusCode::CANCELLED, "client went away"};
     if (is_terminal(job.value().state)) return grpc::Status::OK;
-    if (version == UINT64_MAX) {
-      // Not live any more but not terminal: the daemon is shutting down.
-      return {grpc::StatusCode::UNAVAILABLE, "riccatid is shutting down; the job goes on after it restarts: watch again"};
-    }
   }
 }
 

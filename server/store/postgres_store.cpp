@@ -85,7 +85,21 @@ const std::vector<const char*> kMigrations = {
       snapshot BYTEA NOT NULL,
       updated_ms BIGINT NOT NULL);
     )sql",
+    // 2: the job queue: owner and lease in use, a cancel request, and an
+    // index for the claim query (queued jobs, and running ones to take over).
+    R"sql(
+    UPDATE jobs SET owner = '' WHERE owner IS NULL;
+    UPDATE jobs SET lease_until_ms = 0 WHERE lease_until_ms IS NULL;
+    ALTER TABLE jobs ALTER COLUMN owner SET DEFAULT '', ALTER COLUMN owner SET NOT NULL,
+      ALTER COLUMN lease_until_ms SET DEFAULT 0, ALTER COLUMN lease_until_ms SET NOT NULL,
+      ADD COLUMN cancel_requested BOOLEAN NOT NULL DEFAULT false;
+    CREATE INDEX jobs_claimable ON jobs (created_ms, seq) WHERE state IN ('queued', 'running');
+    )sql",
 };
+
+// Leases are read against the database's clock, so that instances on hosts
+// whose clocks disagree still agree on when a lease has expired.
+#define RICCATI_PG_NOW_MS "(extract(epoch FROM clock_timestamp()) * 1000)::bigint"
 
 // The advisory lock every riccatid takes while it migrates, so that
 // instances starting at once apply the migrations one after the other (the
@@ -184,7 +198,7 @@ std::vector<std::string> strings_of(const pqxx::field& f) {
 
 constexpr const char* kJobColumns =
     "id, tenant, kind, state, spec, pass, passes, sample, samples, theta, error_code, error_message, created_ms, "
-    "started_ms, finished_ms";
+    "started_ms, finished_ms, owner, lease_until_ms, cancel_requested";
 
 JobRecord read_job(const pqxx::row& r) {
   JobRecord j;
@@ -203,6 +217,9 @@ JobRecord read_job(const pqxx::row& r) {
   j.created_ms = r[12].as<std::int64_t>();
   j.started_ms = r[13].as<std::int64_t>();
   j.finished_ms = r[14].as<std::int64_t>();
+  j.owner = r[15].as<std::string>();
+  j.lease_until_ms = r[16].as<std::int64_t>();
+  j.cancel_requested = r[17].as<bool>();
   return j;
 }
 
@@ -438,10 +455,11 @@ class PostgresStore final : public Store {
   Status put_job(const JobRecord& j) override {
     return run<pqxx::nontransaction>("storing job " + j.id, false, [&](auto& tx) -> Status {
       tx.exec_params(std::string("INSERT INTO jobs (") + kJobColumns +
-                         ") VALUES ($1, $2, $3, $4, $5::bytea, $6, $7, $8, $9, $10::bytea, $11, $12, $13, $14, $15)",
+                         ") VALUES ($1, $2, $3, $4, $5::bytea, $6, $7, $8, $9, $10::bytea, $11, $12, $13, $14, $15, "
+                         "$16, $17, $18)",
                      j.id, j.tenant, j.kind, job_state_name(j.state), pqxx::binarystring(j.spec), j.pass, j.passes,
                      j.sample, j.samples, to_bytea(j.theta.data(), j.theta.size()), j.error_code, j.error_message,
-                     j.created_ms, j.started_ms, j.finished_ms);
+                     j.created_ms, j.started_ms, j.finished_ms, j.owner, j.lease_until_ms, j.cancel_requested);
       return Status::ok();
     });
   }
@@ -485,6 +503,81 @@ class PostgresStore final : public Store {
                                                " FROM jobs WHERE state = ANY ($1::text[]) ORDER BY created_ms, seq",
                                            text_array(names)));
                                      });
+  }
+
+  Result<std::optional<JobRecord>> claim_job(const std::string& owner, std::int64_t lease_ms) override {
+    // SKIP LOCKED: instances claiming at once each take a different job
+    // instead of queueing behind one another's row lock. Not retried on a
+    // lost connection: a claim that did commit would be taken twice by us,
+    // and its lease simply expires.
+    return run<pqxx::nontransaction>("claiming a job", false, [&](auto& tx) -> Result<std::optional<JobRecord>> {
+      const pqxx::result r = tx.exec_params(
+          std::string("UPDATE jobs SET state = 'running', owner = $1, lease_until_ms = " RICCATI_PG_NOW_MS
+                      " + $2, started_ms = CASE WHEN started_ms = 0 THEN " RICCATI_PG_NOW_MS
+                      " ELSE started_ms END WHERE id = (SELECT id FROM jobs WHERE state = 'queued' OR "
+                      "(state = 'running' AND lease_until_ms < " RICCATI_PG_NOW_MS
+                      ") ORDER BY created_ms, seq LIMIT 1 FOR UPDATE SKIP LOCKED) RETURNING ") +
+              kJobColumns,
+          owner, lease_ms);
+      if (r.empty()) return std::optional<JobRecord>();
+      return std::optional<JobRecord>(read_job(r[0]));
+    });
+  }
+
+  Result<bool> renew_job(const JobRecord& p, const std::string& owner, std::int64_t lease_ms) override {
+    return run<pqxx::nontransaction>("renewing the lease of job " + p.id, true, [&](auto& tx) -> Result<bool> {
+      const pqxx::result r = tx.exec_params(
+          "UPDATE jobs SET lease_until_ms = " RICCATI_PG_NOW_MS
+          " + $1, pass = $2, passes = $3, sample = $4, samples = $5, theta = $6::bytea WHERE id = $7 AND owner = $8 "
+          "AND state = 'running' RETURNING cancel_requested",
+          lease_ms, p.pass, p.passes, p.sample, p.samples, to_bytea(p.theta.data(), p.theta.size()), p.id, owner);
+      if (r.empty()) return job_lease_lost(p.id, owner);
+      return r[0][0].as<bool>();
+    });
+  }
+
+  Status finish_job(const JobRecord& j, const std::string& owner, const std::string* result) override {
+    // One transaction: the state and the result are written together, and
+    // only by the job's owner.
+    return run<pqxx::work>("ending job " + j.id, true, [&](auto& tx) -> Status {
+      const pqxx::result r = tx.exec_params(
+          "UPDATE jobs SET state = $1, pass = $2, passes = $3, sample = $4, samples = $5, theta = $6::bytea, "
+          "error_code = $7, error_message = $8, finished_ms = $9, lease_until_ms = 0 WHERE id = $10 AND owner = $11 "
+          "AND state = 'running'",
+          job_state_name(j.state), j.pass, j.passes, j.sample, j.samples, to_bytea(j.theta.data(), j.theta.size()),
+          j.error_code, j.error_message, j.finished_ms, j.id, owner);
+      if (r.affected_rows() == 0) return job_lease_lost(j.id, owner);
+      if (result != nullptr) {
+        tx.exec_params("INSERT INTO results (job_id, tenant, result) SELECT id, tenant, $1::bytea FROM jobs WHERE id = $2",
+                       pqxx::binarystring(*result), j.id);
+      }
+      return Status::ok();
+    });
+  }
+
+  Result<int> release_jobs(const std::string& owner) override {
+    return run<pqxx::nontransaction>("releasing the jobs of " + (owner.empty() ? std::string("every instance") : owner),
+                                     true, [&](auto& tx) -> Result<int> {
+                                       const pqxx::result r = tx.exec_params(
+                                           "UPDATE jobs SET state = 'queued', owner = '', lease_until_ms = 0 WHERE "
+                                           "state = 'running' AND ($1 = '' OR owner = $1)",
+                                           owner);
+                                       return static_cast<int>(r.affected_rows());
+                                     });
+  }
+
+  Result<JobRecord> cancel_job(const std::string& tenant, const std::string& id) override {
+    RICCATI_RETURN_IF_ERROR(run<pqxx::nontransaction>("cancelling job " + id, true, [&](auto& tx) -> Status {
+      tx.exec_params(
+          "UPDATE jobs SET cancel_requested = true, state = CASE state WHEN 'queued' THEN 'cancelled' ELSE state END, "
+          "error_code = CASE state WHEN 'queued' THEN $1 ELSE error_code END, error_message = CASE state WHEN "
+          "'queued' THEN 'cancelled before it started' ELSE error_message END, finished_ms = CASE state WHEN "
+          "'queued' THEN " RICCATI_PG_NOW_MS " ELSE finished_ms END WHERE id = $2 AND tenant = $3 AND state IN "
+          "('queued', 'running')",
+          static_cast<int>(StatusCode::kCancelled), id, tenant);
+      return Status::ok();
+    }));
+    return get_job(tenant, id);
   }
 
   Status put_result(const std::string& tenant, const std::string& job_id, const std::string& result) override {
@@ -608,6 +701,7 @@ class PostgresStore final : public Store {
       }
     }
   }
+
 
   std::string where(const std::string& doing) const { return "database " + shown_ + ", " + doing + ": "; }
 

@@ -1,6 +1,7 @@
 // The SQLite store: one database file, WAL journal, versioned migrations.
 #include <sqlite3.h>
 
+#include <chrono>
 #include <cstring>
 #include <memory>
 #include <mutex>
@@ -73,6 +74,12 @@ const std::vector<const char*> kMigrations = {
       tenant TEXT NOT NULL,
       record BLOB NOT NULL,
       PRIMARY KEY (job_id, pass));
+    )sql",
+    // 3: the job queue: who runs a job, until when, and a cancel request.
+    R"sql(
+    ALTER TABLE jobs ADD COLUMN owner TEXT NOT NULL DEFAULT '';
+    ALTER TABLE jobs ADD COLUMN lease_until_ms INTEGER NOT NULL DEFAULT 0;
+    ALTER TABLE jobs ADD COLUMN cancel_requested INTEGER NOT NULL DEFAULT 0;
     )sql",
 };
 
@@ -175,7 +182,12 @@ JobState parse_state(const std::string& s) { return parse_job_state(s).value_or(
 
 constexpr const char* kJobColumns =
     "id, tenant, kind, state, spec, pass, passes, sample, samples, theta, error_code, error_message, created_ms, "
-    "started_ms, finished_ms";
+    "started_ms, finished_ms, owner, lease_until_ms, cancel_requested";
+
+std::int64_t wall_clock_ms() {
+  return std::chrono::duration_cast<std::chrono::milliseconds>(std::chrono::system_clock::now().time_since_epoch())
+      .count();
+}
 
 JobRecord read_job(const Statement& s) {
   JobRecord j;
@@ -194,6 +206,9 @@ JobRecord read_job(const Statement& s) {
   j.created_ms = s.column_int(12);
   j.started_ms = s.column_int(13);
   j.finished_ms = s.column_int(14);
+  j.owner = s.column_text(15);
+  j.lease_until_ms = s.column_int(16);
+  j.cancel_requested = s.column_int(17) != 0;
   return j;
 }
 
@@ -336,12 +351,12 @@ class SqliteStore final : public Store {
   Status put_job(const JobRecord& j) override {
     std::lock_guard lock(mu_);
     Statement q(db_.get(), (std::string("INSERT INTO jobs (") + kJobColumns +
-                            ") VALUES (?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?)")
+                            ") VALUES (?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?)")
                                .c_str());
     q.text(j.id).text(j.tenant).text(j.kind).text(job_state_name(j.state)).blob(j.spec).integer(j.pass)
         .integer(j.passes).integer(j.sample).integer(j.samples).blob(to_blob(j.theta.data(), j.theta.size()))
         .integer(j.error_code).text(j.error_message).integer(j.created_ms).integer(j.started_ms)
-        .integer(j.finished_ms);
+        .integer(j.finished_ms).text(j.owner).integer(j.lease_until_ms).integer(j.cancel_requested ? 1 : 0);
     return done(q, "storing job " + j.id);
   }
 
@@ -384,6 +399,93 @@ class SqliteStore final : public Store {
     Statement q(db_.get(), sql.c_str());
     for (JobState s : states) q.text(job_state_name(s));
     return read_jobs(q, "listing unfinished jobs");
+  }
+
+  // One process uses a SQLite store, and it holds mu_ for each of these:
+  // the transactions make each one all or nothing.
+  Result<std::optional<JobRecord>> claim_job(const std::string& owner, std::int64_t lease_ms) override {
+    std::lock_guard lock(mu_);
+    return in_transaction([&]() -> Result<std::optional<JobRecord>> {
+      const std::int64_t now = wall_clock_ms();
+      Statement q(db_.get(), (std::string("SELECT ") + kJobColumns +
+                              " FROM jobs WHERE state = 'queued' OR (state = 'running' AND lease_until_ms < ?) "
+                              "ORDER BY created_ms, rowid LIMIT 1")
+                                 .c_str());
+      q.integer(now);
+      const int rc = q.step();
+      if (rc == SQLITE_DONE) return std::optional<JobRecord>();
+      if (rc != SQLITE_ROW) return error("claiming a job");
+      JobRecord job = read_job(q);
+      job.state = JobState::kRunning;
+      job.owner = owner;
+      job.lease_until_ms = now + lease_ms;
+      if (job.started_ms == 0) job.started_ms = now;
+      Statement claim(db_.get(),
+                      "UPDATE jobs SET state = 'running', owner = ?, lease_until_ms = ?, started_ms = ? WHERE id = ?");
+      claim.text(job.owner).integer(job.lease_until_ms).integer(job.started_ms).text(job.id);
+      RICCATI_RETURN_IF_ERROR(done(claim, "claiming job " + job.id));
+      return std::optional<JobRecord>(std::move(job));
+    });
+  }
+
+  Result<bool> renew_job(const JobRecord& p, const std::string& owner, std::int64_t lease_ms) override {
+    std::lock_guard lock(mu_);
+    Statement q(db_.get(),
+                "UPDATE jobs SET lease_until_ms = ?, pass = ?, passes = ?, sample = ?, samples = ?, theta = ? "
+                "WHERE id = ? AND owner = ? AND state = 'running' RETURNING cancel_requested");
+    q.integer(wall_clock_ms() + lease_ms).integer(p.pass).integer(p.passes).integer(p.sample).integer(p.samples)
+        .blob(to_blob(p.theta.data(), p.theta.size())).text(p.id).text(owner);
+    if (!q.prepared()) return error("renewing the lease of job " + p.id);
+    const int rc = q.step();
+    if (rc == SQLITE_DONE) return job_lease_lost(p.id, owner);
+    if (rc != SQLITE_ROW) return error("renewing the lease of job " + p.id);
+    const bool cancel = q.column_int(0) != 0;
+    if (q.step() != SQLITE_DONE) return error("renewing the lease of job " + p.id);
+    return cancel;
+  }
+
+  Status finish_job(const JobRecord& j, const std::string& owner, const std::string* result) override {
+    std::lock_guard lock(mu_);
+    return in_transaction([&]() -> Status {
+      Statement q(db_.get(),
+                  "UPDATE jobs SET state = ?, pass = ?, passes = ?, sample = ?, samples = ?, theta = ?, error_code = ?, "
+                  "error_message = ?, finished_ms = ?, lease_until_ms = 0 WHERE id = ? AND owner = ? AND "
+                  "state = 'running'");
+      q.text(job_state_name(j.state)).integer(j.pass).integer(j.passes).integer(j.sample).integer(j.samples)
+          .blob(to_blob(j.theta.data(), j.theta.size())).integer(j.error_code).text(j.error_message)
+          .integer(j.finished_ms).text(j.id).text(owner);
+      RICCATI_RETURN_IF_ERROR(done(q, "ending job " + j.id));
+      if (sqlite3_changes(db_.get()) == 0) return job_lease_lost(j.id, owner);
+      if (result == nullptr) return Status::ok();
+      Statement r(db_.get(), "INSERT INTO results (job_id, tenant, result) SELECT id, tenant, ? FROM jobs WHERE id = ?");
+      r.blob(*result).text(j.id);
+      return done(r, "storing the result of job " + j.id);
+    });
+  }
+
+  Result<int> release_jobs(const std::string& owner) override {
+    std::lock_guard lock(mu_);
+    Statement q(db_.get(),
+                "UPDATE jobs SET state = 'queued', owner = '', lease_until_ms = 0 WHERE state = 'running' AND "
+                "(? = '' OR owner = ?)");
+    q.text(owner).text(owner);
+    RICCATI_RETURN_IF_ERROR(done(q, "releasing the jobs of " + (owner.empty() ? std::string("every instance") : owner)));
+    return sqlite3_changes(db_.get());
+  }
+
+  Result<JobRecord> cancel_job(const std::string& tenant, const std::string& id) override {
+    {
+      std::lock_guard lock(mu_);
+      Statement q(db_.get(),
+                  "UPDATE jobs SET cancel_requested = 1, state = CASE state WHEN 'queued' THEN 'cancelled' ELSE state "
+                  "END, error_code = CASE state WHEN 'queued' THEN ? ELSE error_code END, error_message = CASE state "
+                  "WHEN 'queued' THEN 'cancelled before it started' ELSE error_message END, finished_ms = CASE state "
+                  "WHEN 'queued' THEN ? ELSE finished_ms END WHERE id = ? AND tenant = ? AND state IN ('queued', "
+                  "'running')");
+      q.integer(static_cast<int>(StatusCode::kCancelled)).integer(wall_clock_ms()).text(id).text(tenant);
+      RICCATI_RETURN_IF_ERROR(done(q, "cancelling job " + id));
+    }
+    return get_job(tenant, id);
   }
 
   Status put_result(const std::string& tenant, const std::string& job_id, const std::string& result) override {
@@ -464,6 +566,21 @@ class SqliteStore final : public Store {
   }
 
  private:
+  // Runs `body` in a write transaction (mu_ held by the caller): committed if
+  // it returns ok, rolled back otherwise.
+  template <typename F>
+  auto in_transaction(F&& body) -> std::invoke_result_t<F&> {
+    RICCATI_RETURN_IF_ERROR(exec("BEGIN IMMEDIATE"));
+    auto out = body();
+    if (!out.is_ok()) {
+      (void)exec("ROLLBACK");
+      return out;
+    }
+    RICCATI_RETURN_IF_ERROR(exec("COMMIT"));
+    return out;
+  }
+
+
   Status exec(const std::string& sql) {
     char* message = nullptr;
     if (sqlite3_exec(db_.get(), sql.c_str(), nullptr, nullptr, &message) != SQLITE_OK) {

@@ -25,4 +25,9 @@ bool is_terminal(JobState state) {
   return state == JobState::kSucceeded || state == JobState::kFailed || state == JobState::kCancelled;
 }
 
+Status job_lease_lost(const std::string& id, const std::string& owner) {
+  return {StatusCode::kAborted, "job " + id + " is no longer held by " + owner +
+                                    " (it ended, or its lease expired and another instance took it)"};
+}
+
 }  // namespace riccati

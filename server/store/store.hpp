@@ -47,6 +47,8 @@ const char* job_state_name(JobState state);  // "queued", "running", ...
 // The state named so by job_state_name; nullopt for any other name.
 std::optional<JobState> parse_job_state(const std::string& name);
 bool is_terminal(JobState state);
+// ABORTED: `owner` no longer holds job `id` (what renew_job and finish_job return then).
+Status job_lease_lost(const std::string& id, const std::string& owner);
 
 struct JobRecord {
   std::string id;
@@ -66,6 +68,12 @@ struct JobRecord {
   std::int64_t created_ms = 0;
   std::int64_t started_ms = 0;   // 0 = not started
   std::int64_t finished_ms = 0;  // 0 = not finished
+  // The job queue (claim_job): the instance running the job, until when its
+  // claim holds unless renewed (the store's clock), and whether a client
+  // asked to cancel it while it ran (its owner stops it at its next renewal).
+  std::string owner;  // empty: not claimed
+  std::int64_t lease_until_ms = 0;
+  bool cancel_requested = false;
 };
 
 class Store {
@@ -82,7 +90,8 @@ class Store {
   virtual Status delete_dataset(const std::string& tenant, const std::string& id) = 0;
 
   // Jobs. put_job inserts (ALREADY_EXISTS if the id is taken); update_job
-  // replaces state, progress, error and times of an existing job (NOT_FOUND).
+  // replaces state, progress, error and times of an existing job (NOT_FOUND),
+  // whoever holds it (the job queue below is what workers use).
   virtual Status put_job(const JobRecord& job) = 0;
   virtual Status update_job(const JobRecord& job) = 0;
   virtual Result<JobRecord> get_job(const std::string& tenant, const std::string& id) = 0;
@@ -91,6 +100,31 @@ class Store {
   // Every tenant's jobs in one of these states, oldest first: what a daemon
   // starting up must run again.
   virtual Result<std::vector<JobRecord>> jobs_in_states(const std::vector<JobState>& states) = 0;
+
+  // The job queue. Several riccatid may share one store (PostgreSQL); each
+  // job runs on one of them at a time, under a lease that its owner renews.
+  //
+  // claim_job: the oldest job that is queued, or running under an expired
+  // lease (its instance died), becomes running, owned by `owner` for
+  // `lease_ms` from now; started_ms is set at its first claim. Two callers
+  // never get the same job. nullopt: nothing to run.
+  virtual Result<std::optional<JobRecord>> claim_job(const std::string& owner, std::int64_t lease_ms) = 0;
+  // The owner renews its lease and publishes progress (pass, passes, sample,
+  // samples, theta of `progress`). ABORTED if `owner` no longer holds the job
+  // (it ended, or its lease expired and another instance took it). Returns
+  // whether a cancel was requested meanwhile.
+  virtual Result<bool> renew_job(const JobRecord& progress, const std::string& owner, std::int64_t lease_ms) = 0;
+  // The owner ends the job: state, progress, error and finished_ms of
+  // `final`, and the result when there is one, together (all or nothing).
+  // ABORTED, and nothing written, if `owner` no longer holds the job: so a
+  // job's result is written once even if two instances ran it.
+  virtual Status finish_job(const JobRecord& final, const std::string& owner, const std::string* result) = 0;
+  // Puts the running jobs of `owner` (every owner's when empty: a store that
+  // one instance uses alone, at its start) back in the queue; returns how many.
+  virtual Result<int> release_jobs(const std::string& owner) = 0;
+  // Cancels a job: a queued one at once (state cancelled), a running one by
+  // flagging it for its owner; an ended one is left as it is. Returns the job.
+  virtual Result<JobRecord> cancel_job(const std::string& tenant, const std::string& id) = 0;
 
   // Results: at most one per job, written once (ALREADY_EXISTS after);
   // NOT_FOUND if the tenant has no such job.

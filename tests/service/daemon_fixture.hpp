@@ -2,6 +2,8 @@
 // its own data directory, for tests that talk to it over gRPC.
 #pragma once
 
+#include <fcntl.h>
+
 #include <grpcpp/grpcpp.h>
 #include <signal.h>
 #include <sys/wait.h>
@@ -19,6 +21,8 @@
 #include <thread>
 #include <utility>
 #include <vector>
+
+#include "riccati/v1/datasets.grpc.pb.h"
 
 namespace riccati::testing {
 
@@ -47,6 +51,10 @@ class DaemonProcess {
     args.insert(args.end(), extra_args_.begin(), extra_args_.end());
     pid_ = fork();
     if (pid_ == 0) {
+      if (!log_file_.empty()) {
+        const int fd = ::open(log_file_.c_str(), O_WRONLY | O_CREAT | O_APPEND, 0644);
+        if (fd >= 0) dup2(fd, STDERR_FILENO);
+      }
       std::vector<char*> argv;
       for (auto& a : args) argv.push_back(a.data());
       argv.push_back(nullptr);
@@ -75,6 +83,10 @@ class DaemonProcess {
     const char* level = std::getenv("RICCATI_TEST_LOG_LEVEL");
     return level != nullptr && level[0] != '\0' ? level : "warn";
   }
+
+  // The daemon's log (its standard error) goes to this file, appended, from
+  // the next start() on; empty: the test's own standard error.
+  void set_log_file(std::filesystem::path path) { log_file_ = std::move(path); }
 
   // SIGTERM, then wait; returns the exit status (0 for a clean stop).
   int stop() { return signal_and_wait(SIGTERM); }
@@ -112,10 +124,32 @@ class DaemonProcess {
 
   std::filesystem::path data_dir_;
   std::vector<std::string> extra_args_;
+  std::filesystem::path log_file_;
   pid_t pid_ = -1;
   int port_ = 0;
   std::shared_ptr<grpc::Channel> channel_;
 };
+
+// Uploads `bytes` as one dataset, in 64 KiB chunks, as the CLI does.
+inline grpc::Status upload_dataset(v1::DatasetService::Stub& datasets, const std::string& name,
+                                   const std::string& bytes, const std::vector<std::string>& inputs,
+                                   const std::vector<std::string>& outputs, v1::DatasetInfo* info) {
+  grpc::ClientContext ctx;
+  auto writer = datasets.UploadDataset(&ctx, info);
+  v1::UploadDatasetRequest header;
+  header.mutable_header()->set_name(name);
+  for (const auto& i : inputs) header.mutable_header()->add_input_columns(i);
+  for (const auto& o : outputs) header.mutable_header()->add_output_columns(o);
+  writer->Write(header);
+  constexpr std::size_t kChunk = 64 * 1024;
+  for (std::size_t at = 0; at < bytes.size(); at += kChunk) {
+    v1::UploadDatasetRequest chunk;
+    chunk.set_chunk(bytes.substr(at, kChunk));
+    writer->Write(chunk);
+  }
+  writer->WritesDone();
+  return writer->Finish();
+}
 
 // A fresh directory under the system's temp directory, removed at the end.
 class TempDir {

@@ -57,21 +57,7 @@ class DaemonTest : public ::testing::Test {
 
   grpc::Status upload(const std::string& name, const std::string& bytes, std::vector<std::string> inputs,
                       std::vector<std::string> outputs, v1::DatasetInfo* info) {
-    grpc::ClientContext ctx;
-    auto writer = datasets_->UploadDataset(&ctx, info);
-    v1::UploadDatasetRequest header;
-    header.mutable_header()->set_name(name);
-    for (const auto& i : inputs) header.mutable_header()->add_input_columns(i);
-    for (const auto& o : outputs) header.mutable_header()->add_output_columns(o);
-    writer->Write(header);
-    constexpr std::size_t kChunk = 64 * 1024;
-    for (std::size_t at = 0; at < bytes.size(); at += kChunk) {
-      v1::UploadDatasetRequest chunk;
-      chunk.set_chunk(bytes.substr(at, kChunk));
-      writer->Write(chunk);
-    }
-    writer->WritesDone();
-    return writer->Finish();
+    return testing::upload_dataset(*datasets_, name, bytes, inputs, outputs, info);
   }
 
   std::string upload_two_tank() {
@@ -921,6 +907,126 @@ TEST_F(DaemonTest, AStreamAndAJobDoNotBlockEachOther) {
   ASSERT_TRUE(jobs_->GetJob(&get_ctx, get, &job).ok());
   EXPECT_EQ(job.state(), v1::JOB_STATE_RUNNING);
   EXPECT_LT(job.progress().pass(), 400u);
+}
+
+// A client's deadline or cancellation ends that call, and only that call:
+// the job a watch was watching runs on, a session whose stream timed out
+// takes the next stream where the last one stopped, and an upload cut off
+// mid-way stores nothing (what arrived could parse: it ends at a line).
+TEST_F(DaemonTest, ClientDeadlinesAndCancellationEndOnlyTheirOwnCall) {
+  const std::string dataset = upload_two_tank();
+  const v1::Job slow = submit(hensen(dataset, 400));
+  {
+    grpc::ClientContext ctx;
+    ctx.set_deadline(std::chrono::system_clock::now() + std::chrono::milliseconds(300));
+    v1::WatchJobRequest watch;
+    watch.set_id(slow.id());
+    auto reader = jobs_->WatchJob(&ctx, watch);
+    v1::Job job;
+    while (reader->Read(&job)) {
+    }
+    EXPECT_EQ(reader->Finish().error_code(), grpc::StatusCode::DEADLINE_EXCEEDED);
+  }
+
+  v1::SessionInfo session;
+  {
+    grpc::ClientContext ctx;
+    ASSERT_TRUE(sessions_->CreateSession(&ctx, two_tank_session(), &session).ok());
+  }
+  auto measurement_at = [](double t) {
+    v1::StreamRequest request;
+    v1::Measurement* m = request.mutable_batch()->add_measurements();
+    m->set_t(t);
+    for (double u : {0.1, 0.03}) m->add_u(u);
+    for (double y : {0.4, 0.15}) m->add_y(y);
+    return request;
+  };
+  auto open = [&](grpc::ClientContext* ctx) {
+    auto stream = sessions_->Stream(ctx);
+    v1::StreamRequest request;
+    request.mutable_open()->set_session_id(session.id());
+    EXPECT_TRUE(stream->Write(request));
+    return stream;
+  };
+  {
+    grpc::ClientContext ctx;
+    ctx.set_deadline(std::chrono::system_clock::now() + std::chrono::milliseconds(500));
+    auto stream = open(&ctx);
+    for (int k = 0; k < 3; ++k) {
+      ASSERT_TRUE(stream->Write(measurement_at(k)));
+      v1::StreamResponse response;
+      ASSERT_TRUE(stream->Read(&response));
+      ASSERT_TRUE(response.results(0).has_estimate());
+    }
+    v1::StreamResponse response;
+    EXPECT_FALSE(stream->Read(&response));  // the deadline passes while the rig is silent
+    EXPECT_EQ(stream->Finish().error_code(), grpc::StatusCode::DEADLINE_EXCEEDED);
+  }
+  {
+    std::vector<std::unique_ptr<grpc::ClientContext>> contexts;  // one per attempt, outliving its stream
+    std::unique_ptr<grpc::ClientReaderWriter<v1::StreamRequest, v1::StreamResponse>> stream;
+    v1::StreamResponse response;
+    // The server notices the expired stream as soon as its deadline fires;
+    // the new stream may race that by a moment, so it retries briefly.
+    for (int attempt = 0;; ++attempt) {
+      contexts.push_back(std::make_unique<grpc::ClientContext>());
+      contexts.back()->set_deadline(std::chrono::system_clock::now() + std::chrono::seconds(30));
+      stream = open(contexts.back().get());
+      ASSERT_TRUE(stream->Write(measurement_at(2)));  // not after the last accepted sample
+      if (stream->Read(&response)) break;
+      const grpc::Status s = stream->Finish();
+      ASSERT_EQ(s.error_code(), grpc::StatusCode::FAILED_PRECONDITION) << s.error_message();
+      ASSERT_LT(attempt, 50) << "the session stayed attached to the expired stream: " << s.error_message();
+      std::this_thread::sleep_for(std::chrono::milliseconds(20));
+    }
+    EXPECT_TRUE(response.results(0).has_error()) << "the filter forgot the samples of the expired stream";
+    ASSERT_TRUE(stream->Write(measurement_at(3)));
+    ASSERT_TRUE(stream->Read(&response));
+    EXPECT_TRUE(response.results(0).has_estimate());
+    stream->WritesDone();
+    EXPECT_TRUE(stream->Finish().ok());
+  }
+
+  {
+    grpc::ClientContext ctx;
+    v1::DatasetInfo info;
+    auto writer = datasets_->UploadDataset(&ctx, &info);
+    v1::UploadDatasetRequest header;
+    header.mutable_header()->set_name("cut.csv");
+    for (const char* i : {"F1", "F2"}) header.mutable_header()->add_input_columns(i);
+    for (const char* o : {"h1", "h2"}) header.mutable_header()->add_output_columns(o);
+    ASSERT_TRUE(writer->Write(header));
+    v1::UploadDatasetRequest chunk;
+    const std::string csv = read_file(kData + "/two_tank.csv");
+    chunk.set_chunk(csv.substr(0, csv.find('\n', 4096) + 1));  // whole lines: a parsable start
+    ASSERT_TRUE(writer->Write(chunk));
+    std::this_thread::sleep_for(std::chrono::milliseconds(100));
+    ctx.TryCancel();
+    EXPECT_EQ(writer->Finish().error_code(), grpc::StatusCode::CANCELLED);
+  }
+  // The server may still be finishing the cancelled upload: give it a moment
+  // to store what it should not.
+  std::this_thread::sleep_for(std::chrono::milliseconds(200));
+  {
+    grpc::ClientContext ctx;
+    v1::ListDatasetsResponse list;
+    ASSERT_TRUE(datasets_->ListDatasets(&ctx, {}, &list).ok());
+    ASSERT_EQ(list.datasets_size(), 1);
+    EXPECT_EQ(list.datasets(0).id(), dataset);
+  }
+
+  grpc::ClientContext get_ctx;
+  v1::GetJobRequest get;
+  get.set_id(slow.id());
+  v1::Job job;
+  ASSERT_TRUE(jobs_->GetJob(&get_ctx, get, &job).ok());
+  EXPECT_EQ(job.state(), v1::JOB_STATE_RUNNING) << "a watch's deadline must not touch the job";
+  grpc::ClientContext cancel_ctx;
+  v1::CancelJobRequest cancel;
+  cancel.set_id(slow.id());
+  v1::Job cancelled;
+  EXPECT_TRUE(jobs_->CancelJob(&cancel_ctx, cancel, &cancelled).ok());
+  expect_serving();
 }
 
 TEST(DaemonConfig, IdleSessionsExpireAndBadConfigFilesAreRefused) {
