@@ -45,6 +45,8 @@ int main(int argc, char** argv) {
       ->check(CLI::Range(1L, 86400L));
   app.add_option("--job-poll-ms", job_poll_ms, "How often idle workers look for jobs submitted elsewhere [500]")
       ->check(CLI::Range(10L, 60000L));
+  auto* metrics_listen = app.add_option("--metrics-listen", flags.metrics_listen,
+                                        "Serve Prometheus metrics at http://HOST:PORT/metrics (default: off)");
   auto* log_level = app.add_option("--log-level", flags.log_level, "trace, debug, info, warn, error, off");
   app.add_option("--port-file", port_file, "Write the bound port to this file once listening");
   auto* tls_cert = app.add_option("--tls-cert", flags.security.tls_cert, "TLS certificate chain (PEM)");
@@ -95,6 +97,7 @@ int main(int argc, char** argv) {
   if (*models_dir) config.models_dir = flags.models_dir;
   if (*workers) config.workers = flags.workers;
   if (*log_level) config.log_level = flags.log_level;
+  if (*metrics_listen) config.metrics_listen = flags.metrics_listen;
   if (*tls_cert) config.security.tls_cert = flags.security.tls_cert;
   if (*tls_key) config.security.tls_key = flags.security.tls_key;
   if (*tls_client_ca) config.security.tls_client_ca = flags.security.tls_client_ca;
