@@ -9,6 +9,7 @@ packages=(
   libsundials-dev                                       # CVODE / ARKODE integrators
   libspdlog-dev                                         # logging
   libmatio-dev                                          # MAT files (the 1999 toolbox's T/U/Y layout)
+  zlib1g-dev                                            # inflating MAT variable headers to check them first
   libcli11-dev                                          # command-line parsing
   libgrpc++-dev protobuf-compiler-grpc                  # gRPC (server, client, code generator)
   libprotobuf-dev protobuf-compiler                     # Protocol Buffers
