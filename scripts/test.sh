@@ -2,8 +2,8 @@
 # The whole test suite, from a clean clone: install what is missing, build,
 # run every test with CTest beside a throw-away PostgreSQL server
 # (scripts/with-postgres.sh), so the PostgreSQL store's tests run too and
-# must not be skipped. With RICCATI_TEST_POSTGRES_URL already set, that
-# server is used instead.
+# must not be skipped; then deploy/check.sh (the deployment files). With
+# RICCATI_TEST_POSTGRES_URL already set, that server is used instead.
 set -euo pipefail
 cd "$(dirname "$0")/.."
 root=$PWD
@@ -12,8 +12,12 @@ scripts/build.sh
 cd "${RICCATI_BUILD_DIR:-build}"
 export RICCATI_REQUIRE_POSTGRES=1
 ctest=(ctest --output-on-failure --timeout 600 -j "$(nproc)")
+# CTest, then the deployment files' checks (deploy/check.sh, which starts
+# riccatid from an install on the same PostgreSQL server), in one run:
+# bash -c 'SCRIPT' ROOT CTEST... ($0 is the repository, $@ the ctest command).
+steps='"$@" && cd "$0" && deploy/check.sh'
 if [ -n "${RICCATI_TEST_POSTGRES_URL:-}" ]; then
-  "${ctest[@]}"
+  bash -c "$steps" "$root" "${ctest[@]}"
 else
-  "$root/scripts/with-postgres.sh" "${ctest[@]}"
+  "$root/scripts/with-postgres.sh" bash -c "$steps" "$root" "${ctest[@]}"
 fi

@@ -25,29 +25,44 @@ int main(int argc, char** argv) {
   CLI::App app{"riccatid: the riccati estimation daemon"};
   std::string config_file, port_file;
   DaemonConfig flags;
-  long idle_timeout_s = -1;
+  long idle_timeout_s = flags.session_idle_timeout.count();
   app.add_option("--config", config_file, "YAML config file (keys as the long flags, with _)");
-  auto* listen = app.add_option("--listen", flags.listen, "Address to listen on (host:port; port 0: any free)");
-  auto* data_dir = app.add_option("--data-dir", flags.data_dir, "Directory of the SQLite database and scratch files");
+  // Defaults are shown in --help (capture_default_str): the configuration
+  // reference in docs/operations.md is generated from it
+  // (scripts/gen-config-reference.sh).
+  auto* listen = app.add_option("--listen", flags.listen, "Address to listen on (host:port; port 0: any free)")
+                     ->capture_default_str();
+  auto* data_dir = app.add_option("--data-dir", flags.data_dir, "Directory of the SQLite database and scratch files")
+                       ->capture_default_str();
   auto* database = app.add_option("--database", flags.database,
                                   "sqlite (default: riccati.db in the data directory) or a PostgreSQL URL, "
                                   "postgresql://user:password@host:port/dbname");
-  auto* models_dir = app.add_option("--models-dir", flags.models_dir, "Directory of model plugins");
-  auto* workers = app.add_option("--workers", flags.workers, "Job worker threads (0: one per core)");
-  app.add_option("--session-idle-timeout", idle_timeout_s, "Seconds before an idle session expires");
+  auto* models_dir =
+      app.add_option("--models-dir", flags.models_dir, "Directory of model plugins (default: ../lib/riccati/models "
+                                                       "from the directory of riccatid)");
+  auto* workers =
+      app.add_option("--workers", flags.workers, "Job worker threads (0: one per core)")->capture_default_str();
+  auto* idle_timeout = app.add_option("--session-idle-timeout", idle_timeout_s,
+                                      "Seconds before an idle session expires (config key session_idle_timeout_s)")
+                           ->check(CLI::Range(0L, std::numeric_limits<long>::max()).description("NONNEGATIVE"))
+                           ->capture_default_str();
   auto* instance_id = app.add_option("--instance-id", flags.job_queue.instance_id,
                                      "Owner of the jobs this instance claims, unique among instances sharing a "
                                      "database (default: <hostname>-<random>)");
-  long job_lease_s = -1, job_poll_ms = -1;
-  app.add_option("--job-lease-seconds", job_lease_s,
-                 "A claimed job is taken over by another instance this long after its instance stopped renewing "
-                 "it [15]")
-      ->check(CLI::Range(1L, 86400L));
-  app.add_option("--job-poll-ms", job_poll_ms, "How often idle workers look for jobs submitted elsewhere [500]")
-      ->check(CLI::Range(10L, 60000L));
+  long job_lease_s = 15, job_poll_ms = 500;
+  auto* job_lease = app.add_option("--job-lease-seconds", job_lease_s,
+                                   "A claimed job is taken over by another instance this long after its instance "
+                                   "stopped renewing it (config key job_lease_s)")
+                        ->check(CLI::Range(1L, 86400L))
+                        ->capture_default_str();
+  auto* job_poll = app.add_option("--job-poll-ms", job_poll_ms,
+                                  "How often idle workers look for jobs submitted elsewhere (config key job_poll_ms)")
+                       ->check(CLI::Range(10L, 60000L))
+                       ->capture_default_str();
   auto* metrics_listen = app.add_option("--metrics-listen", flags.metrics_listen,
                                         "Serve Prometheus metrics at http://HOST:PORT/metrics (default: off)");
-  auto* log_level = app.add_option("--log-level", flags.log_level, "trace, debug, info, warn, error, off");
+  auto* log_level =
+      app.add_option("--log-level", flags.log_level, "trace, debug, info, warn, error, off")->capture_default_str();
   app.add_option("--port-file", port_file, "Write the bound port to this file once listening");
   auto* tls_cert = app.add_option("--tls-cert", flags.security.tls_cert, "TLS certificate chain (PEM)");
   auto* tls_key = app.add_option("--tls-key", flags.security.tls_key, "TLS private key (PEM)");
@@ -66,9 +81,10 @@ int main(int argc, char** argv) {
   for (const auto& spec : riccati::service::kLimitSpecs) {
     std::string flag = std::string("--") + spec.key;
     std::replace(flag.begin(), flag.end(), '_', '-');
-    const std::string help = std::string(spec.help) + " [" + std::to_string(DaemonConfig{}.limits.*(spec.value)) + "]";
-    limit_flags.emplace_back(&spec, app.add_option(flag, flags.limits.*(spec.value), help)
-                                        ->check(CLI::Range(std::int64_t{1}, std::numeric_limits<std::int64_t>::max()))
+    limit_flags.emplace_back(&spec, app.add_option(flag, flags.limits.*(spec.value), spec.help)
+                                        ->check(CLI::Range(std::int64_t{1}, std::numeric_limits<std::int64_t>::max())
+                                                    .description("POSITIVE"))
+                                        ->default_str(std::to_string(DaemonConfig{}.limits.*(spec.value)))
                                         ->group("Limits"));
   }
   CLI11_PARSE(app, argc, argv);
@@ -102,10 +118,10 @@ int main(int argc, char** argv) {
   if (*tls_key) config.security.tls_key = flags.security.tls_key;
   if (*tls_client_ca) config.security.tls_client_ca = flags.security.tls_client_ca;
   if (*tokens_file) config.security.tokens_file = flags.security.tokens_file;
-  if (idle_timeout_s >= 0) config.session_idle_timeout = std::chrono::seconds(idle_timeout_s);
+  if (*idle_timeout) config.session_idle_timeout = std::chrono::seconds(idle_timeout_s);
   if (*instance_id) config.job_queue.instance_id = flags.job_queue.instance_id;
-  if (job_lease_s > 0) config.job_queue.lease = std::chrono::seconds(job_lease_s);
-  if (job_poll_ms > 0) config.job_queue.poll = std::chrono::milliseconds(job_poll_ms);
+  if (*job_lease) config.job_queue.lease = std::chrono::seconds(job_lease_s);
+  if (*job_poll) config.job_queue.poll = std::chrono::milliseconds(job_poll_ms);
   for (const auto& [spec, option] : limit_flags) {
     if (*option) config.limits.*(spec->value) = flags.limits.*(spec->value);
   }

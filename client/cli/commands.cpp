@@ -183,11 +183,13 @@ Client::Client(const Connection& connection, double timeout, bool json_output)
     : timeout_s(timeout), json(json_output), token_(connection.token) {
   grpc::ChannelArguments args;
   args.SetMaxReceiveMessageSize(-1);  // results of long identifications are large
+  connection.apply(&args);
   channel = grpc::CreateCustomChannel(connection.server, connection.credentials(), args);
   models = v1::ModelService::NewStub(channel);
   datasets = v1::DatasetService::NewStub(channel);
   jobs = v1::JobService::NewStub(channel);
   sessions = v1::SessionService::NewStub(channel);
+  health = grpc::health::v1::Health::NewStub(channel);
 }
 
 std::unique_ptr<grpc::ClientContext> Client::context() const {
@@ -303,6 +305,36 @@ std::string fit_table(const v1::ValidationResult& r) {
     out += line;
   }
   return out;
+}
+
+int health(Client& c, const std::string& service) {
+  using grpc::health::v1::HealthCheckResponse;
+  auto ctx = c.context();
+  grpc::health::v1::HealthCheckRequest request;
+  request.set_service(service);
+  HealthCheckResponse response;
+  const grpc::Status s = c.health->Check(ctx.get(), request, &response);
+  const std::string what = service.empty() ? "health" : "health of service \"" + service + "\"";
+  std::string status;
+  int code = kExitOk;
+  if (s.ok()) {
+    status = HealthCheckResponse::ServingStatus_Name(response.status());
+    if (response.status() != HealthCheckResponse::SERVING) code = kExitFailed;
+  } else if (s.error_code() == grpc::StatusCode::NOT_FOUND) {
+    // Check answers NOT_FOUND for a service it does not know (Watch would
+    // send SERVICE_UNKNOWN): print it as Watch would.
+    status = HealthCheckResponse::ServingStatus_Name(HealthCheckResponse::SERVICE_UNKNOWN);
+    code = kExitNotFound;
+  } else {
+    return c.fail(what, s);
+  }
+  if (c.json) {
+    std::printf("{\n  \"service\": \"%s\",\n  \"status\": \"%s\"\n}\n", service.c_str(), status.c_str());
+  } else {
+    std::printf("%s\n", status.c_str());
+  }
+  if (code != kExitOk) std::fprintf(stderr, "riccati: %s: %s\n", what.c_str(), status.c_str());
+  return code;
 }
 
 int models_list(Client& c) {

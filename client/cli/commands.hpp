@@ -8,6 +8,7 @@
 #include <string>
 #include <vector>
 
+#include "grpc/health/v1/health.grpc.pb.h"
 #include "riccati/v1/datasets.grpc.pb.h"
 #include "riccati/v1/jobs.grpc.pb.h"
 #include "riccati/v1/models.grpc.pb.h"
@@ -36,6 +37,7 @@ struct Client {
   std::unique_ptr<v1::DatasetService::Stub> datasets;
   std::unique_ptr<v1::JobService::Stub> jobs;
   std::unique_ptr<v1::SessionService::Stub> sessions;
+  std::unique_ptr<grpc::health::v1::Health::Stub> health;
   double timeout_s;
   bool json;
 
@@ -57,6 +59,13 @@ struct CsvTable {
   int column(const std::string& name) const;
 };
 bool read_csv(const std::string& path, CsvTable* out, std::string* error);
+
+// grpc.health.v1.Health/Check of `service` (empty: the daemon as a whole).
+// Prints the serving status: SERVING exits 0; NOT_SERVING or UNKNOWN exit 1
+// (the operation failed); a service the daemon does not know prints
+// SERVICE_UNKNOWN and exits 4 (not found); riccatid unreachable exits 3. For
+// container health checks and probes: no token is needed.
+int health(Client& c, const std::string& service);
 
 int models_list(Client& c);
 int models_show(Client& c, const std::string& name);

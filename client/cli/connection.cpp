@@ -67,6 +67,10 @@ std::shared_ptr<grpc::ChannelCredentials> Connection::credentials() const {
   return grpc::SslCredentials(options);
 }
 
+void Connection::apply(grpc::ChannelArguments* args) const {
+  if (tls && !tls_server_name.empty()) args->SetSslTargetNameOverride(tls_server_name);
+}
+
 std::optional<std::string> resolve_connection(const ConnectionFlags& flags, const Getenv& getenv, Connection* out) {
   // The config file: the lowest precedence.
   ConnectionFlags file;
@@ -75,13 +79,15 @@ std::optional<std::string> resolve_connection(const ConnectionFlags& flags, cons
     out->config_file = path;
     try {
       const YAML::Node root = YAML::LoadFile(path);
-      static const std::set<std::string> kKeys = {"server", "token_file", "ca", "cert", "key", "tls"};
+      static const std::set<std::string> kKeys = {"server", "token_file", "ca", "cert", "key", "tls",
+                                                  "tls_server_name"};
       if (!root.IsMap() && !root.IsNull()) return "config file " + path + ": expected keys and values";
       for (const auto& entry : root) {
         const auto key = entry.first.as<std::string>();
         if (kKeys.count(key) == 0) {
           return "config file " + path + ": unknown key \"" + key +
-                 "\" (known: server, token_file, ca, cert, key, tls; a token itself goes in token_file)";
+                 "\" (known: server, token_file, ca, cert, key, tls, tls_server_name; a token itself goes in "
+                 "token_file)";
         }
       }
       if (root["server"]) file.server = root["server"].as<std::string>();
@@ -90,6 +96,7 @@ std::optional<std::string> resolve_connection(const ConnectionFlags& flags, cons
       if (root["cert"]) file.cert = expand_home(root["cert"].as<std::string>(), getenv);
       if (root["key"]) file.key = expand_home(root["key"].as<std::string>(), getenv);
       if (root["tls"]) file.tls = root["tls"].as<bool>();
+      if (root["tls_server_name"]) file.tls_server_name = root["tls_server_name"].as<std::string>();
     } catch (const YAML::Exception& e) {
       return "config file " + path + ": " + e.what();
     }
@@ -105,6 +112,7 @@ std::optional<std::string> resolve_connection(const ConnectionFlags& flags, cons
   const std::string ca = pick(flags.ca, "RICCATI_CA", file.ca);
   const std::string cert = pick(flags.cert, "RICCATI_CERT", file.cert);
   const std::string key = pick(flags.key, "RICCATI_KEY", file.key);
+  out->tls_server_name = pick(flags.tls_server_name, "RICCATI_TLS_SERVER_NAME", file.tls_server_name);
   const std::string tls_env = env_or_empty(getenv, "RICCATI_TLS");
   out->tls = flags.tls || tls_env == "1" || tls_env == "true" || file.tls || !ca.empty() || !cert.empty();
   if (!ca.empty()) {

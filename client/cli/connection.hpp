@@ -14,6 +14,9 @@
 //   cert: ~/.config/riccati/client.pem  # mutual TLS
 //   key: ~/.config/riccati/client.key
 //   tls: true                           # TLS with the system's CAs
+//   tls_server_name: riccatid.example.org  # the name to check in the server's
+//                                       # certificate, when it is not the one in
+//                                       # server (a probe connecting to 127.0.0.1)
 #pragma once
 
 #include <grpcpp/grpcpp.h>
@@ -31,6 +34,7 @@ struct ConnectionFlags {  // as given on the command line; empty: not given
   std::string ca;
   std::string cert;
   std::string key;
+  std::string tls_server_name;
   bool tls = false;
 };
 
@@ -39,9 +43,12 @@ struct Connection {
   std::string token;  // empty: none sent
   bool tls = false;
   std::string ca_pem, cert_pem, key_pem;  // contents; empty ca_pem with tls: the system's roots
+  std::string tls_server_name;            // empty: the host of `server`
   std::string config_file;                // the config file read, if any
 
   std::shared_ptr<grpc::ChannelCredentials> credentials() const;
+  // Channel arguments for these settings (the TLS name to check).
+  void apply(grpc::ChannelArguments* args) const;
 };
 
 using Getenv = std::function<const char*(const char*)>;

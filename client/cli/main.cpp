@@ -133,9 +133,10 @@ int main(int argc, char** argv) {
       "Exit status: 0 success; 1 the operation failed (job failed or cancelled, input refused); 2 usage error;\n"
       "3 riccatid unreachable; 4 not found.\n"
       "Connection settings come from the flags, else the environment (RICCATI_SERVER, RICCATI_TOKEN_FILE,\n"
-      "RICCATI_TOKEN, RICCATI_CA, RICCATI_CERT, RICCATI_KEY, RICCATI_TLS), else the config file\n"
-      "(RICCATI_CONFIG, else ~/.config/riccati/client.yaml: server, token_file, ca, cert, key, tls);\n"
-      "the server defaults to 127.0.0.1:7531. The token is never a flag: it stays out of shell history.");
+      "RICCATI_TOKEN, RICCATI_CA, RICCATI_CERT, RICCATI_KEY, RICCATI_TLS, RICCATI_TLS_SERVER_NAME), else the\n"
+      "config file (RICCATI_CONFIG, else ~/.config/riccati/client.yaml: server, token_file, ca, cert, key, tls,\n"
+      "tls_server_name); the server defaults to 127.0.0.1:7531. The token is never a flag: it stays out of\n"
+      "shell history.");
   app.require_subcommand(1);
   ConnectionFlags connection_flags;
   bool json = false;
@@ -146,8 +147,15 @@ int main(int argc, char** argv) {
   app.add_option("--cert", connection_flags.cert, "PEM client certificate (mutual TLS)");
   app.add_option("--key", connection_flags.key, "PEM client key (mutual TLS)");
   app.add_flag("--tls", connection_flags.tls, "Connect with TLS, trusting the system's CAs");
+  app.add_option("--tls-server-name", connection_flags.tls_server_name,
+                 "Name to check in the server's certificate (default: the host of --server)");
   app.add_flag("--json", json, "Machine-readable output (JSON)");
   app.add_option("--timeout", timeout, "Seconds to wait for each call")->capture_default_str();
+
+  std::string health_service;
+  auto* health_cmd = app.add_subcommand(
+      "health", "Is riccatid serving? grpc.health.v1 Check: prints SERVING (exit 0) or the status (exit 1)");
+  health_cmd->add_option("--service", health_service, "A service's name (default: the daemon as a whole)");
 
   auto* models = app.add_subcommand("models", "List the models (models show NAME: one in detail)");
   auto* models_show_cmd = models->add_subcommand("show", "Show one model");
@@ -256,6 +264,7 @@ int main(int argc, char** argv) {
     return kExitUsage;
   }
   Client client(connection, timeout, json);
+  if (*health_cmd) return health(client, health_service);
   if (*models) return *models_show_cmd ? models_show(client, model_name) : models_list(client);
   if (*upload_cmd) return data_upload(client, upload);
   if (*data_list_cmd) return data_list(client);

@@ -282,5 +282,19 @@ TEST_F(ConnectionTest, RefusesATokenFileOthersCanReadAndUnknownConfigKeys) {
   EXPECT_NE(error->find("missing.pem"), std::string::npos) << *error;
 }
 
+TEST_F(ConnectionTest, TheTlsServerNameComesFromTheFlagTheEnvironmentOrTheConfigFile) {
+  file(".config/riccati/client.yaml", "tls: true\ntls_server_name: from-config\n");
+  Connection c;
+  ASSERT_EQ(resolve({}, &c), std::nullopt);
+  EXPECT_EQ(c.tls_server_name, "from-config");
+  env_["RICCATI_TLS_SERVER_NAME"] = "from-env";
+  ASSERT_EQ(resolve({}, &c), std::nullopt);
+  EXPECT_EQ(c.tls_server_name, "from-env");
+  ConnectionFlags flags;
+  flags.tls_server_name = "from-flag";
+  ASSERT_EQ(resolve(flags, &c), std::nullopt);
+  EXPECT_EQ(c.tls_server_name, "from-flag");
+}
+
 }  // namespace
 }  // namespace riccati::cli

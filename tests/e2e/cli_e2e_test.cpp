@@ -247,5 +247,51 @@ TEST_F(CliTest, StreamsTheManipulatorIntoAnOptimalFilterSessionWithALiveView) {
   EXPECT_NEAR(v[7], 5.8, 0.29);
 }
 
+// `riccati health`: grpc.health.v1 Check, what container health checks and
+// Kubernetes exec probes run. The exit code is the answer.
+TEST_F(CliTest, HealthPrintsServingAndExitsZero) {
+  CliRun r = riccati("health");
+  EXPECT_EQ(r.exit_code, 0) << last_stderr();
+  EXPECT_EQ(r.out, "SERVING\n");
+  r = riccati("--json health");
+  EXPECT_EQ(r.exit_code, 0) << last_stderr();
+  EXPECT_EQ(nlohmann::json::parse(r.out)["status"], "SERVING") << r.out;
+  // A service the daemon does not report on: not found (4), said on both streams.
+  r = riccati("health --service no.such.Service");
+  EXPECT_EQ(r.exit_code, 4);
+  EXPECT_EQ(r.out, "SERVICE_UNKNOWN\n");
+  EXPECT_NE(last_stderr().find("no.such.Service"), std::string::npos) << last_stderr();
+  // A stopped daemon: unreachable (3), with nothing on stdout.
+  const auto address = daemon_->address();
+  ASSERT_EQ(daemon_->stop(), 0);
+  const std::string command =
+      std::string(RICCATI_CLI_BIN) + " --server " + address + " --timeout 2 health 2>/dev/null";
+  std::FILE* pipe = popen(command.c_str(), "r");
+  std::array<char, 256> buffer;
+  const std::size_t n = std::fread(buffer.data(), 1, buffer.size(), pipe);
+  const int status = pclose(pipe);
+  EXPECT_EQ(n, 0u);
+  EXPECT_EQ(WIFEXITED(status) ? WEXITSTATUS(status) : -1, 3);
+}
+
+// Behind TLS and tokens the health check needs no token (a probe has none),
+// and checks the server's certificate against --tls-server-name when given:
+// a probe connects to 127.0.0.1 but the certificate names the service.
+TEST_F(SecureCliTest, HealthNeedsNoTokenAndChecksTheServerName) {
+  CliRun r = riccati("--ca " + ca_ + " health");
+  EXPECT_EQ(r.exit_code, 0) << last_stderr();
+  EXPECT_EQ(r.out, "SERVING\n");
+  r = riccati("--ca " + ca_ + " --tls-server-name localhost health");  // a name in the test certificate
+  EXPECT_EQ(r.exit_code, 0) << last_stderr();
+  env_ = "RICCATI_TLS_SERVER_NAME=riccatid.example.org";  // not in it: the handshake fails
+  r = riccati("--ca " + ca_ + " --timeout 3 health");
+  EXPECT_EQ(r.exit_code, 3) << last_stderr();
+  EXPECT_EQ(r.out, "");
+  // Plain text against the TLS port: unreachable too.
+  env_ = "";
+  r = riccati("--timeout 3 health");
+  EXPECT_EQ(r.exit_code, 3) << last_stderr();
+}
+
 }  // namespace
 }  // namespace riccati
