@@ -9,17 +9,24 @@ packages=(
   libsundials-dev                                       # CVODE / ARKODE integrators
   libspdlog-dev                                         # logging
   libmatio-dev                                          # MAT files (the 1999 toolbox's T/U/Y layout)
+  zlib1g-dev                                            # inflating MAT variable headers to check them first
   libcli11-dev                                          # command-line parsing
   libgrpc++-dev protobuf-compiler-grpc                  # gRPC (server, client, code generator)
   libprotobuf-dev protobuf-compiler                     # Protocol Buffers
   libsqlite3-dev                                        # the embedded store
   libpqxx-dev                                           # the PostgreSQL store (libpqxx 6.4, with libpq)
   libssl-dev                                            # SHA-256 (token digests, plugin checksums)
+  prometheus-cpp-dev                                    # metrics in Prometheus text format (/metrics)
   libyaml-cpp-dev                                       # config and job files
   nlohmann-json3-dev                                    # JSON (dataset metadata in tests)
   libgtest-dev libgmock-dev                             # GoogleTest
   libbenchmark-dev                                      # Google Benchmark
 )
+
+# "fuzz": also what scripts/fuzz.sh needs (clang with libFuzzer and the sanitizers' runtime).
+if [ "${1:-}" = fuzz ]; then
+  packages+=(clang libclang-rt-14-dev)
+fi
 
 missing=()
 for p in "${packages[@]}"; do

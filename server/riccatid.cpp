@@ -49,17 +49,18 @@ int main(int argc, char** argv) {
   auto* instance_id = app.add_option("--instance-id", flags.job_queue.instance_id,
                                      "Owner of the jobs this instance claims, unique among instances sharing a "
                                      "database (default: <hostname>-<random>)");
-  long job_lease_s = std::chrono::duration_cast<std::chrono::seconds>(flags.job_queue.lease).count();
-  long job_poll_ms = flags.job_queue.poll.count();
+  long job_lease_s = 15, job_poll_ms = 500;
   auto* job_lease = app.add_option("--job-lease-seconds", job_lease_s,
                                    "A claimed job is taken over by another instance this long after its instance "
                                    "stopped renewing it (config key job_lease_s)")
                         ->check(CLI::Range(1L, 86400L))
                         ->capture_default_str();
-  auto* job_poll =
-      app.add_option("--job-poll-ms", job_poll_ms, "How often idle workers look for jobs submitted elsewhere")
-          ->check(CLI::Range(10L, 60000L))
-          ->capture_default_str();
+  auto* job_poll = app.add_option("--job-poll-ms", job_poll_ms,
+                                  "How often idle workers look for jobs submitted elsewhere (config key job_poll_ms)")
+                       ->check(CLI::Range(10L, 60000L))
+                       ->capture_default_str();
+  auto* metrics_listen = app.add_option("--metrics-listen", flags.metrics_listen,
+                                        "Serve Prometheus metrics at http://HOST:PORT/metrics (default: off)");
   auto* log_level =
       app.add_option("--log-level", flags.log_level, "trace, debug, info, warn, error, off")->capture_default_str();
   app.add_option("--port-file", port_file, "Write the bound port to this file once listening");
@@ -112,6 +113,7 @@ int main(int argc, char** argv) {
   if (*models_dir) config.models_dir = flags.models_dir;
   if (*workers) config.workers = flags.workers;
   if (*log_level) config.log_level = flags.log_level;
+  if (*metrics_listen) config.metrics_listen = flags.metrics_listen;
   if (*tls_cert) config.security.tls_cert = flags.security.tls_cert;
   if (*tls_key) config.security.tls_key = flags.security.tls_key;
   if (*tls_client_ca) config.security.tls_client_ca = flags.security.tls_client_ca;

@@ -28,6 +28,8 @@ packages=(
   libsqlite3-0                      # the embedded store
   libpqxx-6.4                       # the PostgreSQL store (depends on libpq5)
   libssl3                           # TLS and SHA-256 (libssl, libcrypto)
+  libprometheus-cpp-core1.0 libprometheus-cpp-pull1.0  # the /metrics endpoint
+  zlib1g                            # checking compressed MAT variables
   libstdc++6 libgcc-s1 libc6        # the C and C++ runtimes
   ca-certificates                   # the system's CAs: riccati --tls, PostgreSQL with sslmode=verify-full
 )

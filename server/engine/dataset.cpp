@@ -1,6 +1,7 @@
 #include "engine/dataset.hpp"
 
 #include <matio.h>
+#include <zlib.h>
 
 #include <algorithm>
 #include <array>
@@ -226,6 +227,43 @@ std::uint32_t read_u32(const unsigned char* bytes, bool little_endian) {
   return little_endian ? b0 | b1 << 8 | b2 << 16 | b3 << 24 : b3 | b2 << 8 | b1 << 16 | b0 << 24;
 }
 
+// The first bytes of a variable's data, inflated (miCOMPRESSED elements hold
+// a zlib stream of one miMATRIX element); fewer if the stream ends or is
+// corrupt before.
+std::string inflate_prefix(const std::string& compressed, std::size_t want) {
+  std::string out(want, '\0');
+  z_stream z{};
+  if (inflateInit(&z) != Z_OK) return "";
+  z.next_in = reinterpret_cast<Bytef*>(const_cast<char*>(compressed.data()));
+  z.avail_in = static_cast<uInt>(compressed.size());
+  z.next_out = reinterpret_cast<Bytef*>(out.data());
+  z.avail_out = static_cast<uInt>(want);
+  while (z.avail_out > 0 && inflate(&z, Z_SYNC_FLUSH) == Z_OK) {
+  }
+  out.resize(want - z.avail_out);
+  inflateEnd(&z);
+  return out;
+}
+
+// matio allocates what a variable's header says (its dimensions, its size)
+// before it reads any data, and a corrupt file can say anything: check the
+// header of an miMATRIX element, `header` being its first bytes after its
+// tag and `size` the byte count its tag claims. Empty: it looks sound.
+std::string matrix_header_problem(const std::string& header, std::uint64_t size, bool little_endian) {
+  constexpr std::uint32_t kUInt32 = 6, kInt32 = 5;
+  constexpr std::uint32_t kMaxRank = 32;
+  if (header.size() < 24) return size < 24 ? "its header is cut short" : "";  // left to matio: nothing to allocate
+  const auto* bytes = reinterpret_cast<const unsigned char*>(header.data());
+  const std::uint32_t flags_type = read_u32(bytes, little_endian), flags_size = read_u32(bytes + 4, little_endian);
+  if (flags_type != kUInt32 || flags_size != 8) return "its array flags are malformed";
+  const std::uint32_t dims_type = read_u32(bytes + 16, little_endian), dims_size = read_u32(bytes + 20, little_endian);
+  if (dims_type != kInt32 || dims_size % 4 != 0 || dims_size < 8 || dims_size > 4 * kMaxRank) {
+    return "its dimensions are malformed";
+  }
+  if (24 + static_cast<std::uint64_t>(dims_size) > size) return "its dimensions run past its end";
+  return "";
+}
+
 // Returns the size of the file after checking it is complete as far as can
 // be told cheaply: matio reads a truncated v5 file without complaint, leaving
 // the missing bytes as whatever was in memory, so check that every top-level
@@ -262,6 +300,39 @@ Result<std::uintmax_t> check_mat_file_complete(const std::string& path, const st
       return invalid_argument(source + ": the file is truncated or corrupt (the variable at byte " + std::to_string(offset) +
                               " needs " + std::to_string(element_size) + " bytes, only " +
                               std::to_string(file_size - offset) + " remain)");
+    }
+    const std::uint32_t type = read_u32(tag.data(), little_endian);
+    constexpr std::uint32_t kMatrix = 14, kCompressed = 15;
+    // Deflate shrinks data at most about 1032:1.
+    constexpr std::uint64_t kMaxCompressionRatio = 1032;
+    constexpr std::size_t kHeaderBytes = 32;
+    std::string problem;
+    if (!small_element && type == kMatrix) {
+      std::string header(std::min<std::streamoff>(kHeaderBytes, element_size - kTagSize), '\0');
+      in.read(header.data(), static_cast<std::streamsize>(header.size()));
+      problem = matrix_header_problem(header, read_u32(tag.data() + 4, little_endian), little_endian);
+    } else if (!small_element && type == kCompressed) {
+      std::string compressed(static_cast<std::size_t>(element_size - kTagSize), '\0');
+      in.read(compressed.data(), static_cast<std::streamsize>(compressed.size()));
+      const std::string inner = inflate_prefix(compressed, kTagSize + kHeaderBytes);
+      if (inner.size() < kTagSize) {
+        problem = "its compressed data is corrupt";
+      } else {
+        const auto* inner_tag = reinterpret_cast<const unsigned char*>(inner.data());
+        const std::uint64_t inner_size = read_u32(inner_tag + 4, little_endian);
+        if (read_u32(inner_tag, little_endian) != kMatrix) {
+          problem = "its compressed data is not a variable";
+        } else if (inner_size > compressed.size() * kMaxCompressionRatio) {
+          problem = "it claims " + std::to_string(inner_size) + " bytes, more than " +
+                    std::to_string(compressed.size()) + " compressed bytes can hold";
+        } else {
+          problem = matrix_header_problem(inner.substr(kTagSize), inner_size, little_endian);
+        }
+      }
+    }
+    if (!problem.empty()) {
+      return invalid_argument(source + ": the file is corrupt (the variable at byte " + std::to_string(offset) + ": " +
+                              problem + ")");
     }
     offset += element_size;
   }

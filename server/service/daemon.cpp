@@ -69,6 +69,8 @@ Status load_config_file(const std::string& path, DaemonConfig* c) {
         c->security.tls_client_ca = v.as<std::string>();
       } else if (key == "tokens_file") {
         c->security.tokens_file = v.as<std::string>();
+      } else if (key == "metrics_listen") {
+        c->metrics_listen = v.as<std::string>();
       } else if (key == "log_level") {
         c->log_level = v.as<std::string>();
       } else {
@@ -127,7 +129,7 @@ Status Daemon::start() {
                                           : static_cast<int>(std::max(1u, std::thread::hardware_concurrency()));
   JobQueueOptions queue = config_.job_queue;
   queue.exclusive_store = config_.database.empty() || config_.database == "sqlite";
-  jobs_ = std::make_unique<JobManager>(*store_, models_, workers, config_.limits, queue);
+  jobs_ = std::make_unique<JobManager>(*store_, models_, workers, config_.limits, queue, &metrics_);
   RICCATI_RETURN_IF_ERROR(jobs_->start());
   sessions_ = std::make_unique<SessionManager>(models_, config_.session_idle_timeout, config_.limits);
 
@@ -135,7 +137,7 @@ Status Daemon::start() {
   model_service_ = std::make_unique<ModelServiceImpl>(models_);
   dataset_service_ = std::make_unique<DatasetServiceImpl>(*auth_, *store_, config_.data_dir, config_.limits);
   job_service_ = std::make_unique<JobServiceImpl>(*auth_, *jobs_, *store_);
-  session_service_ = std::make_unique<SessionServiceImpl>(*auth_, *sessions_, config_.limits);
+  session_service_ = std::make_unique<SessionServiceImpl>(*auth_, *sessions_, config_.limits, metrics_);
 
   std::string security;
   RICCATI_ASSIGN_OR_RETURN(const std::shared_ptr<grpc::ServerCredentials> credentials,
@@ -150,12 +152,21 @@ Status Daemon::start() {
   builder.RegisterService(dataset_service_.get());
   builder.RegisterService(job_service_.get());
   builder.RegisterService(session_service_.get());
+  std::vector<std::unique_ptr<grpc::experimental::ServerInterceptorFactoryInterface>> interceptors;
+  interceptors.push_back(metrics_.interceptor_factory());
+  builder.experimental().SetInterceptorCreators(std::move(interceptors));
   server_ = builder.BuildAndStart();
   if (server_ == nullptr || port_ == 0) {
     return {StatusCode::kUnavailable, "cannot listen on " + config_.listen + " (address in use or invalid?)"};
   }
   spdlog::info("riccatid listening address={} port={} security=\"{}\" workers={} models={}", config_.listen, port_,
                security, workers, models_.models().size());
+  if (!config_.metrics_listen.empty()) {
+    metrics_.set_sessions_open([this] { return sessions_->size(); });
+    metrics_.set_store(store_.get());
+    RICCATI_ASSIGN_OR_RETURN(metrics_port_, metrics_.serve(config_.metrics_listen));
+    spdlog::info("metrics listening address={} port={} path=/metrics", config_.metrics_listen, metrics_port_);
+  }
   if (config_.security.tls_cert.empty()) {
     spdlog::warn("plain TCP on loopback, for development: give tls_cert and tls_key to serve other hosts");
   }
@@ -176,6 +187,7 @@ void Daemon::shutdown(std::chrono::milliseconds grace) {
                           std::max(deadline - std::chrono::steady_clock::now(), std::chrono::steady_clock::duration{})));
     server_.reset();
   }
+  metrics_.stop_serving();
   if (jobs_ != nullptr) jobs_->shutdown();
 }
 

@@ -11,6 +11,7 @@
 #include "engine/plugin_loader.hpp"
 #include "service/auth.hpp"
 #include "service/job_manager.hpp"
+#include "service/metrics.hpp"
 #include "service/services.hpp"
 #include "service/session_manager.hpp"
 #include "store/store.hpp"
@@ -31,6 +32,7 @@ struct DaemonConfig {
   JobQueueOptions job_queue;
   Limits limits;
   SecurityConfig security;  // TLS and bearer tokens (auth.hpp)
+  std::string metrics_listen;  // host:port of the Prometheus /metrics endpoint; empty: none
   std::string log_level = "info";
 };
 
@@ -45,6 +47,7 @@ class Daemon {
 
   Status start();
   int port() const { return port_; }  // the bound port, after start()
+  int metrics_port() const { return metrics_port_; }  // 0: no metrics endpoint
   // Stops accepting calls, gives running calls `grace` to finish, then stops
   // the workers (running jobs stay queued in the store for the next start).
   void shutdown(std::chrono::milliseconds grace);
@@ -52,6 +55,7 @@ class Daemon {
 
  private:
   DaemonConfig config_;
+  Metrics metrics_;  // first in, last out: the server's interceptor counts into it
   ModelRegistry models_;
   std::unique_ptr<Store> store_;
   std::unique_ptr<JobManager> jobs_;
@@ -63,6 +67,7 @@ class Daemon {
   std::unique_ptr<SessionServiceImpl> session_service_;
   std::unique_ptr<grpc::Server> server_;
   int port_ = 0;
+  int metrics_port_ = 0;
 };
 
 }  // namespace riccati::service

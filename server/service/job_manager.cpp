@@ -35,13 +35,15 @@ std::string default_instance_id() {
 
 }  // namespace
 
-JobManager::JobManager(Store& store, const ModelRegistry& models, int workers, Limits limits, JobQueueOptions queue)
+JobManager::JobManager(Store& store, const ModelRegistry& models, int workers, Limits limits, JobQueueOptions queue,
+                       Metrics* metrics)
     : store_(store),
       models_(models),
       limits_(limits),
       worker_count_(std::max(1, workers)),
       queue_(queue),
-      instance_(queue.instance_id.empty() ? default_instance_id() : queue.instance_id) {}
+      instance_(queue.instance_id.empty() ? default_instance_id() : queue.instance_id),
+      metrics_(metrics) {}
 
 JobManager::~JobManager() { shutdown(); }
 
@@ -288,10 +290,11 @@ void JobManager::renew(const JobRecord& job) {
 
 void JobManager::run(JobRecord job) {
   const std::string id = job.id;
+  const auto claimed = std::chrono::steady_clock::now();
   if (job.cancel_requested) {
     // Cancelled while its earlier instance ran it, which died before it
     // could stop it.
-    finish(std::move(job), cancelled("cancelled"));
+    finish(std::move(job), cancelled("cancelled"), claimed);
     return;
   }
   std::stop_token stop;
@@ -327,10 +330,11 @@ void JobManager::run(JobRecord job) {
     changed_.notify_all();
     return;
   }
-  finish(std::move(outcome.record), result);
+  finish(std::move(outcome.record), result, claimed);
 }
 
-void JobManager::finish(JobRecord job, const Result<std::string>& result) {
+void JobManager::finish(JobRecord job, const Result<std::string>& result,
+                        std::chrono::steady_clock::time_point claimed) {
   const Status outcome = result.status();
   job.finished_ms = now_ms();
   if (outcome.is_ok()) {
@@ -341,6 +345,11 @@ void JobManager::finish(JobRecord job, const Result<std::string>& result) {
     job.error_message = outcome.message();
   }
   const Status stored = store_.finish_job(job, instance_, result.is_ok() ? &result.value() : nullptr);
+  // Counted before watchers here hear of the end, so that what they see
+  // next on /metrics includes it.
+  if (stored.is_ok() && metrics_ != nullptr) {
+    metrics_->job_ended(job.kind, job.state, std::chrono::steady_clock::now() - claimed);
+  }
   {
     std::lock_guard lock(mu_);
     live_.erase(job.id);  // watchers read the end from the store

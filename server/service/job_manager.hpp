@@ -19,6 +19,7 @@
 #pragma once
 
 #include "service/limits.hpp"
+#include "service/metrics.hpp"
 
 #include <atomic>
 #include <chrono>
@@ -60,7 +61,9 @@ struct JobQueueOptions {
 
 class JobManager {
  public:
-  JobManager(Store& store, const ModelRegistry& models, int workers, Limits limits = {}, JobQueueOptions queue = {});
+  // `metrics` (optional) counts the jobs this instance ends.
+  JobManager(Store& store, const ModelRegistry& models, int workers, Limits limits = {}, JobQueueOptions queue = {},
+             Metrics* metrics = nullptr);
   ~JobManager();
   JobManager(const JobManager&) = delete;
   JobManager& operator=(const JobManager&) = delete;
@@ -102,7 +105,7 @@ class JobManager {
   void lease_loop();
   void run(JobRecord job);
   // Ends a claimed job in the store (state, error, result) and for watchers.
-  void finish(JobRecord job, const Result<std::string>& result);
+  void finish(JobRecord job, const Result<std::string>& result, std::chrono::steady_clock::time_point claimed);
   // Renews the lease of a running job and publishes its progress; marks the
   // job lost (and stops it) if another instance holds it now, or cancelled if
   // a client asked for that through another instance.
@@ -122,6 +125,7 @@ class JobManager {
   const int worker_count_;
   const JobQueueOptions queue_;
   const std::string instance_;
+  Metrics* const metrics_;
 
   std::mutex submit_mu_;  // a limit check and the insert it allows go together
   std::mutex mu_;

@@ -366,7 +366,10 @@ class SessionServiceImpl::StreamReactor final : public grpc::ServerBidiReactor<v
     }
     response_.Clear();
     for (const auto& m : measurements) {
-      diverged_ = session_->process(m, full_covariance_, response_.add_results());
+      const auto began = std::chrono::steady_clock::now();
+      v1::MeasurementResult* result = response_.add_results();
+      diverged_ = session_->process(m, full_covariance_, result);
+      service_.metrics_.measurement(result->has_estimate(), std::chrono::steady_clock::now() - began);
       if (!diverged_.is_ok()) break;
     }
     std::lock_guard lock(mu_);

@@ -19,6 +19,7 @@
 #include "service/auth.hpp"
 #include "service/job_manager.hpp"
 #include "service/limits.hpp"
+#include "service/metrics.hpp"
 #include "service/session_manager.hpp"
 #include "store/store.hpp"
 
@@ -79,8 +80,8 @@ class JobServiceImpl final : public v1::JobService::Service {
 // every stream at once with UNAVAILABLE when the daemon stops.
 class SessionServiceImpl final : public v1::SessionService::WithCallbackMethod_Stream<v1::SessionService::Service> {
  public:
-  SessionServiceImpl(const Authenticator& auth, SessionManager& sessions, Limits limits)
-      : auth_(auth), sessions_(sessions), limits_(limits) {}
+  SessionServiceImpl(const Authenticator& auth, SessionManager& sessions, Limits limits, Metrics& metrics)
+      : auth_(auth), sessions_(sessions), limits_(limits), metrics_(metrics) {}
   ~SessionServiceImpl() override;
   grpc::Status CreateSession(grpc::ServerContext*, const v1::CreateSessionRequest*, v1::SessionInfo*) override;
   grpc::Status GetSession(grpc::ServerContext*, const v1::GetSessionRequest*, v1::SessionInfo*) override;
@@ -97,6 +98,7 @@ class SessionServiceImpl final : public v1::SessionService::WithCallbackMethod_S
   const Authenticator& auth_;
   SessionManager& sessions_;
   const Limits limits_;
+  Metrics& metrics_;
   std::mutex streams_mu_;
   std::condition_variable streams_done_;
   std::set<StreamReactor*> streams_;  // open streams, for drain()

@@ -502,6 +502,20 @@ TEST_F(DatasetFileTest, ImpossibleMatDimensionsAreRejectedBeforeReading) {
       StatusCode::kInvalidArgument, {"\"T\" claims to be 1 x 1000000000, more than the file can hold"}));
 }
 
+// Variable headers matio would believe and allocate for, before reading a
+// value: refused first. The compressed one is what the fuzzer found (a 272
+// byte file that made matio ask for 7.5 GB); the other has its dimensions'
+// byte count overwritten.
+TEST_F(DatasetFileTest, CorruptVariableHeadersAreRefusedBeforeMatioAllocates) {
+  EXPECT_TRUE(FailsWith(read_mat_file(kDataDir + "/corrupt_compressed_header.mat", ColumnMapping{}).status(),
+                        StatusCode::kInvalidArgument, {"corrupt_compressed_header.mat: the file is corrupt", "byte 128"}));
+  std::string bytes = mat5_file({{"T", {1, 5}, kTime}, {"Y", {2, 5}, kOutputs}});
+  constexpr std::size_t kFirstDimsSize = 128 + 8 + 16 + 4;  // header, matrix tag, array flags, dims type
+  for (std::size_t i = 0; i < 4; ++i) bytes[kFirstDimsSize + i] = "\xf0\xff\xff\x7f"[i];
+  EXPECT_TRUE(FailsWith(read_mat_file(write("dims.mat", bytes), ColumnMapping{}).status(), StatusCode::kInvalidArgument,
+                        {"dims.mat: the file is corrupt (the variable at byte 128: its dimensions are malformed)"}));
+}
+
 TEST_F(DatasetFileTest, MismatchedMatLengths) {
   const std::vector<double> four_columns(kOutputs.begin(), kOutputs.begin() + 8);
   EXPECT_TRUE(FailsWith(

@@ -5,7 +5,13 @@
 
 #include <google/protobuf/util/message_differencer.h>
 
+#include <arpa/inet.h>
+#include <netinet/in.h>
+#include <sys/socket.h>
+#include <unistd.h>
+
 #include <atomic>
+#include <cmath>
 #include <functional>
 #include <future>
 
@@ -1027,6 +1033,143 @@ TEST_F(DaemonTest, ClientDeadlinesAndCancellationEndOnlyTheirOwnCall) {
   v1::Job cancelled;
   EXPECT_TRUE(jobs_->CancelJob(&cancel_ctx, cancel, &cancelled).ok());
   expect_serving();
+}
+
+// A free loopback TCP port (a tiny race with other processes, acceptable in tests).
+int free_port() {
+  const int fd = socket(AF_INET, SOCK_STREAM, 0);
+  sockaddr_in addr{};
+  addr.sin_family = AF_INET;
+  addr.sin_addr.s_addr = htonl(INADDR_LOOPBACK);
+  addr.sin_port = 0;
+  socklen_t len = sizeof addr;
+  if (bind(fd, reinterpret_cast<sockaddr*>(&addr), sizeof addr) != 0 ||
+      getsockname(fd, reinterpret_cast<sockaddr*>(&addr), &len) != 0) {
+    close(fd);
+    return 0;
+  }
+  close(fd);
+  return ntohs(addr.sin_port);
+}
+
+// GET http://127.0.0.1:port/path with a plain socket: the body, or "" on failure.
+std::string http_get(int port, const std::string& path) {
+  const int fd = socket(AF_INET, SOCK_STREAM, 0);
+  sockaddr_in addr{};
+  addr.sin_family = AF_INET;
+  addr.sin_addr.s_addr = htonl(INADDR_LOOPBACK);
+  addr.sin_port = htons(static_cast<std::uint16_t>(port));
+  if (connect(fd, reinterpret_cast<sockaddr*>(&addr), sizeof addr) != 0) {
+    close(fd);
+    return "";
+  }
+  const std::string request = "GET " + path + " HTTP/1.0\r\nHost: 127.0.0.1\r\n\r\n";
+  if (write(fd, request.data(), request.size()) != static_cast<ssize_t>(request.size())) {
+    close(fd);
+    return "";
+  }
+  std::string response;
+  char buffer[4096];
+  for (ssize_t n; (n = read(fd, buffer, sizeof buffer)) > 0;) response.append(buffer, static_cast<std::size_t>(n));
+  close(fd);
+  const auto body = response.find("\r\n\r\n");
+  return body == std::string::npos ? "" : response.substr(body + 4);
+}
+
+// The value of one sample line of a Prometheus text page (name with its
+// labels, exactly as printed); NaN when absent.
+double sample_value(const std::string& page, const std::string& series) {
+  std::istringstream in(page);
+  std::string line;
+  while (std::getline(in, line)) {
+    if (line.rfind(series + " ", 0) == 0) return std::stod(line.substr(series.size() + 1));
+  }
+  return std::nan("");
+}
+
+// The metrics operators read: calls by code, measurements estimated and
+// refused with their step time, open sessions, jobs by state and duration;
+// counted from what the test did, exactly.
+TEST(DaemonMetrics, ThePrometheusEndpointCountsWhatHappened) {
+  TempDir dir;
+  const int port = free_port();
+  ASSERT_GT(port, 0);
+  DaemonProcess daemon(dir.path() / "data", {"--metrics-listen", "127.0.0.1:" + std::to_string(port)});
+  daemon.start();
+  auto datasets = v1::DatasetService::NewStub(daemon.channel());
+  auto jobs = v1::JobService::NewStub(daemon.channel());
+  auto sessions = v1::SessionService::NewStub(daemon.channel());
+
+  v1::DatasetInfo info;
+  ASSERT_TRUE(testing::upload_dataset(*datasets, "two_tank.csv", read_file(kData + "/two_tank.csv"), {"F1", "F2"},
+                                      {"h1", "h2"}, &info)
+                  .ok());
+  v1::Job job;
+  {
+    grpc::ClientContext ctx;
+    ASSERT_TRUE(jobs->SubmitIdentification(&ctx, testing::hensen_spec(info.id(), 1), &job).ok());
+  }
+  for (int i = 0; i < 2; ++i) {
+    grpc::ClientContext ctx;
+    v1::GetJobRequest get;
+    get.set_id("job-that-does-not-exist");
+    v1::Job none;
+    EXPECT_EQ(jobs->GetJob(&ctx, get, &none).error_code(), grpc::StatusCode::NOT_FOUND);
+  }
+  v1::SessionInfo session;
+  {
+    grpc::ClientContext ctx;
+    ASSERT_TRUE(sessions->CreateSession(&ctx, testing::two_tank_session(), &session).ok());
+  }
+  {
+    grpc::ClientContext ctx;
+    auto stream = sessions->Stream(&ctx);
+    v1::StreamRequest open;
+    open.mutable_open()->set_session_id(session.id());
+    ASSERT_TRUE(stream->Write(open));
+    v1::StreamRequest request;
+    for (int k = 0; k < 7; ++k) {
+      v1::Measurement* m = request.mutable_batch()->add_measurements();
+      m->set_t(k == 5 ? 1.0 : k);  // the sixth goes back in time: refused
+      for (double u : {0.1, 0.03}) m->add_u(u);
+      for (double y : {0.4, 0.15}) m->add_y(y);
+    }
+    ASSERT_TRUE(stream->Write(request));
+    v1::StreamResponse response;
+    ASSERT_TRUE(stream->Read(&response));
+    ASSERT_EQ(response.results_size(), 7);
+    stream->WritesDone();
+    ASSERT_TRUE(stream->Finish().ok());
+  }
+  {
+    grpc::ClientContext ctx;
+    ctx.set_deadline(std::chrono::system_clock::now() + std::chrono::seconds(60));
+    v1::WatchJobRequest watch;
+    watch.set_id(job.id());
+    auto reader = jobs->WatchJob(&ctx, watch);
+    v1::Job state;
+    while (reader->Read(&state)) {
+    }
+    ASSERT_TRUE(reader->Finish().ok());
+    ASSERT_EQ(state.state(), v1::JOB_STATE_SUCCEEDED);
+  }
+
+  const std::string page = http_get(port, "/metrics");
+  ASSERT_FALSE(page.empty()) << "no metrics on port " << port;
+  EXPECT_EQ(sample_value(page, R"(riccati_measurements_total{outcome="estimated"})"), 6) << page;
+  EXPECT_EQ(sample_value(page, R"(riccati_measurements_total{outcome="refused"})"), 1);
+  EXPECT_EQ(sample_value(page, "riccati_measurement_seconds_count"), 7);
+  EXPECT_GT(sample_value(page, "riccati_measurement_seconds_sum"), 0);
+  EXPECT_EQ(sample_value(page, "riccati_sessions_open"), 1);
+  EXPECT_EQ(sample_value(page, R"(riccati_jobs{state="queued"})"), 0);
+  EXPECT_EQ(sample_value(page, R"(riccati_jobs{state="running"})"), 0);
+  EXPECT_EQ(sample_value(page, R"(riccati_jobs_ended_total{kind="identification",state="succeeded"})"), 1);
+  EXPECT_EQ(sample_value(page, R"(riccati_job_seconds_count{kind="identification"})"), 1);
+  EXPECT_EQ(sample_value(page, R"(riccati_rpc_total{code="NOT_FOUND",method="/riccati.v1.JobService/GetJob"})"), 2);
+  EXPECT_EQ(sample_value(page, R"(riccati_rpc_total{code="OK",method="/riccati.v1.SessionService/Stream"})"), 1);
+  EXPECT_EQ(sample_value(page, R"(riccati_rpc_total{code="OK",method="/riccati.v1.DatasetService/UploadDataset"})"),
+            1);
+  EXPECT_EQ(daemon.stop(), 0);
 }
 
 TEST(DaemonConfig, IdleSessionsExpireAndBadConfigFilesAreRefused) {

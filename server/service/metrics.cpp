@@ -1,0 +1,181 @@
+#include "service/metrics.hpp"
+
+#include <prometheus/counter.h>
+#include <prometheus/exposer.h>
+#include <prometheus/family.h>
+#include <prometheus/histogram.h>
+#include <prometheus/registry.h>
+
+#include <mutex>
+
+namespace riccati::service {
+
+namespace {
+
+const char* code_name(int code) {
+  static const char* const kNames[] = {"OK",
+                                       "CANCELLED",
+                                       "UNKNOWN",
+                                       "INVALID_ARGUMENT",
+                                       "DEADLINE_EXCEEDED",
+                                       "NOT_FOUND",
+                                       "ALREADY_EXISTS",
+                                       "PERMISSION_DENIED",
+                                       "RESOURCE_EXHAUSTED",
+                                       "FAILED_PRECONDITION",
+                                       "ABORTED",
+                                       "OUT_OF_RANGE",
+                                       "UNIMPLEMENTED",
+                                       "INTERNAL",
+                                       "UNAVAILABLE",
+                                       "DATA_LOSS",
+                                       "UNAUTHENTICATED"};
+  return code >= 0 && code <= 16 ? kNames[code] : "UNKNOWN";
+}
+
+// Bucket bounds from `first`, each `factor` times the one before.
+prometheus::Histogram::BucketBoundaries exponential(double first, double factor, int count) {
+  prometheus::Histogram::BucketBoundaries out;
+  for (double b = first; count-- > 0; b *= factor) out.push_back(b);
+  return out;
+}
+
+class RpcInterceptor final : public grpc::experimental::Interceptor {
+ public:
+  RpcInterceptor(Metrics& metrics, std::string method) : metrics_(metrics), method_(std::move(method)) {}
+  void Intercept(grpc::experimental::InterceptorBatchMethods* methods) override {
+    if (methods->QueryInterceptionHookPoint(grpc::experimental::InterceptionHookPoints::PRE_SEND_STATUS)) {
+      metrics_.rpc_finished(method_, methods->GetSendStatus().error_code());
+    }
+    methods->Proceed();
+  }
+
+ private:
+  Metrics& metrics_;
+  const std::string method_;
+};
+
+class RpcInterceptorFactory final : public grpc::experimental::ServerInterceptorFactoryInterface {
+ public:
+  explicit RpcInterceptorFactory(Metrics& metrics) : metrics_(metrics) {}
+  grpc::experimental::Interceptor* CreateServerInterceptor(grpc::experimental::ServerRpcInfo* info) override {
+    return new RpcInterceptor(metrics_, info->method() != nullptr ? info->method() : "");
+  }
+
+ private:
+  Metrics& metrics_;
+};
+
+}  // namespace
+
+// The gauges read at scrape time: open sessions, and the jobs the store
+// has queued and running (every instance's, when the store is shared).
+class Metrics::Scraped final : public prometheus::Collectable {
+ public:
+  std::vector<prometheus::MetricFamily> Collect() const override {
+    std::lock_guard lock(mu_);
+    std::vector<prometheus::MetricFamily> out;
+    if (sessions_open_) {
+      prometheus::MetricFamily sessions{"riccati_sessions_open", "Filter sessions open on this instance",
+                                        prometheus::MetricType::Gauge, {}};
+      prometheus::ClientMetric m;
+      m.gauge.value = static_cast<double>(sessions_open_());
+      sessions.metric.push_back(m);
+      out.push_back(std::move(sessions));
+    }
+    if (store_ != nullptr) {
+      auto unfinished = store_->jobs_in_states({JobState::kQueued, JobState::kRunning});
+      if (unfinished.is_ok()) {
+        prometheus::MetricFamily jobs{"riccati_jobs", "Jobs queued and running, in the store",
+                                      prometheus::MetricType::Gauge, {}};
+        for (JobState state : {JobState::kQueued, JobState::kRunning}) {
+          prometheus::ClientMetric m;
+          m.label.push_back({"state", job_state_name(state)});
+          for (const auto& job : unfinished.value()) m.gauge.value += job.state == state ? 1 : 0;
+          jobs.metric.push_back(m);
+        }
+        out.push_back(std::move(jobs));
+      }
+    }
+    return out;
+  }
+
+  mutable std::mutex mu_;
+  std::function<std::size_t()> sessions_open_;
+  Store* store_ = nullptr;
+};
+
+Metrics::Metrics() : registry_(std::make_shared<prometheus::Registry>()), scraped_(std::make_shared<Scraped>()) {
+  rpcs_ = &prometheus::BuildCounter()
+               .Name("riccati_rpc_total")
+               .Help("gRPC calls finished, by method and status code")
+               .Register(*registry_);
+  auto& measurements = prometheus::BuildCounter()
+                           .Name("riccati_measurements_total")
+                           .Help("Measurements streamed into sessions: estimated, or refused (bad sizes, NaN, time)")
+                           .Register(*registry_);
+  estimated_ = &measurements.Add({{"outcome", "estimated"}});
+  refused_ = &measurements.Add({{"outcome", "refused"}});
+  // 5 us to about 80 ms: a filter step of a small model to a stiff one.
+  step_seconds_ = &prometheus::BuildHistogram()
+                       .Name("riccati_measurement_seconds")
+                       .Help("Time to process one streamed measurement (check, filter step, estimate)")
+                       .Register(*registry_)
+                       .Add({}, exponential(5e-6, 2.0, 15));
+  jobs_ended_ = &prometheus::BuildCounter()
+                     .Name("riccati_jobs_ended_total")
+                     .Help("Jobs this instance ended, by kind and final state")
+                     .Register(*registry_);
+  job_seconds_ = &prometheus::BuildHistogram()
+                      .Name("riccati_job_seconds")
+                      .Help("Run time of the jobs this instance ended (from its claim), by kind")
+                      .Register(*registry_);
+}
+
+Metrics::~Metrics() = default;
+
+void Metrics::set_sessions_open(std::function<std::size_t()> count) {
+  std::lock_guard lock(scraped_->mu_);
+  scraped_->sessions_open_ = std::move(count);
+}
+
+void Metrics::set_store(Store* store) {
+  std::lock_guard lock(scraped_->mu_);
+  scraped_->store_ = store;
+}
+
+Result<int> Metrics::serve(const std::string& address) {
+  try {
+    exposer_ = std::make_unique<prometheus::Exposer>(address, 1);
+  } catch (const std::exception& e) {
+    return failed_precondition("cannot serve metrics on " + address + ": " + e.what());
+  }
+  exposer_->RegisterCollectable(registry_);
+  exposer_->RegisterCollectable(scraped_);
+  const auto ports = exposer_->GetListeningPorts();
+  if (ports.empty()) return failed_precondition("cannot serve metrics on " + address + ": no port bound");
+  return ports.front();
+}
+
+void Metrics::stop_serving() { exposer_.reset(); }
+
+void Metrics::measurement(bool estimated, std::chrono::steady_clock::duration step) {
+  (estimated ? estimated_ : refused_)->Increment();
+  step_seconds_->Observe(std::chrono::duration<double>(step).count());
+}
+
+void Metrics::job_ended(const std::string& kind, JobState state, std::chrono::steady_clock::duration took) {
+  jobs_ended_->Add({{"kind", kind}, {"state", job_state_name(state)}}).Increment();
+  // 10 ms to about 3 h.
+  job_seconds_->Add({{"kind", kind}}, exponential(0.01, 4.0, 11)).Observe(std::chrono::duration<double>(took).count());
+}
+
+void Metrics::rpc_finished(const std::string& method, int code) {
+  rpcs_->Add({{"method", method}, {"code", code_name(code)}}).Increment();
+}
+
+std::unique_ptr<grpc::experimental::ServerInterceptorFactoryInterface> Metrics::interceptor_factory() {
+  return std::make_unique<RpcInterceptorFactory>(*this);
+}
+
+}  // namespace riccati::service

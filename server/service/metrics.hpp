@@ -1,0 +1,74 @@
+// Metrics for operators, in Prometheus text format on an HTTP port of their
+// own (--metrics-listen; prometheus-cpp serves them, with its embedded
+// civetweb). What is counted, and where:
+//
+//   riccati_rpc_total{method,code}           every finished call (interceptor)
+//   riccati_measurements_total{outcome}      estimated / refused (sessions)
+//   riccati_measurement_seconds              filter step per measurement (histogram)
+//   riccati_sessions_open                    at scrape time
+//   riccati_jobs{state}                      queued / running in the store, at scrape time
+//   riccati_jobs_ended_total{kind,state}     jobs this instance ended
+//   riccati_job_seconds{kind}                claim to end, on this instance (histogram)
+//
+// Counters only grow from the daemon's start, as Prometheus expects.
+#pragma once
+
+#include <grpcpp/support/server_interceptor.h>
+
+#include <chrono>
+#include <functional>
+#include <memory>
+#include <string>
+
+#include "engine/status.hpp"
+#include "store/store.hpp"
+
+namespace prometheus {
+class Counter;
+class Exposer;
+class Histogram;
+class Registry;
+template <typename T>
+class Family;
+}  // namespace prometheus
+
+namespace riccati::service {
+
+class Metrics {
+ public:
+  Metrics();
+  ~Metrics();
+  Metrics(const Metrics&) = delete;
+  Metrics& operator=(const Metrics&) = delete;
+
+  // Values read when scraped.
+  void set_sessions_open(std::function<std::size_t()> count);
+  void set_store(Store* store);
+
+  // Serves /metrics on `address` (host:port; port 0: any free port);
+  // returns the bound port.
+  Result<int> serve(const std::string& address);
+  // Stops serving (before what the scrape reads goes away).
+  void stop_serving();
+
+  void measurement(bool estimated, std::chrono::steady_clock::duration step);
+  void job_ended(const std::string& kind, JobState state, std::chrono::steady_clock::duration took);
+  void rpc_finished(const std::string& method, int code);
+
+  // Counts every call the server finishes (add to the ServerBuilder).
+  std::unique_ptr<grpc::experimental::ServerInterceptorFactoryInterface> interceptor_factory();
+
+ private:
+  class Scraped;
+  std::shared_ptr<prometheus::Registry> registry_;
+  std::shared_ptr<Scraped> scraped_;
+  prometheus::Family<prometheus::Counter>* rpcs_;
+  prometheus::Counter* estimated_;
+  prometheus::Counter* refused_;
+  prometheus::Histogram* step_seconds_;
+  prometheus::Family<prometheus::Counter>* jobs_ended_;
+  prometheus::Family<prometheus::Histogram>* job_seconds_;
+  std::unique_ptr<prometheus::Exposer> exposer_;
+};
+
+}  // namespace riccati::service
