@@ -177,7 +177,7 @@ image_dockerfile() {
   grep -q '^USER 10001:10001$' "$dockerfile" || { echo "   not USER 10001:10001" >&2; status=1; }
   grep -q 'CMD \["riccati", .*"health"\]' "$dockerfile" || { echo "   no HEALTHCHECK through riccati health" >&2; status=1; }
   local exposed listen
-  exposed=$(sed -n 's/^EXPOSE \([0-9]*\)$/\1/p' "$dockerfile")
+  exposed=$(sed -n 's/^EXPOSE \([0-9]*\).*$/\1/p' "$dockerfile")
   listen=$(sed -n 's/^listen: .*:\([0-9]*\)$/\1/p' deploy/container/riccatid.yaml)
   [ -n "$exposed" ] && [ "$exposed" = "$listen" ] ||
     { echo "   EXPOSE $exposed is not the port of container/riccatid.yaml ($listen)" >&2; status=1; }
@@ -243,6 +243,8 @@ config() {
   local name=$1 server_config=$2 client_config=$3
   shift 3
   map_paths "$server_config" >"$work/$name-riccatid.yaml"
+  # A configured metrics port becomes a free loopback one.
+  grep -q '^metrics_listen:' "$server_config" && set -- --metrics-listen 127.0.0.1:0 "$@"
   start "$name" --config "$work/$name-riccatid.yaml" "$@" || return 1
   local status=0
   if [ -n "$client_config" ]; then
@@ -292,11 +294,11 @@ postgres_topology() {
   local database="postgresql://$pg_user@$pg_host:$pg_port/$db" status=0 one two port_one
   export RICCATI_DATABASE_PASSWORD_FILE=$work/postgres_password
   RICCATI_PREFIX=$prefix "$root/deploy/container/entrypoint.sh" --config "$work/pg-riccatid.yaml" --database "$database" \
-    --instance-id riccatid-1 --listen 127.0.0.1:0 --port-file "$work/pg-1.port" --data-dir "$work/data-pg-1" --log-level warn 2>"$work/pg-1.log" &
+    --instance-id riccatid-1 --metrics-listen 127.0.0.1:0 --listen 127.0.0.1:0 --port-file "$work/pg-1.port" --data-dir "$work/data-pg-1" --log-level warn 2>"$work/pg-1.log" &
   one=$!
   pids+=("$one")
   RICCATI_PREFIX=$prefix "$root/deploy/container/entrypoint.sh" --config "$work/pg-riccatid.yaml" --database "$database" \
-    --instance-id riccatid-2 --listen 127.0.0.1:0 --port-file "$work/pg-2.port" --data-dir "$work/data-pg-2" --log-level warn 2>"$work/pg-2.log" &
+    --instance-id riccatid-2 --metrics-listen 127.0.0.1:0 --listen 127.0.0.1:0 --port-file "$work/pg-2.port" --data-dir "$work/data-pg-2" --log-level warn 2>"$work/pg-2.log" &
   two=$!
   pids+=("$two")
   unset RICCATI_DATABASE_PASSWORD_FILE
