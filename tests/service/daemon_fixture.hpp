@@ -92,6 +92,14 @@ class DaemonProcess {
   int stop() { return signal_and_wait(SIGTERM); }
   // SIGKILL, as a crash would.
   int kill_now() { return signal_and_wait(SIGKILL); }
+  // SIGSTOP and SIGCONT: a frozen daemon does nothing until thawed (or
+  // killed), so a test can look at the shared store while it holds still.
+  void freeze() const {
+    if (pid_ > 0) ::kill(pid_, SIGSTOP);
+  }
+  void thaw() const {
+    if (pid_ > 0) ::kill(pid_, SIGCONT);
+  }
 
   std::string address() const { return "127.0.0.1:" + std::to_string(port_); }
   std::shared_ptr<grpc::Channel> channel() const { return channel_; }

@@ -184,13 +184,21 @@ TEST_F(DistributedTest, ThreeInstancesRunThirtyJobsOnceEachThroughAKillDashNine)
   const std::vector<std::string> ids = submit_jobs(cluster, dataset);
 
   // Kill inst-0 while it holds a job past its first pass, so that the job
-  // is taken over mid-run and must resume from its checkpoint.
+  // is taken over mid-run and must resume from its checkpoint. inst-0 is
+  // frozen while the store is read: a job seen running then cannot end (and
+  // its end go unlogged) between the look and the kill.
   std::string killed_job;
-  for (int tries = 0; tries < 3000 && killed_job.empty(); ++tries) {
+  for (int tries = 0; tries < 1000 && killed_job.empty(); ++tries) {
+    cluster.daemon(0).freeze();
+    std::this_thread::sleep_for(std::chrono::milliseconds(20));  // a commit already sent lands
     const pqxx::result r = schema.exec(
         "SELECT id FROM jobs WHERE owner = 'inst-0' AND state = 'running' AND pass >= 1 LIMIT 1");
-    if (!r.empty()) killed_job = r[0][0].as<std::string>();
-    else std::this_thread::sleep_for(std::chrono::milliseconds(5));
+    if (!r.empty()) {
+      killed_job = r[0][0].as<std::string>();
+    } else {
+      cluster.daemon(0).thaw();
+      std::this_thread::sleep_for(std::chrono::milliseconds(5));
+    }
   }
   ASSERT_FALSE(killed_job.empty()) << "inst-0 never held a job past its first pass";
   EXPECT_EQ(cluster.daemon(0).kill_now(), 128 + SIGKILL);
