@@ -3,11 +3,12 @@
 # (clang, AddressSanitizer, UndefinedBehaviorSanitizer), each target for
 # SECONDS seconds (default 60; CI runs 30). Any crash, leak, sanitizer report,
 # timeout (10 s per input) or out-of-memory fails the run; the input that did
-# it is kept in build-fuzz/artifacts/ and its path printed.
+# it is kept in build-san/artifacts/ and its path printed. The build is the
+# sanitized tree that scripts/sanitize.sh tests (scripts/configure-sanitized.sh).
 #
 #   scripts/fuzz.sh [SECONDS] [TARGET...]     targets: csv_fuzz mat_fuzz request_fuzz
 #
-# The corpora grow in build-fuzz/corpus/ from one run to the next.
+# The corpora grow in build-san/corpus/ from one run to the next.
 set -euo pipefail
 cd "$(dirname "$0")/.."
 seconds=${1:-60}
@@ -16,11 +17,8 @@ targets=("$@")
 [ ${#targets[@]} -gt 0 ] || targets=(csv_fuzz mat_fuzz request_fuzz)
 
 scripts/install-deps.sh fuzz
-build_dir=${RICCATI_FUZZ_BUILD_DIR:-build-fuzz}
-if [ ! -f "$build_dir/build.ninja" ]; then
-  CC=clang CXX=clang++ cmake -S . -B "$build_dir" -G Ninja -DCMAKE_BUILD_TYPE=RelWithDebInfo \
-    -DRICCATI_FUZZ=ON -DRICCATI_BUILD_TESTS=OFF -DRICCATI_BUILD_BENCH=OFF >/dev/null
-fi
+build_dir=${RICCATI_SAN_BUILD_DIR:-build-san}
+scripts/configure-sanitized.sh "$build_dir"
 ninja -C "$build_dir" "${targets[@]}" fuzz_seed_writer
 
 seeds="$build_dir/seeds"

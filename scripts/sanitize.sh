@@ -1,19 +1,21 @@
 #!/usr/bin/env bash
-# The whole test suite built with AddressSanitizer and UndefinedBehaviorSanitizer
-# (gcc; plugins and the daemon included), in build-asan/. Any sanitizer
-# report fails the test that triggered it. Like scripts/test.sh, PostgreSQL
-# runs beside it (scripts/with-postgres.sh) unless RICCATI_TEST_POSTGRES_URL
-# is set. The soak test is left to scripts/test.sh (it measures RSS, which
-# the sanitizers' shadow memory makes meaningless).
+# The whole test suite built with AddressSanitizer and UndefinedBehaviorSanitizer,
+# plugins and the daemon included, in build-san/. Any sanitizer report fails
+# the test that triggered it. Like scripts/test.sh, PostgreSQL runs beside it
+# (scripts/with-postgres.sh) unless RICCATI_TEST_POSTGRES_URL is set.
+#
+# The tree is built once, with clang, for both this and scripts/fuzz.sh (the
+# fuzz targets are in the same build): -O1 with line tables keeps the build
+# and the run short and the reports readable, and without NDEBUG Eigen checks
+# every index. Left out here: the soak test (it measures RSS, which shadow
+# memory makes meaningless) and the allocation test (it interposes malloc,
+# which ASan owns).
 set -euo pipefail
 cd "$(dirname "$0")/.."
 root=$PWD
-scripts/install-deps.sh
-build_dir=${RICCATI_ASAN_BUILD_DIR:-build-asan}
-if [ ! -f "$build_dir/build.ninja" ]; then
-  cmake -S . -B "$build_dir" -G Ninja -DCMAKE_BUILD_TYPE=RelWithDebInfo \
-    -DRICCATI_SANITIZE=address,undefined -DRICCATI_BUILD_BENCH=OFF >/dev/null
-fi
+scripts/install-deps.sh fuzz
+build_dir=${RICCATI_SAN_BUILD_DIR:-build-san}
+scripts/configure-sanitized.sh "$build_dir"
 ninja -C "$build_dir"
 cd "$build_dir"
 export RICCATI_REQUIRE_POSTGRES=1

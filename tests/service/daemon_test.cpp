@@ -210,11 +210,7 @@ TEST_F(DaemonTest, StreamingASessionEqualsTheOfflineFilter) {
   std::vector<v1::Estimate> estimates;
   for (Eigen::Index k = 0; k < data.size(); ++k) {
     v1::StreamRequest request;
-    v1::Measurement* m = request.mutable_batch()->add_measurements();
-    m->set_t(data.t[k]);
-    m->add_u(data.u(0, k));
-    m->add_y(data.y(0, k));
-    m->add_y(data.y(1, k));
+    testing::add_sample(request, data, k);
     ASSERT_TRUE(stream->Write(request));
     v1::StreamResponse response;
     ASSERT_TRUE(stream->Read(&response));
@@ -248,24 +244,10 @@ TEST_F(DaemonTest, StreamingASessionEqualsTheOfflineFilter) {
 
 TEST_F(DaemonTest, OptimalFilterSessionIdentifiesTheManipulator) {
   // flexible_manipulator.csv (400 Hz) streamed into an optimal filter session
-  // with the weights of case C of the specification; the initial confidence
-  // given as R0 (the session's initial covariance is its inverse).
+  // with the weights of case C of the specification.
   const auto data =
       read_csv_file(kData + "/flexible_manipulator.csv", ColumnMapping{"t", {"T"}, {"s1", "s2"}}).value();
-  const std::vector<double> V = {1e6, 1e6, 1e4, 1e6, 1e6};
-  const std::vector<double> W = {1e4, 1e4, 1e4, 1e4, 1e10, 1e10, 1e10, 1e10, 1e10, 1e10};
-  const std::vector<double> R0 = {1e12, 1e12, 1e12, 1e12, 1e1, 1e2, 5e-4, 1e1, 5e3, 5e3};
-  const std::vector<double> x0 = {0, 0, 0, 0}, theta0 = {.001, .001, 6.5, .01, .005, .0025};
-  v1::CreateSessionRequest create;
-  create.set_model("flexible_manipulator");
-  v1::FilterSettings* filter = create.mutable_filter();
-  filter->set_kind(v1::FILTER_KIND_OPTIMAL);
-  filter->mutable_integrator()->set_substeps(1);
-  for (double v : V) filter->mutable_optimal()->mutable_v()->mutable_diagonal()->add_values(v);
-  for (double v : W) filter->mutable_optimal()->mutable_w()->mutable_diagonal()->add_values(v);
-  for (double v : R0) filter->mutable_optimal()->mutable_r0()->mutable_diagonal()->add_values(v);
-  for (double v : x0) create.mutable_initial_state()->add_x0(v);
-  for (double v : theta0) create.add_theta0(v);
+  const v1::CreateSessionRequest create = testing::manipulator_case_c_session();
   v1::SessionInfo session;
   {
     grpc::ClientContext ctx;
@@ -284,11 +266,7 @@ TEST_F(DaemonTest, OptimalFilterSessionIdentifiesTheManipulator) {
   for (Eigen::Index first = 0; first < data.size(); first += kBatch) {
     v1::StreamRequest request;
     for (Eigen::Index k = first; k < std::min(first + kBatch, data.size()); ++k) {
-      v1::Measurement* m = request.mutable_batch()->add_measurements();
-      m->set_t(data.t[k]);
-      m->add_u(data.u(0, k));
-      m->add_y(data.y(0, k));
-      m->add_y(data.y(1, k));
+      testing::add_sample(request, data, k);
     }
     ASSERT_TRUE(stream->Write(request));
     v1::StreamResponse response;
@@ -518,10 +496,7 @@ TEST_F(DaemonTest, ASlowConsumerIsHeldBackNotBuffered) {
     for (int m = 0; m < kMessages; ++m) {
       v1::StreamRequest batch;
       for (int k = 0; k < kPerMessage; ++k) {
-        v1::Measurement* meas = batch.mutable_batch()->add_measurements();
-        meas->set_t(0.1 * (m * kPerMessage + k + 1));
-        for (double u : {1e-5, 1e-5}) meas->add_u(u);
-        for (double y : {0.5, 0.5}) meas->add_y(y);
+        testing::add_measurement(batch, 0.1 * (m * kPerMessage + k + 1), {1e-5, 1e-5}, {0.5, 0.5});
       }
       if (!stream->Write(batch)) return;
       ++written;
@@ -851,12 +826,7 @@ TEST_F(DaemonTest, StreamRefusesBadMeasurementsOneByOneAndGoesOn) {
   auto resumed = sessions_->Stream(&ctx3);
   ASSERT_TRUE(resumed->Write(open));
   v1::StreamRequest next;
-  v1::Measurement* m = next.mutable_batch()->add_measurements();
-  m->set_t(1.5);  // not after t = 2: refused, so the session kept its time
-  m->add_u(0.1);
-  m->add_u(0.03);
-  m->add_y(0.4);
-  m->add_y(0.15);
+  testing::add_measurement(next, 1.5, {0.1, 0.03}, {0.4, 0.15});  // not after t = 2: refused, so the session kept its time
   ASSERT_TRUE(resumed->Write(next));
   ASSERT_TRUE(resumed->Read(&response));
   EXPECT_NE(response.results(0).error().message().find("after t = 2"), std::string::npos)
@@ -891,12 +861,7 @@ TEST_F(DaemonTest, AStreamAndAJobDoNotBlockEachOther) {
   ASSERT_TRUE(stream->Write(open));
   for (int k = 0; k < 200; ++k) {
     v1::StreamRequest request;
-    v1::Measurement* m = request.mutable_batch()->add_measurements();
-    m->set_t(k);
-    m->add_u(0.1);
-    m->add_u(0.03);
-    m->add_y(0.4);
-    m->add_y(0.15);
+    testing::add_measurement(request, k, {0.1, 0.03}, {0.4, 0.15});
     ASSERT_TRUE(stream->Write(request));
     v1::StreamResponse response;
     ASSERT_TRUE(stream->Read(&response));
@@ -941,10 +906,7 @@ TEST_F(DaemonTest, ClientDeadlinesAndCancellationEndOnlyTheirOwnCall) {
   }
   auto measurement_at = [](double t) {
     v1::StreamRequest request;
-    v1::Measurement* m = request.mutable_batch()->add_measurements();
-    m->set_t(t);
-    for (double u : {0.1, 0.03}) m->add_u(u);
-    for (double y : {0.4, 0.15}) m->add_y(y);
+    testing::add_measurement(request, t, {0.1, 0.03}, {0.4, 0.15});
     return request;
   };
   auto open = [&](grpc::ClientContext* ctx) {
@@ -1129,10 +1091,7 @@ TEST(DaemonMetrics, ThePrometheusEndpointCountsWhatHappened) {
     ASSERT_TRUE(stream->Write(open));
     v1::StreamRequest request;
     for (int k = 0; k < 7; ++k) {
-      v1::Measurement* m = request.mutable_batch()->add_measurements();
-      m->set_t(k == 5 ? 1.0 : k);  // the sixth goes back in time: refused
-      for (double u : {0.1, 0.03}) m->add_u(u);
-      for (double y : {0.4, 0.15}) m->add_y(y);
+      testing::add_measurement(request, k == 5 ? 1.0 : k, {0.1, 0.03}, {0.4, 0.15});  // the sixth goes back: refused
     }
     ASSERT_TRUE(stream->Write(request));
     v1::StreamResponse response;

@@ -165,10 +165,7 @@ TEST_F(LimitsTest, MeasurementsPerMessage) {
   ASSERT_TRUE(stream->Write(open));
   v1::StreamRequest batch;
   for (int k = 0; k < 5; ++k) {
-    v1::Measurement* m = batch.mutable_batch()->add_measurements();
-    m->set_t(0.1 * k);
-    for (double u : {1.0, 1.0}) m->add_u(u);
-    for (double y : {1.0, 1.0}) m->add_y(y);
+    testing::add_measurement(batch, 0.1 * k, {1.0, 1.0}, {1.0, 1.0});
   }
   stream->Write(batch);
   stream->WritesDone();

@@ -94,12 +94,7 @@ TEST(Soak, SessionsAndJobsForMinutesWithoutErrorsOrMemoryGrowth) {
         next += period;
         const Eigen::Index i = k % data.size();
         request.Clear();
-        v1::Measurement* m = request.mutable_batch()->add_measurements();
-        m->set_t(0.1 * static_cast<double>(k));
-        m->add_u(data.u(0, i));
-        m->add_u(data.u(1, i));
-        m->add_y(data.y(0, i));
-        m->add_y(data.y(1, i));
+        testing::add_sample(request, data, i, 0.1 * static_cast<double>(k));
         if (!stream->Write(request) || !stream->Read(&response) || response.results_size() != 1 ||
             !response.results(0).has_estimate()) {
           ++failures;
