@@ -34,6 +34,12 @@ function(riccati_add_test name)
   target_compile_definitions(${name} PRIVATE
     RICCATI_TEST_DATA_DIR="${PROJECT_SOURCE_DIR}/tests/data"
     RICCATI_TEST_PLUGIN_DIR="${RICCATI_PLUGIN_DIR}")
+  if(RICCATI_SANITIZE)
+    # Tests that measure memory (RSS) leave that check out under sanitizers,
+    # whose shadow memory and quarantine make RSS meaningless, and tests that
+    # load the daemon do less work (testing::kSanitized).
+    target_compile_definitions(${name} PRIVATE RICCATI_SANITIZED=1)
+  endif()
   riccati_warnings(${name})
   get_property(plugins GLOBAL PROPERTY RICCATI_MODEL_PLUGINS)
   if(plugins)

@@ -26,6 +26,15 @@
 
 namespace riccati::testing {
 
+// The sanitized build (scripts/sanitize.sh), where everything runs tens of
+// times slower and RSS means nothing: tests that load the daemon with work
+// do less of it there, and memory bounds are not checked.
+#ifdef RICCATI_SANITIZED
+inline constexpr bool kSanitized = true;
+#else
+inline constexpr bool kSanitized = false;
+#endif
+
 class DaemonProcess {
  public:
   // `data_dir` is kept across stop() and start(), so a restart finds its data.
