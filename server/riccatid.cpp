@@ -59,6 +59,13 @@ int main(int argc, char** argv) {
                                   "How often idle workers look for jobs submitted elsewhere (config key job_poll_ms)")
                        ->check(CLI::Range(10L, 60000L))
                        ->capture_default_str();
+  long session_snapshot_s = 1;
+  auto* session_snapshot =
+      app.add_option("--session-snapshot-seconds", session_snapshot_s,
+                     "A streaming session's snapshot is stored at most this often, for another instance to resume it "
+                     "(0: after every message) (config key session_snapshot_s)")
+          ->check(CLI::Range(0L, 3600L))
+          ->capture_default_str();
   auto* metrics_listen = app.add_option("--metrics-listen", flags.metrics_listen,
                                         "Serve Prometheus metrics at http://HOST:PORT/metrics (default: off)");
   auto* log_level =
@@ -78,13 +85,14 @@ int main(int argc, char** argv) {
   app.add_option("--tenant", tenant, "With --hash-token: the tenant the token belongs to");
   // One flag per limit, from the same table as the config keys.
   std::vector<std::pair<const riccati::service::LimitSpec*, CLI::Option*>> limit_flags;
+  const riccati::service::Limits default_limits;
   for (const auto& spec : riccati::service::kLimitSpecs) {
     std::string flag = std::string("--") + spec.key;
     std::replace(flag.begin(), flag.end(), '_', '-');
     limit_flags.emplace_back(&spec, app.add_option(flag, flags.limits.*(spec.value), spec.help)
                                         ->check(CLI::Range(std::int64_t{1}, std::numeric_limits<std::int64_t>::max())
                                                     .description("POSITIVE"))
-                                        ->default_str(std::to_string(DaemonConfig{}.limits.*(spec.value)))
+                                        ->default_str(std::to_string(default_limits.*(spec.value)))
                                         ->group("Limits"));
   }
   CLI11_PARSE(app, argc, argv);
@@ -122,6 +130,7 @@ int main(int argc, char** argv) {
   if (*instance_id) config.job_queue.instance_id = flags.job_queue.instance_id;
   if (*job_lease) config.job_queue.lease = std::chrono::seconds(job_lease_s);
   if (*job_poll) config.job_queue.poll = std::chrono::milliseconds(job_poll_ms);
+  if (*session_snapshot) config.session_snapshot_interval = std::chrono::seconds(session_snapshot_s);
   for (const auto& [spec, option] : limit_flags) {
     if (*option) config.limits.*(spec->value) = flags.limits.*(spec->value);
   }

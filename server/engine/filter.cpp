@@ -161,6 +161,24 @@ Status Filter::reset(double t, const Eigen::VectorXd& z, const Eigen::MatrixXd& 
   return Status::ok();
 }
 
+Status Filter::restore(double t, const Eigen::VectorXd& z, const Eigen::MatrixXd& P, const Eigen::VectorXd& carried) {
+  const Eigen::Index nz = model_->nz();
+  if (z.size() != nz || P.rows() != nz || P.cols() != nz) {
+    return invalid_argument("saved filter state has " + std::to_string(z.size()) + " states and a " +
+                            std::to_string(P.rows()) + " x " + std::to_string(P.cols()) + " covariance, model " +
+                            model_->name() + " has nz = " + std::to_string(nz));
+  }
+  t_ = t;
+  z_ = z;
+  P_ = P;
+  restarted();
+  if (!restore_carried(carried)) {
+    return invalid_argument("saved filter state carries " + std::to_string(carried.size()) +
+                            " values this filter does not expect");
+  }
+  return Status::ok();
+}
+
 Status Filter::step(double t1, const double* u0, const double* u1, const double* y1) {
   RICCATI_RETURN_IF_ERROR(predict(t1, u0, u1));
   return update(y1, u1);

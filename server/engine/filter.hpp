@@ -119,6 +119,16 @@ class Filter {
   // the interval (the optimal filter interpolates it) overrides this.
   virtual Status step(double t1, const double* u0, const double* u1, const double* y1);
 
+  // What the filter keeps between samples besides time(), state() and
+  // covariance() (the optimal filter: its last measurement), so that a
+  // filter restored from those four continues as this one would, bit for
+  // bit. Empty for the EKF and the UKF.
+  virtual Eigen::VectorXd carried_state() const { return {}; }
+  // Puts back what time(), state(), covariance() and carried_state() of a
+  // filter of the same model and settings returned. Only sizes are checked:
+  // the values are a filter's own, kept exactly (even a diverged one's).
+  Status restore(double t, const Eigen::VectorXd& z, const Eigen::MatrixXd& P, const Eigen::VectorXd& carried);
+
   const Model& model() const { return *model_; }
   const FilterSettings& settings() const { return settings_; }
   double time() const { return t_; }
@@ -141,6 +151,8 @@ class Filter {
   // Called at the end of reset(): a filter that keeps more than z and P
   // (the optimal filter's last measurement) clears it here.
   virtual void restarted() {}
+  // restore()'s part for carried_state(); false if `carried` does not fit.
+  virtual bool restore_carried(const Eigen::VectorXd& carried) { return carried.size() == 0; }
 
   // Solves K S = C for the gain K = C S^-1 ([nz x ny]) and the NIS, as the
   // settings' inversion says. Shared by the EKF and the UKF.

@@ -104,6 +104,14 @@ class OptimalFilter final : public Filter {
     p_check_ = Eigen::LLT<Eigen::MatrixXd>(N);
   }
 
+  // [has a measurement (0 or 1); the interval not yet followed by an
+  // update; the last measurement y].
+  Eigen::VectorXd carried_state() const override {
+    Eigen::VectorXd c(2 + y_last_.size());
+    c << (has_measurement_ ? 1.0 : 0.0), interval_, y_last_;
+    return c;
+  }
+
   Status predict(double t1, const double* u0, const double* u1) override {
     return propagate(t1, u0, u1, nullptr);
   }
@@ -138,6 +146,14 @@ class OptimalFilter final : public Filter {
   void restarted() override {
     has_measurement_ = false;
     interval_ = 0.0;
+  }
+
+  bool restore_carried(const Eigen::VectorXd& c) override {
+    if (c.size() != 2 + y_last_.size()) return false;
+    has_measurement_ = c[0] != 0.0;
+    interval_ = c[1];
+    y_last_ = c.tail(y_last_.size());
+    return true;
   }
 
  private:

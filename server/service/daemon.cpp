@@ -51,6 +51,11 @@ Status load_config_file(const std::string& path, DaemonConfig* c) {
         if (c->job_queue.lease < std::chrono::seconds(1)) {
           return invalid_argument("config " + path + ": job_lease_s must be at least 1");
         }
+      } else if (key == "session_snapshot_s") {
+        c->session_snapshot_interval = std::chrono::seconds(v.as<long>());
+        if (c->session_snapshot_interval < std::chrono::seconds(0)) {
+          return invalid_argument("config " + path + ": session_snapshot_s must be at least 0");
+        }
       } else if (key == "job_poll_ms") {
         c->job_queue.poll = std::chrono::milliseconds(v.as<long>());
         if (c->job_queue.poll < std::chrono::milliseconds(10)) {
@@ -131,7 +136,14 @@ Status Daemon::start() {
   queue.exclusive_store = config_.database.empty() || config_.database == "sqlite";
   jobs_ = std::make_unique<JobManager>(*store_, models_, workers, config_.limits, queue, &metrics_);
   RICCATI_RETURN_IF_ERROR(jobs_->start());
-  sessions_ = std::make_unique<SessionManager>(models_, config_.session_idle_timeout, config_.limits);
+  SessionStoreOptions stored_sessions;
+  stored_sessions.instance_id = jobs_->instance_id();
+  stored_sessions.lease = queue.lease;
+  stored_sessions.snapshot_interval = config_.session_snapshot_interval;
+  stored_sessions.exclusive_store = queue.exclusive_store;
+  sessions_ = std::make_unique<SessionManager>(models_, config_.session_idle_timeout, config_.limits, store_.get(),
+                                               stored_sessions);
+  RICCATI_RETURN_IF_ERROR(sessions_->start());
 
   RICCATI_ASSIGN_OR_RETURN(auth_, Authenticator::create(config_.security.tokens_file));
   model_service_ = std::make_unique<ModelServiceImpl>(models_);
@@ -178,9 +190,12 @@ void Daemon::shutdown(std::chrono::milliseconds grace) {
     spdlog::info("riccatid shutting down grace_ms={}", grace.count());
     const auto deadline = std::chrono::steady_clock::now() + grace;
     // Streams and watches would otherwise hold the server until the grace
-    // ends: end them now with UNAVAILABLE. Workers stop between samples; a
-    // running job keeps its per-pass checkpoint and resumes at the next start.
+    // ends: end them now with UNAVAILABLE. Their sessions' snapshots are
+    // stored and released, for any instance to resume. Workers stop between
+    // samples; a running job keeps its per-pass checkpoint and resumes at
+    // the next start.
     session_service_->drain(deadline);
+    sessions_->shutdown();
     if (jobs_ != nullptr) jobs_->shutdown();
     server_->Shutdown(std::chrono::system_clock::now() +
                       std::chrono::duration_cast<std::chrono::system_clock::duration>(

@@ -30,6 +30,9 @@ struct DaemonConfig {
   // The job queue (job_manager.hpp): instance id, lease and poll interval.
   // exclusive_store is set from `database` (SQLite: this instance's alone).
   JobQueueOptions job_queue;
+  // How often a streaming session's snapshot is stored, at most (sessions
+  // use the job queue's instance id and lease).
+  std::chrono::milliseconds session_snapshot_interval{1000};
   Limits limits;
   SecurityConfig security;  // TLS and bearer tokens (auth.hpp)
   std::string metrics_listen;  // host:port of the Prometheus /metrics endpoint; empty: none

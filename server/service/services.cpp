@@ -349,7 +349,9 @@ class SessionServiceImpl::StreamReactor final : public grpc::ServerBidiReactor<v
     }
     spdlog::debug("stream opened registered={}", registered_);
     if (!registered_) {
-      finish({grpc::StatusCode::UNAVAILABLE, "riccatid is shutting down; open the stream again after it restarts"});
+      finish({grpc::StatusCode::UNAVAILABLE,
+              "riccatid is shutting down; open the stream again on another instance, or on this one after it "
+              "restarts"});
       return;
     }
     StartRead(&request_);
@@ -372,6 +374,7 @@ class SessionServiceImpl::StreamReactor final : public grpc::ServerBidiReactor<v
       service_.metrics_.measurement(result->has_estimate(), std::chrono::steady_clock::now() - began);
       if (!diverged_.is_ok()) break;
     }
+    service_.sessions_.after_batch(*session_);  // hands a snapshot to the writer when one is due
     std::lock_guard lock(mu_);
     if (finished_) return;  // drained meanwhile: the status is on its way
     writing_ = true;
@@ -405,8 +408,8 @@ class SessionServiceImpl::StreamReactor final : public grpc::ServerBidiReactor<v
 
   void drain() {
     finish({grpc::StatusCode::UNAVAILABLE,
-            "riccatid is shutting down; the session ends with it: create a session again (from the last estimate) "
-            "after it restarts"});
+            "riccatid is shutting down; the session is stored: open the stream again, on this or another instance "
+            "(GetSession gives its time t: send the measurements after t)"});
   }
 
  private:
@@ -437,9 +440,13 @@ class SessionServiceImpl::StreamReactor final : public grpc::ServerBidiReactor<v
       return;
     }
     finished_ = true;
-    // Detached before the client hears the status, so that a client that
-    // reconnects at once finds the session free.
-    if (session_ != nullptr) session_->detach();
+    // Detached (and its snapshot handed to the writer) before the client
+    // hears the status, so that a client that reconnects at once finds the
+    // session free.
+    if (session_ != nullptr) {
+      session_->detach();
+      service_.sessions_.save(*session_);
+    }
     Finish(status);
   }
 

@@ -8,22 +8,26 @@
 
 namespace riccati::service {
 
-Session::Session(std::string id, std::string tenant, ModelPtr model, std::unique_ptr<Filter> filter,
-                 InitialState initial_state, Eigen::VectorXd x0, Eigen::VectorXd theta0, Eigen::MatrixXd P0)
+Session::Session(std::string id, std::string tenant, v1::CreateSessionRequest request, std::int64_t created_ms,
+                 ModelPtr model, std::unique_ptr<Filter> filter, InitialState initial_state, Eigen::VectorXd x0,
+                 Eigen::VectorXd theta0, Eigen::MatrixXd P0)
     : id_(std::move(id)),
       tenant_(std::move(tenant)),
+      request_(std::move(request)),
       model_(std::move(model)),
       initial_state_(initial_state),
       x0_(std::move(x0)),
       theta0_(std::move(theta0)),
       P0_(std::move(P0)),
-      created_ms_(now_ms()),
+      created_ms_(created_ms),
       filter_(std::move(filter)),
       u_last_(Eigen::VectorXd::Zero(model_->nu())),
       u_(model_->nu()),
       y_(model_->ny()),
       last_active_ms_(created_ms_),
-      last_active_(std::chrono::steady_clock::now()) {}
+      last_active_(std::chrono::steady_clock::now()) {
+  last_snapshot_ = last_active_;
+}
 
 Status Session::attach() {
   std::lock_guard lock(mu_);
@@ -98,6 +102,10 @@ Status Session::process(const v1::Measurement& m, bool full_covariance, v1::Meas
   std::lock_guard lock(mu_);
   out->set_sequence(received_++);
   last_active_ = std::chrono::steady_clock::now();
+  if (!lost_.is_ok()) {
+    *out->mutable_error() = to_error(lost_);
+    return lost_;
+  }
   if (!diverged_.is_ok()) {
     *out->mutable_error() = to_error(diverged_);
     return diverged_;
@@ -152,8 +160,86 @@ v1::SessionInfo Session::info() const {
   return info;
 }
 
-SessionManager::SessionManager(const ModelRegistry& models, std::chrono::seconds idle_timeout, Limits limits)
-    : models_(models), idle_timeout_(idle_timeout), limits_(limits) {
+std::string Session::snapshot(const std::string& instance) const {
+  std::lock_guard lock(mu_);
+  return encode(instance);
+}
+
+std::string Session::encode(const std::string& instance) const {
+  internal::SessionSnapshot out;
+  *out.mutable_request() = request_;
+  out.set_tenant(tenant_);
+  out.set_created_ms(created_ms_);
+  out.set_last_active_ms(last_active_ms_);
+  out.set_instance(instance);
+  out.set_started(started_);
+  if (started_) {
+    out.set_t(filter_->time());
+    copy_values(filter_->state(), out.mutable_z());
+    *out.mutable_p() = to_matrix(filter_->covariance());
+    copy_values(filter_->carried_state(), out.mutable_carried());
+    copy_values(u_last_, out.mutable_u_last());
+  }
+  out.set_received(received_);
+  out.set_accepted(accepted_);
+  if (!diverged_.is_ok()) *out.mutable_diverged() = to_error(diverged_);
+  return out.SerializeAsString();
+}
+
+bool Session::save(const std::string& instance, const std::function<void(std::string)>& sink) {
+  std::lock_guard lock(mu_);
+  if (closed_) return false;
+  sink(encode(instance));
+  received_at_snapshot_ = received_;
+  last_snapshot_ = std::chrono::steady_clock::now();
+  return true;
+}
+
+bool Session::snapshot_due(std::chrono::steady_clock::time_point now, std::chrono::milliseconds interval) const {
+  std::lock_guard lock(mu_);
+  return !closed_ && received_ != received_at_snapshot_ && (!diverged_.is_ok() || now - last_snapshot_ >= interval);
+}
+
+Status Session::restore(const internal::SessionSnapshot& s) {
+  std::lock_guard lock(mu_);
+  const Eigen::Index nz = model_->nz(), nu = model_->nu();
+  if (s.started()) {
+    if (s.z_size() != nz || s.p().rows() != nz || s.p().cols() != nz || s.p().values_size() != nz * nz ||
+        s.u_last_size() != nu) {
+      return internal_error("the snapshot of session " + id_ + " does not fit model " + model_->name());
+    }
+    const Eigen::Map<const Eigen::VectorXd> z(s.z().data(), nz);
+    const Eigen::Map<const Eigen::MatrixXd> P(s.p().values().data(), nz, nz);
+    const Eigen::Map<const Eigen::VectorXd> carried(s.carried().data(), s.carried_size());
+    RICCATI_RETURN_IF_ERROR(filter_->restore(s.t(), z, P, carried).with_context("session " + id_));
+    u_last_ = Eigen::Map<const Eigen::VectorXd>(s.u_last().data(), nu);
+    started_ = true;
+  }
+  received_ = received_at_snapshot_ = s.received();
+  accepted_ = s.accepted();
+  if (s.has_diverged()) {
+    const auto code = s.diverged().code() != 0 ? static_cast<StatusCode>(s.diverged().code())
+                                               : StatusCode::kFailedPrecondition;
+    diverged_ = Status(code, s.diverged().message());
+  }
+  last_active_ms_ = s.last_active_ms();
+  return Status::ok();
+}
+
+void Session::close() {
+  std::lock_guard lock(mu_);
+  closed_ = true;
+}
+
+void Session::lose(const Status& why) {
+  std::lock_guard lock(mu_);
+  closed_ = true;
+  lost_ = why;
+}
+
+SessionManager::SessionManager(const ModelRegistry& models, std::chrono::seconds idle_timeout, Limits limits,
+                               Store* store, SessionStoreOptions options)
+    : models_(models), idle_timeout_(idle_timeout), limits_(limits), store_(store), options_(std::move(options)) {
   reaper_ = std::thread([this] {
     std::unique_lock lock(mu_);
     const auto period = std::max<std::chrono::milliseconds>(std::chrono::milliseconds(200),
@@ -173,10 +259,47 @@ SessionManager::~SessionManager() {
   }
   stop_cv_.notify_all();
   reaper_.join();
+  shutdown();
 }
 
-Result<std::shared_ptr<Session>> SessionManager::create(const std::string& tenant,
-                                                        const v1::CreateSessionRequest& request) {
+Status SessionManager::start() {
+  if (store_ == nullptr) return Status::ok();
+  // This instance's earlier run held these: nobody serves them now, so any
+  // instance (this one too) may resume them at once.
+  RICCATI_ASSIGN_OR_RETURN(const int released,
+                           store_->release_sessions(options_.exclusive_store ? "" : options_.instance_id));
+  if (released > 0) spdlog::info("sessions released count={} (held by an earlier run)", released);
+  spdlog::info("sessions stored instance={} lease_ms={} snapshot_ms={}", options_.instance_id,
+               options_.lease.count(), options_.snapshot_interval.count());
+  writer_ = std::thread([this] { writer_loop(); });
+  return Status::ok();
+}
+
+void SessionManager::shutdown() {
+  if (!writer_.joinable()) return;
+  {
+    std::lock_guard lock(writer_mu_);
+    writer_stopping_ = true;
+  }
+  writer_cv_.notify_all();
+  writer_.join();
+  std::map<std::string, Pending> last;
+  {
+    std::lock_guard lock(writer_mu_);
+    last.swap(pending_);
+  }
+  write(last);
+  auto released = store_->release_sessions(options_.instance_id);
+  if (released.is_ok()) {
+    spdlog::info("sessions released count={}: any instance resumes them", released.value());
+  } else {
+    spdlog::warn("sessions not released error=\"{}\"", released.status().message());
+  }
+}
+
+Result<std::shared_ptr<Session>> SessionManager::build(std::string id, const std::string& tenant,
+                                                       const v1::CreateSessionRequest& request,
+                                                       std::int64_t created_ms) {
   ModelPtr model = models_.find(request.model());
   if (model == nullptr) return not_found("no model \"" + request.model() + "\" is loaded");
   RICCATI_ASSIGN_OR_RETURN(const FilterSettings settings, from_proto(request.filter(), *model));
@@ -201,30 +324,103 @@ Result<std::shared_ptr<Session>> SessionManager::create(const std::string& tenan
   z << (x0.size() == model->nx() ? x0 : Eigen::VectorXd::Zero(model->nx())), theta0;
   Status valid = filter->reset(0.0, z, P0);
   if (!valid.is_ok()) return valid;
+  return std::make_shared<Session>(std::move(id), tenant, request, created_ms, model, std::move(filter), mode, x0,
+                                   theta0, P0);
+}
 
-  auto session = std::make_shared<Session>(new_id("ses"), tenant, model, std::move(filter), mode, x0, theta0, P0);
+Status SessionManager::check_limits(const std::string& tenant) const {
+  if (static_cast<std::int64_t>(sessions_.size()) >= limits_.max_sessions) {
+    return limit_reached("max_sessions", limits_.max_sessions, "riccatid has that many sessions open");
+  }
+  const auto own = std::count_if(sessions_.begin(), sessions_.end(),
+                                 [&](const auto& entry) { return entry.second->tenant() == tenant; });
+  if (own >= limits_.max_tenant_sessions) {
+    return limit_reached("max_tenant_sessions", limits_.max_tenant_sessions,
+                         "this tenant has that many sessions open; close one (CloseSession) first");
+  }
+  return Status::ok();
+}
+
+Result<std::shared_ptr<Session>> SessionManager::create(const std::string& tenant,
+                                                        const v1::CreateSessionRequest& request) {
+  RICCATI_ASSIGN_OR_RETURN(std::shared_ptr<Session> session, build(new_id("ses"), tenant, request, now_ms()));
   {
     std::lock_guard lock(mu_);
-    if (static_cast<std::int64_t>(sessions_.size()) >= limits_.max_sessions) {
-      return limit_reached("max_sessions", limits_.max_sessions, "riccatid has that many sessions open");
-    }
-    const auto own = std::count_if(sessions_.begin(), sessions_.end(),
-                                   [&](const auto& entry) { return entry.second->tenant() == tenant; });
-    if (own >= limits_.max_tenant_sessions) {
-      return limit_reached("max_tenant_sessions", limits_.max_tenant_sessions,
-                           "this tenant has that many sessions open; close one (CloseSession) first");
-    }
+    RICCATI_RETURN_IF_ERROR(check_limits(tenant));
     sessions_[session->id()] = session;
   }
-  spdlog::info("session created id={} model={} tenant={}", session->id(), model->name(), tenant);
+  if (store_ != nullptr) {
+    // Stored before the client hears of it, so any session it knows of can
+    // be resumed elsewhere.
+    const Status stored = store_->put_session_snapshot(tenant, session->id(), options_.instance_id,
+                                                       options_.lease.count(), session->snapshot(options_.instance_id));
+    if (!stored.is_ok()) {
+      std::lock_guard lock(mu_);
+      sessions_.erase(session->id());
+      return stored;
+    }
+  }
+  spdlog::info("session created id={} model={} tenant={}", session->id(), request.model(), tenant);
   return session;
 }
 
 Result<std::shared_ptr<Session>> SessionManager::get(const std::string& tenant, const std::string& id) {
-  std::lock_guard lock(mu_);
-  auto it = sessions_.find(id);
-  if (it == sessions_.end() || it->second->tenant() != tenant) return not_found("no session " + id);
-  return it->second;
+  {
+    std::lock_guard lock(mu_);
+    auto it = sessions_.find(id);
+    if (it != sessions_.end()) {
+      if (it->second->tenant() != tenant) return not_found("no session " + id);
+      return it->second;
+    }
+  }
+  if (store_ == nullptr) return not_found("no session " + id);
+  return resume(tenant, id);
+}
+
+Result<std::shared_ptr<Session>> SessionManager::resume(const std::string& tenant, const std::string& id) {
+  {
+    std::lock_guard lock(mu_);
+    RICCATI_RETURN_IF_ERROR(check_limits(tenant));
+  }
+  RICCATI_ASSIGN_OR_RETURN(const std::string bytes,
+                           store_->claim_session_snapshot(tenant, id, options_.instance_id, options_.lease.count()));
+  internal::SessionSnapshot snapshot;
+  Result<std::shared_ptr<Session>> rebuilt = [&]() -> Result<std::shared_ptr<Session>> {
+    if (!snapshot.ParseFromString(bytes) || snapshot.tenant() != tenant) {
+      return internal_error("its stored snapshot is unreadable");
+    }
+    RICCATI_ASSIGN_OR_RETURN(std::shared_ptr<Session> session,
+                             build(id, tenant, snapshot.request(), snapshot.created_ms()));
+    RICCATI_RETURN_IF_ERROR(session->restore(snapshot));
+    return session;
+  }();
+  const auto give_back = [&] {
+    // Released, for an instance that can (its lease was taken for nothing).
+    std::lock_guard io(io_mu_);
+    (void)store_->put_session_snapshot(tenant, id, options_.instance_id, 0, bytes);
+  };
+  if (!rebuilt.is_ok()) {
+    give_back();
+    spdlog::warn("session not resumed id={} error=\"{}\"", id, rebuilt.status().message());
+    return failed_precondition("session " + id + " cannot be resumed on this instance: " +
+                               rebuilt.status().message());
+  }
+  std::shared_ptr<Session> session = std::move(rebuilt).value();
+  {
+    std::lock_guard lock(mu_);
+    auto it = sessions_.find(id);
+    if (it != sessions_.end()) return it->second;  // resumed by a call at the same time
+    const Status room = check_limits(tenant);
+    if (!room.is_ok()) {
+      give_back();
+      return room;
+    }
+    sessions_[id] = session;
+  }
+  const v1::SessionInfo info = session->info();
+  spdlog::info("session resumed id={} from_instance={} t={} measurements={} tenant={}", id, snapshot.instance(),
+               info.t(), info.measurements(), tenant);
+  return session;
 }
 
 std::vector<std::shared_ptr<Session>> SessionManager::list(const std::string& tenant) {
@@ -237,10 +433,15 @@ std::vector<std::shared_ptr<Session>> SessionManager::list(const std::string& te
 }
 
 Status SessionManager::close(const std::string& tenant, const std::string& id) {
-  std::lock_guard lock(mu_);
-  auto it = sessions_.find(id);
-  if (it == sessions_.end() || it->second->tenant() != tenant) return not_found("no session " + id);
-  sessions_.erase(it);
+  // Through get(): a session stored by a stopped instance is closed too.
+  RICCATI_ASSIGN_OR_RETURN(std::shared_ptr<Session> session, get(tenant, id));
+  {
+    std::lock_guard lock(mu_);
+    auto it = sessions_.find(id);
+    if (it == sessions_.end() || it->second != session) return not_found("no session " + id);
+    sessions_.erase(it);
+  }
+  forget(*session);
   spdlog::info("session closed id={}", id);
   return Status::ok();
 }
@@ -250,20 +451,117 @@ std::size_t SessionManager::size() {
   return sessions_.size();
 }
 
+void SessionManager::after_batch(Session& session) {
+  if (store_ == nullptr) return;
+  if (session.snapshot_due(std::chrono::steady_clock::now(), options_.snapshot_interval)) save(session);
+}
+
+void SessionManager::save(Session& session) {
+  if (store_ == nullptr) return;
+  const bool handed = session.save(options_.instance_id, [&](std::string bytes) {
+    std::lock_guard lock(writer_mu_);
+    pending_[session.id()] = Pending{session.tenant(), std::move(bytes)};
+  });
+  if (handed) writer_cv_.notify_one();
+}
+
+void SessionManager::forget(Session& session) {
+  session.close();  // no snapshot of it is handed over after this
+  if (store_ == nullptr) return;
+  {
+    std::lock_guard lock(writer_mu_);
+    pending_.erase(session.id());
+  }
+  std::lock_guard io(io_mu_);
+  const Status deleted = store_->delete_session_snapshot(session.tenant(), session.id(), options_.instance_id);
+  if (!deleted.is_ok() && deleted.code() != StatusCode::kNotFound) {
+    spdlog::warn("session snapshot not deleted id={} error=\"{}\"", session.id(), deleted.message());
+  }
+}
+
+void SessionManager::writer_loop() {
+  const auto renew_every = std::max<std::chrono::milliseconds>(options_.lease / 3, std::chrono::milliseconds(100));
+  auto next_renewal = std::chrono::steady_clock::now() + renew_every;
+  std::unique_lock lock(writer_mu_);
+  for (;;) {
+    writer_cv_.wait_until(lock, next_renewal, [&] { return writer_stopping_ || !pending_.empty(); });
+    if (writer_stopping_) return;  // shutdown() stores what is pending
+    std::map<std::string, Pending> batch;
+    batch.swap(pending_);
+    lock.unlock();
+    const bool stored = write(batch);
+    if (std::chrono::steady_clock::now() >= next_renewal) {
+      auto renewed = store_->renew_session_leases(options_.instance_id, options_.lease.count());
+      if (!renewed.is_ok()) spdlog::warn("session leases not renewed error=\"{}\"", renewed.status().message());
+      next_renewal = std::chrono::steady_clock::now() + renew_every;
+    }
+    lock.lock();
+    // The store failed: try again a little later, not at once.
+    if (!stored) writer_cv_.wait_for(lock, renew_every, [&] { return writer_stopping_; });
+  }
+}
+
+bool SessionManager::write(std::map<std::string, Pending>& batch) {
+  bool all = true;
+  std::lock_guard io(io_mu_);
+  for (auto& [id, snapshot] : batch) {
+    const Status stored =
+        store_->put_session_snapshot(snapshot.tenant, id, options_.instance_id, options_.lease.count(), snapshot.bytes);
+    if (stored.is_ok()) continue;
+    if (stored.code() == StatusCode::kAborted) {
+      lost(id, stored);
+      continue;
+    }
+    spdlog::warn("session snapshot not stored id={} error=\"{}\"", id, stored.message());
+    if (stored.code() == StatusCode::kNotFound) continue;  // another tenant's id: never ours to store
+    all = false;
+    std::lock_guard lock(writer_mu_);
+    pending_.try_emplace(id, std::move(snapshot));  // unless a newer one came meanwhile
+  }
+  return all;
+}
+
+void SessionManager::lost(const std::string& id, const Status& why) {
+  std::shared_ptr<Session> session;
+  {
+    std::lock_guard lock(mu_);
+    auto it = sessions_.find(id);
+    if (it == sessions_.end()) return;
+    session = it->second;
+    sessions_.erase(it);
+  }
+  session->lose(why);
+  spdlog::warn("session lease lost id={} instance={}: another instance resumed it", id, options_.instance_id);
+}
+
 std::size_t SessionManager::expire_idle() {
   const auto cutoff = std::chrono::steady_clock::now() - idle_timeout_;
-  std::size_t expired = 0;
-  std::lock_guard lock(mu_);
-  for (auto it = sessions_.begin(); it != sessions_.end();) {
-    if (it->second->idle_since(cutoff)) {
-      spdlog::info("session expired id={}", it->first);
-      it = sessions_.erase(it);
-      ++expired;
-    } else {
-      ++it;
+  std::vector<std::shared_ptr<Session>> expired;
+  {
+    std::lock_guard lock(mu_);
+    for (auto it = sessions_.begin(); it != sessions_.end();) {
+      if (it->second->idle_since(cutoff)) {
+        expired.push_back(it->second);
+        it = sessions_.erase(it);
+      } else {
+        ++it;
+      }
     }
   }
-  return expired;
+  for (const auto& session : expired) {
+    spdlog::info("session expired id={}", session->id());
+    forget(*session);
+  }
+  if (store_ != nullptr) {
+    // Sessions of instances that stopped or died, which nobody resumed: they
+    // expire as they would have there.
+    auto abandoned = store_->delete_abandoned_session_snapshots(
+        std::chrono::duration_cast<std::chrono::milliseconds>(idle_timeout_).count());
+    if (abandoned.is_ok() && abandoned.value() > 0) {
+      spdlog::info("session snapshots expired count={} (of stopped instances)", abandoned.value());
+    }
+  }
+  return expired.size();
 }
 
 }  // namespace riccati::service

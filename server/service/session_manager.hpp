@@ -8,6 +8,19 @@
 // values or a time not after the previous one is refused on its own (the
 // session goes on); a filter that diverges closes the session to further
 // measurements and reports why.
+//
+// With a store (the daemon), a session survives its instance: its snapshot
+// (the request, the filter's state, the counters) is stored at creation,
+// when a stream detaches, at most every snapshot interval while streaming,
+// and when it diverges, held by this instance under a lease that is renewed
+// while the instance lives (Store::put_session_snapshot). get() of a session
+// that is not here claims its snapshot and resumes it, bit for bit, so a
+// client whose instance died asks any other (GetSession: t and measurements
+// say where the session stands), re-sends its measurements after t and
+// streams on. A live instance keeps its sessions: another refuses them with
+// FAILED_PRECONDITION naming it. Streams never wait on the database: they
+// hand the encoded snapshot to a writer thread, which keeps only the latest
+// per session.
 #pragma once
 
 #include "service/limits.hpp"
@@ -15,6 +28,7 @@
 #include <chrono>
 #include <condition_variable>
 #include <cstdint>
+#include <functional>
 #include <map>
 #include <memory>
 #include <mutex>
@@ -25,14 +39,17 @@
 #include "engine/filter.hpp"
 #include "engine/identification.hpp"
 #include "engine/plugin_loader.hpp"
+#include "riccati/internal/session_snapshot.pb.h"
 #include "riccati/v1/sessions.pb.h"
+#include "store/store.hpp"
 
 namespace riccati::service {
 
 class Session {
  public:
-  Session(std::string id, std::string tenant, ModelPtr model, std::unique_ptr<Filter> filter,
-          InitialState initial_state, Eigen::VectorXd x0, Eigen::VectorXd theta0, Eigen::MatrixXd P0);
+  Session(std::string id, std::string tenant, v1::CreateSessionRequest request, std::int64_t created_ms,
+          ModelPtr model, std::unique_ptr<Filter> filter, InitialState initial_state, Eigen::VectorXd x0,
+          Eigen::VectorXd theta0, Eigen::MatrixXd P0);
 
   const std::string& id() const { return id_; }
   const std::string& tenant() const { return tenant_; }
@@ -43,19 +60,38 @@ class Session {
   void detach();
 
   // Processes one measurement into `out` (an estimate or an error for it).
-  // Returns non-ok only when the filter diverged: the stream must end with
-  // that status.
+  // Returns non-ok only when the filter diverged, or another instance
+  // resumed the session: the stream must end with that status.
   Status process(const v1::Measurement& m, bool full_covariance, v1::MeasurementResult* out);
 
   v1::SessionInfo info() const;
   bool idle_since(std::chrono::steady_clock::time_point t) const;
 
+  // The session as a snapshot (SessionSnapshot, encoded), stored by `instance`.
+  std::string snapshot(const std::string& instance) const;
+  // Hands a snapshot to `sink` unless the session was closed: under the
+  // session's lock, so that none is handed over after close(). Returns
+  // whether it did.
+  bool save(const std::string& instance, const std::function<void(std::string)>& sink);
+  // Measurements came since the last snapshot and `interval` has passed
+  // since it, or the filter diverged.
+  bool snapshot_due(std::chrono::steady_clock::time_point now, std::chrono::milliseconds interval) const;
+  // Puts back the state of a snapshot of this session.
+  Status restore(const internal::SessionSnapshot& snapshot);
+  // No more snapshots: the session was closed or expired here.
+  void close();
+  // Another instance holds the session now: no more snapshots, and a stream
+  // attached here ends with `why`.
+  void lose(const Status& why);
+
  private:
   Status check(const v1::Measurement& m) const;
   Status step(const v1::Measurement& m);
+  std::string encode(const std::string& instance) const;  // mu_ held
 
   const std::string id_;
   const std::string tenant_;
+  const v1::CreateSessionRequest request_;  // as given: what a snapshot rebuilds the session from
   const ModelPtr model_;
   const InitialState initial_state_;
   const Eigen::VectorXd x0_, theta0_;
@@ -66,38 +102,98 @@ class Session {
   std::unique_ptr<Filter> filter_;
   bool started_ = false;
   bool streaming_ = false;
+  bool closed_ = false;
   Status diverged_;
+  Status lost_;                 // another instance resumed it
   std::uint64_t received_ = 0;  // every measurement, accepted or not
   std::uint64_t accepted_ = 0;
+  std::uint64_t received_at_snapshot_ = 0;
+  std::chrono::steady_clock::time_point last_snapshot_;
   Eigen::VectorXd u_last_;
   Eigen::VectorXd u_, y_;  // scratch for the current measurement
   std::int64_t last_active_ms_;
   std::chrono::steady_clock::time_point last_active_;
 };
 
+// How this instance keeps its sessions in a store shared with others.
+struct SessionStoreOptions {
+  std::string instance_id;                  // the owner of the snapshots stored here (the job queue's)
+  std::chrono::milliseconds lease{15000};   // the job queue's: renewed every third of it
+  std::chrono::milliseconds snapshot_interval{1000};  // at most this often while streaming
+  // The store is this instance's alone (SQLite): at start every lease is
+  // released, whoever held it (an earlier run under another id).
+  bool exclusive_store = true;
+};
+
 class SessionManager {
  public:
-  SessionManager(const ModelRegistry& models, std::chrono::seconds idle_timeout, Limits limits = {});
+  // Without a store, sessions live in memory only.
+  SessionManager(const ModelRegistry& models, std::chrono::seconds idle_timeout, Limits limits = {},
+                 Store* store = nullptr, SessionStoreOptions options = {});
   ~SessionManager();
+  SessionManager(const SessionManager&) = delete;
+  SessionManager& operator=(const SessionManager&) = delete;
+
+  // Releases the leases of this instance's earlier run (every lease, with an
+  // exclusive store) and starts the snapshot writer.
+  Status start();
+  // Stores the pending snapshots, then releases this instance's leases, so
+  // any instance resumes its sessions at once. After the streams ended.
+  void shutdown();
 
   Result<std::shared_ptr<Session>> create(const std::string& tenant, const v1::CreateSessionRequest& request);
+  // A session here, or one resumed from its snapshot in the store.
   Result<std::shared_ptr<Session>> get(const std::string& tenant, const std::string& id);
   std::vector<std::shared_ptr<Session>> list(const std::string& tenant);
   Status close(const std::string& tenant, const std::string& id);
   std::size_t size();
 
+  // After each batch a stream processed: a snapshot if one is due.
+  void after_batch(Session& session);
+  // A snapshot now (a stream detached), stored in the background.
+  void save(Session& session);
+
   // Removes sessions idle for longer than the timeout; returns how many.
   std::size_t expire_idle();
 
  private:
+  struct Pending {
+    std::string tenant;
+    std::string bytes;
+  };
+
+  // A session of `request`, checked as CreateSession checks it, not registered.
+  Result<std::shared_ptr<Session>> build(std::string id, const std::string& tenant,
+                                         const v1::CreateSessionRequest& request, std::int64_t created_ms);
+  // max_sessions and max_tenant_sessions, with mu_ held.
+  Status check_limits(const std::string& tenant) const;
+  Result<std::shared_ptr<Session>> resume(const std::string& tenant, const std::string& id);
+  // Deletes the session's snapshot (closed or expired), after any write of it in flight.
+  void forget(Session& session);
+  void writer_loop();
+  // Stores `batch`; returns false if the store failed (those wait for the next round).
+  bool write(std::map<std::string, Pending>& batch);
+  // Another instance resumed `id`: drop it here.
+  void lost(const std::string& id, const Status& why);
+
   const ModelRegistry& models_;
   const std::chrono::seconds idle_timeout_;
   const Limits limits_;  // max_sessions, max_tenant_sessions
-  std::mutex mu_;
+  Store* const store_;
+  const SessionStoreOptions options_;
+  mutable std::mutex mu_;
   std::map<std::string, std::shared_ptr<Session>> sessions_;
   std::condition_variable stop_cv_;
   bool stopping_ = false;
   std::thread reaper_;
+
+  // The snapshot writer. Lock order: io_mu_, mu_, a session's, writer_mu_.
+  std::mutex writer_mu_;
+  std::condition_variable writer_cv_;
+  std::map<std::string, Pending> pending_;  // the latest snapshot of each session, not yet stored
+  bool writer_stopping_ = false;
+  std::thread writer_;
+  std::mutex io_mu_;  // held while writing or deleting snapshots: a delete follows a write in flight
 };
 
 }  // namespace riccati::service

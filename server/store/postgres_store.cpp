@@ -95,6 +95,12 @@ const std::vector<const char*> kMigrations = {
       ADD COLUMN cancel_requested BOOLEAN NOT NULL DEFAULT false;
     CREATE INDEX jobs_claimable ON jobs (created_ms, seq) WHERE state IN ('queued', 'running');
     )sql",
+    // 3: session snapshots held by an instance under a lease, as jobs are.
+    R"sql(
+    ALTER TABLE session_snapshots ADD COLUMN owner TEXT NOT NULL DEFAULT '',
+      ADD COLUMN lease_until_ms BIGINT NOT NULL DEFAULT 0;
+    CREATE INDEX session_snapshots_by_owner ON session_snapshots (owner);
+    )sql",
 };
 
 // Leases are read against the database's clock, so that instances on hosts
@@ -627,37 +633,95 @@ class PostgresStore final : public Store {
                                      });
   }
 
-  Status put_session_snapshot(const std::string& tenant, const std::string& session_id,
-                              const std::string& snapshot) override {
+  Status put_session_snapshot(const std::string& tenant, const std::string& session_id, const std::string& owner,
+                              std::int64_t lease_ms, const std::string& snapshot) override {
+    // An upsert that sets values: safe to send again on a new connection.
     return run<pqxx::nontransaction>("storing the snapshot of session " + session_id, true, [&](auto& tx) -> Status {
-      // Another tenant's session id updates nothing: NOT_FOUND below.
       const pqxx::result r = tx.exec_params(
-          "INSERT INTO session_snapshots (session_id, tenant, snapshot, updated_ms) VALUES ($1, $2, $3::bytea, "
-          "(extract(epoch FROM clock_timestamp()) * 1000)::bigint) ON CONFLICT (session_id) DO UPDATE SET "
-          "snapshot = excluded.snapshot, updated_ms = excluded.updated_ms WHERE session_snapshots.tenant = "
-          "excluded.tenant",
-          session_id, tenant, pqxx::binarystring(snapshot));
-      if (r.affected_rows() == 0) return not_found("no session " + session_id);
-      return Status::ok();
+          "INSERT INTO session_snapshots (session_id, tenant, snapshot, updated_ms, owner, lease_until_ms) VALUES "
+          "($1, $2, $3::bytea, " RICCATI_PG_NOW_MS ", $4, " RICCATI_PG_NOW_MS " + $5) ON CONFLICT (session_id) DO "
+          "UPDATE SET snapshot = excluded.snapshot, updated_ms = excluded.updated_ms, owner = excluded.owner, "
+          "lease_until_ms = excluded.lease_until_ms WHERE session_snapshots.tenant = excluded.tenant AND "
+          "(session_snapshots.owner = excluded.owner OR session_snapshots.lease_until_ms <= excluded.updated_ms)",
+          session_id, tenant, pqxx::binarystring(snapshot), owner, lease_ms);
+      if (r.affected_rows() > 0) return Status::ok();
+      // Why not: another tenant's id (reads as missing), or another owner's.
+      const pqxx::result held =
+          tx.exec_params("SELECT tenant FROM session_snapshots WHERE session_id = $1", session_id);
+      if (held.empty() || held[0][0].as<std::string>() != tenant) return not_found("no session " + session_id);
+      return session_lease_lost(session_id, owner);
     });
   }
 
-  Result<std::string> get_session_snapshot(const std::string& tenant, const std::string& session_id) override {
+  Result<std::string> claim_session_snapshot(const std::string& tenant, const std::string& session_id,
+                                             const std::string& owner, std::int64_t lease_ms) override {
+    // The row lock orders concurrent claims: the second sees the first's
+    // lease and is refused. Claiming again is harmless (the same owner may).
+    return run<pqxx::nontransaction>("claiming session " + session_id, true, [&](auto& tx) -> Result<std::string> {
+      for (int attempt = 0;; ++attempt) {
+        const pqxx::result r = tx.exec_params(
+            "UPDATE session_snapshots SET owner = $3, lease_until_ms = " RICCATI_PG_NOW_MS
+            " + $4 WHERE session_id = $1 AND tenant = $2 AND (owner = $3 OR lease_until_ms <= " RICCATI_PG_NOW_MS
+            ") RETURNING snapshot",
+            session_id, tenant, owner, lease_ms);
+        if (!r.empty()) return bytes_of(r[0][0]);
+        const pqxx::result held = tx.exec_params(
+            "SELECT owner, lease_until_ms - " RICCATI_PG_NOW_MS
+            " FROM session_snapshots WHERE session_id = $1 AND tenant = $2",
+            session_id, tenant);
+        if (held.empty()) return not_found("no session " + session_id);
+        const auto remaining = held[0][1].as<std::int64_t>();
+        // The lease ended between the two statements: claim again.
+        if (remaining > 0 || attempt > 0) {
+          return session_held_elsewhere(session_id, held[0][0].as<std::string>(), remaining);
+        }
+      }
+    });
+  }
+
+  Result<int> renew_session_leases(const std::string& owner, std::int64_t lease_ms) override {
+    return run<pqxx::nontransaction>("renewing the session leases of " + owner, true, [&](auto& tx) -> Result<int> {
+      const pqxx::result r = tx.exec_params(
+          "UPDATE session_snapshots SET lease_until_ms = " RICCATI_PG_NOW_MS
+          " + $2 WHERE owner = $1 AND lease_until_ms > 0",
+          owner, lease_ms);
+      return static_cast<int>(r.affected_rows());
+    });
+  }
+
+  Result<int> release_sessions(const std::string& owner) override {
     return run<pqxx::nontransaction>(
-        "reading the snapshot of session " + session_id, true, [&](auto& tx) -> Result<std::string> {
+        "releasing the sessions of " + (owner.empty() ? std::string("every instance") : owner), true,
+        [&](auto& tx) -> Result<int> {
           const pqxx::result r = tx.exec_params(
-              "SELECT snapshot FROM session_snapshots WHERE session_id = $1 AND tenant = $2", session_id, tenant);
-          if (r.empty()) return not_found("no snapshot of session " + session_id);
-          return bytes_of(r[0][0]);
+              "UPDATE session_snapshots SET lease_until_ms = 0 WHERE lease_until_ms > 0 AND ($1 = '' OR owner = $1)",
+              owner);
+          return static_cast<int>(r.affected_rows());
         });
   }
 
-  Status delete_session_snapshot(const std::string& tenant, const std::string& session_id) override {
+  Status delete_session_snapshot(const std::string& tenant, const std::string& session_id,
+                                 const std::string& owner) override {
     return run<pqxx::nontransaction>("deleting the snapshot of session " + session_id, false, [&](auto& tx) -> Status {
-      const pqxx::result r =
-          tx.exec_params("DELETE FROM session_snapshots WHERE session_id = $1 AND tenant = $2", session_id, tenant);
-      if (r.affected_rows() == 0) return not_found("no snapshot of session " + session_id);
-      return Status::ok();
+      const pqxx::result r = tx.exec_params(
+          "DELETE FROM session_snapshots WHERE session_id = $1 AND tenant = $2 AND (owner = $3 OR lease_until_ms <= " RICCATI_PG_NOW_MS
+          ")",
+          session_id, tenant, owner);
+      if (r.affected_rows() > 0) return Status::ok();
+      const pqxx::result held = tx.exec_params(
+          "SELECT 1 FROM session_snapshots WHERE session_id = $1 AND tenant = $2", session_id, tenant);
+      if (held.empty()) return not_found("no snapshot of session " + session_id);
+      return session_lease_lost(session_id, owner);
+    });
+  }
+
+  Result<int> delete_abandoned_session_snapshots(std::int64_t idle_ms) override {
+    return run<pqxx::nontransaction>("deleting abandoned session snapshots", true, [&](auto& tx) -> Result<int> {
+      const pqxx::result r = tx.exec_params(
+          "DELETE FROM session_snapshots WHERE lease_until_ms <= " RICCATI_PG_NOW_MS
+          " AND updated_ms < " RICCATI_PG_NOW_MS " - $1",
+          idle_ms);
+      return static_cast<int>(r.affected_rows());
     });
   }
 

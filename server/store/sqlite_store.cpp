@@ -81,6 +81,12 @@ const std::vector<const char*> kMigrations = {
     ALTER TABLE jobs ADD COLUMN lease_until_ms INTEGER NOT NULL DEFAULT 0;
     ALTER TABLE jobs ADD COLUMN cancel_requested INTEGER NOT NULL DEFAULT 0;
     )sql",
+    // 4: session snapshots held by an instance under a lease, as jobs are.
+    R"sql(
+    ALTER TABLE session_snapshots ADD COLUMN owner TEXT NOT NULL DEFAULT '';
+    ALTER TABLE session_snapshots ADD COLUMN lease_until_ms INTEGER NOT NULL DEFAULT 0;
+    CREATE INDEX session_snapshots_by_owner ON session_snapshots (owner);
+    )sql",
 };
 
 // Names never contain the ASCII unit separator, so it can join them.
@@ -532,37 +538,97 @@ class SqliteStore final : public Store {
     return records;
   }
 
-  Status put_session_snapshot(const std::string& tenant, const std::string& session_id,
-                              const std::string& snapshot) override {
+  // Sessions: as for jobs, one process uses a SQLite store and holds mu_
+  // for each call; the transactions make each one all or nothing.
+  Status put_session_snapshot(const std::string& tenant, const std::string& session_id, const std::string& owner,
+                              std::int64_t lease_ms, const std::string& snapshot) override {
+    std::lock_guard lock(mu_);
+    const std::string doing = "storing the snapshot of session " + session_id;
+    return in_transaction([&]() -> Status {
+      const std::int64_t now = wall_clock_ms();
+      Statement q(db_.get(), "SELECT tenant, owner, lease_until_ms FROM session_snapshots WHERE session_id = ?");
+      q.text(session_id);
+      const int rc = q.step();
+      if (rc == SQLITE_ROW) {
+        if (q.column_text(0) != tenant) return not_found("no session " + session_id);  // another tenant's id
+        if (q.column_text(1) != owner && q.column_int(2) > now) return session_lease_lost(session_id, owner);
+      } else if (rc != SQLITE_DONE) {
+        return error(doing);
+      }
+      Statement w(db_.get(),
+                  "INSERT INTO session_snapshots (session_id, tenant, snapshot, updated_ms, owner, lease_until_ms) "
+                  "VALUES (?, ?, ?, ?, ?, ?) ON CONFLICT (session_id) DO UPDATE SET snapshot = excluded.snapshot, "
+                  "updated_ms = excluded.updated_ms, owner = excluded.owner, lease_until_ms = excluded.lease_until_ms");
+      w.text(session_id).text(tenant).blob(snapshot).integer(now).text(owner).integer(now + lease_ms);
+      return done(w, doing);
+    });
+  }
+
+  Result<std::string> claim_session_snapshot(const std::string& tenant, const std::string& session_id,
+                                             const std::string& owner, std::int64_t lease_ms) override {
+    std::lock_guard lock(mu_);
+    const std::string doing = "claiming session " + session_id;
+    return in_transaction([&]() -> Result<std::string> {
+      const std::int64_t now = wall_clock_ms();
+      Statement q(db_.get(),
+                  "SELECT owner, lease_until_ms, snapshot FROM session_snapshots WHERE session_id = ? AND tenant = ?");
+      q.text(session_id).text(tenant);
+      const int rc = q.step();
+      if (rc == SQLITE_DONE) return not_found("no session " + session_id);
+      if (rc != SQLITE_ROW) return error(doing);
+      const std::string holder = q.column_text(0);
+      const std::int64_t until = q.column_int(1);
+      if (holder != owner && until > now) return session_held_elsewhere(session_id, holder, until - now);
+      std::string snapshot = q.column_blob(2);
+      Statement w(db_.get(), "UPDATE session_snapshots SET owner = ?, lease_until_ms = ? WHERE session_id = ?");
+      w.text(owner).integer(now + lease_ms).text(session_id);
+      RICCATI_RETURN_IF_ERROR(done(w, doing));
+      return snapshot;
+    });
+  }
+
+  Result<int> renew_session_leases(const std::string& owner, std::int64_t lease_ms) override {
     std::lock_guard lock(mu_);
     Statement q(db_.get(),
-                "INSERT INTO session_snapshots (session_id, tenant, snapshot, updated_ms) VALUES (?, ?, ?, "
-                "CAST(strftime('%s', 'now') AS INTEGER) * 1000) ON CONFLICT (session_id) DO UPDATE SET "
-                "snapshot = excluded.snapshot, updated_ms = excluded.updated_ms WHERE session_snapshots.tenant = "
-                "excluded.tenant");
-    q.text(session_id).text(tenant).blob(snapshot);
-    RICCATI_RETURN_IF_ERROR(done(q, "storing the snapshot of session " + session_id));
-    if (sqlite3_changes(db_.get()) == 0) return not_found("no session " + session_id);  // another tenant's id
-    return Status::ok();
+                "UPDATE session_snapshots SET lease_until_ms = ? WHERE owner = ? AND lease_until_ms > 0");
+    q.integer(wall_clock_ms() + lease_ms).text(owner);
+    RICCATI_RETURN_IF_ERROR(done(q, "renewing the session leases of " + owner));
+    return sqlite3_changes(db_.get());
   }
 
-  Result<std::string> get_session_snapshot(const std::string& tenant, const std::string& session_id) override {
+  Result<int> release_sessions(const std::string& owner) override {
     std::lock_guard lock(mu_);
-    Statement q(db_.get(), "SELECT snapshot FROM session_snapshots WHERE session_id = ? AND tenant = ?");
-    q.text(session_id).text(tenant);
-    const int rc = q.step();
-    if (rc == SQLITE_DONE) return not_found("no snapshot of session " + session_id);
-    if (rc != SQLITE_ROW) return error("reading the snapshot of session " + session_id);
-    return q.column_blob(0);
+    Statement q(db_.get(), "UPDATE session_snapshots SET lease_until_ms = 0 WHERE lease_until_ms > 0 AND (? = '' OR owner = ?)");
+    q.text(owner).text(owner);
+    RICCATI_RETURN_IF_ERROR(
+        done(q, "releasing the sessions of " + (owner.empty() ? std::string("every instance") : owner)));
+    return sqlite3_changes(db_.get());
   }
 
-  Status delete_session_snapshot(const std::string& tenant, const std::string& session_id) override {
+  Status delete_session_snapshot(const std::string& tenant, const std::string& session_id,
+                                 const std::string& owner) override {
     std::lock_guard lock(mu_);
-    Statement q(db_.get(), "DELETE FROM session_snapshots WHERE session_id = ? AND tenant = ?");
-    q.text(session_id).text(tenant);
-    RICCATI_RETURN_IF_ERROR(done(q, "deleting the snapshot of session " + session_id));
-    if (sqlite3_changes(db_.get()) == 0) return not_found("no snapshot of session " + session_id);
-    return Status::ok();
+    const std::string doing = "deleting the snapshot of session " + session_id;
+    return in_transaction([&]() -> Status {
+      Statement q(db_.get(), "SELECT owner, lease_until_ms FROM session_snapshots WHERE session_id = ? AND tenant = ?");
+      q.text(session_id).text(tenant);
+      const int rc = q.step();
+      if (rc == SQLITE_DONE) return not_found("no snapshot of session " + session_id);
+      if (rc != SQLITE_ROW) return error(doing);
+      if (q.column_text(0) != owner && q.column_int(1) > wall_clock_ms()) return session_lease_lost(session_id, owner);
+      Statement d(db_.get(), "DELETE FROM session_snapshots WHERE session_id = ?");
+      d.text(session_id);
+      return done(d, doing);
+    });
+  }
+
+  Result<int> delete_abandoned_session_snapshots(std::int64_t idle_ms) override {
+    std::lock_guard lock(mu_);
+    const std::int64_t now = wall_clock_ms();
+    Statement q(db_.get(), "DELETE FROM session_snapshots WHERE lease_until_ms <= ? AND updated_ms < ?");
+    q.integer(now).integer(now - idle_ms);
+    RICCATI_RETURN_IF_ERROR(done(q, "deleting abandoned session snapshots"));
+    return sqlite3_changes(db_.get());
   }
 
  private:

@@ -1,5 +1,7 @@
 #include "store/store.hpp"
 
+#include <cstdio>
+
 namespace riccati {
 
 const char* job_state_name(JobState state) {
@@ -28,6 +30,19 @@ bool is_terminal(JobState state) {
 Status job_lease_lost(const std::string& id, const std::string& owner) {
   return {StatusCode::kAborted, "job " + id + " is no longer held by " + owner +
                                     " (it ended, or its lease expired and another instance took it)"};
+}
+
+Status session_lease_lost(const std::string& id, const std::string& owner) {
+  return {StatusCode::kAborted, "session " + id + " is no longer held by " + owner +
+                                    " (its lease expired and another instance resumed it)"};
+}
+
+Status session_held_elsewhere(const std::string& id, const std::string& holder, std::int64_t remaining_ms) {
+  char seconds[32];
+  std::snprintf(seconds, sizeof seconds, "%.1f", static_cast<double>(remaining_ms) / 1000.0);
+  return {StatusCode::kFailedPrecondition,
+          "session " + id + " is held by instance " + holder + " (lease for " + seconds +
+              " s more): open its stream there, or here once that instance has stopped"};
 }
 
 }  // namespace riccati

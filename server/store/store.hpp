@@ -49,6 +49,12 @@ std::optional<JobState> parse_job_state(const std::string& name);
 bool is_terminal(JobState state);
 // ABORTED: `owner` no longer holds job `id` (what renew_job and finish_job return then).
 Status job_lease_lost(const std::string& id, const std::string& owner);
+// ABORTED: `owner` no longer holds session `id` (put_session_snapshot,
+// delete_session_snapshot).
+Status session_lease_lost(const std::string& id, const std::string& owner);
+// FAILED_PRECONDITION: session `id` is held by instance `holder` for
+// `remaining_ms` more (claim_session_snapshot).
+Status session_held_elsewhere(const std::string& id, const std::string& holder, std::int64_t remaining_ms);
 
 struct JobRecord {
   std::string id;
@@ -141,12 +147,44 @@ class Store {
   // The job's pass records, in pass order (none: empty).
   virtual Result<std::vector<std::string>> list_job_passes(const std::string& tenant, const std::string& job_id) = 0;
 
-  // Session snapshots: the latest state of a filter session, replaced on
-  // every put, so that a session can be resumed (opaque bytes).
+  // Session snapshots: the latest state of each filter session (opaque
+  // bytes), so that another instance, or this one after a restart, resumes
+  // it. A session is served by one instance at a time: its snapshot is held
+  // by that instance (`owner`) under a lease the owner renews, as jobs are;
+  // lease times are the store's clock. A lease runs until lease_until_ms;
+  // after that (or once released) any instance may claim the session.
+  //
+  // put_session_snapshot: stores (inserts or replaces) the snapshot, held by
+  // `owner` for `lease_ms` from now. ABORTED (session_lease_lost) if another
+  // owner holds it under a live lease; NOT_FOUND if the id is another
+  // tenant's. A lease_ms of 0 stores it released.
   virtual Status put_session_snapshot(const std::string& tenant, const std::string& session_id,
+                                      const std::string& owner, std::int64_t lease_ms,
                                       const std::string& snapshot) = 0;
-  virtual Result<std::string> get_session_snapshot(const std::string& tenant, const std::string& session_id) = 0;
-  virtual Status delete_session_snapshot(const std::string& tenant, const std::string& session_id) = 0;
+  // Takes the session over: `owner` holds it for `lease_ms` from now and
+  // gets its snapshot. NOT_FOUND if there is none (or it is another
+  // tenant's); FAILED_PRECONDITION naming the holder if another owner's
+  // lease is live. An owner may always claim its own (a restart with the
+  // same instance id).
+  virtual Result<std::string> claim_session_snapshot(const std::string& tenant, const std::string& session_id,
+                                                     const std::string& owner, std::int64_t lease_ms) = 0;
+  // Extends by `lease_ms` from now the leases `owner` holds and has not
+  // released (a released one is taken again by a claim or a put); returns
+  // how many.
+  virtual Result<int> renew_session_leases(const std::string& owner, std::int64_t lease_ms) = 0;
+  // Ends the leases of `owner` now (every owner's when empty: a store that
+  // one instance uses alone, at its start), so that any instance may claim
+  // those sessions at once; returns how many.
+  virtual Result<int> release_sessions(const std::string& owner) = 0;
+  // Deletes the snapshot (the session was closed or expired). NOT_FOUND if
+  // there is none for this tenant; ABORTED, and nothing deleted, if another
+  // owner holds it under a live lease (it was resumed there).
+  virtual Status delete_session_snapshot(const std::string& tenant, const std::string& session_id,
+                                         const std::string& owner) = 0;
+  // Deletes the snapshots that nobody holds (their leases ended) and that
+  // were last stored more than `idle_ms` ago: sessions of instances that
+  // died, which nobody resumed within the idle timeout. Returns how many.
+  virtual Result<int> delete_abandoned_session_snapshots(std::int64_t idle_ms) = 0;
 };
 
 // Opens (creating if needed) the SQLite store in `path` and brings its schema

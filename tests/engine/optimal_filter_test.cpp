@@ -523,6 +523,36 @@ TEST(OptimalFilter, RefusesModelsWithoutAMechanicalFormAndBadWeights) {
   EXPECT_NE(st.message().find("D'VD"), std::string::npos) << st.message();
 }
 
+// What a session snapshot keeps: a new filter restored from time(), state(),
+// covariance() and carried_state() mid-run continues bit for bit.
+TEST_P(CaseC, ARestoredFilterContinuesBitForBit) {
+  const Weights w;
+  const Dataset& d = manipulator_data();
+  auto original = make_filter(manipulator(), optimal_settings(w, GetParam())).value();
+  auto restored = make_filter(manipulator(), optimal_settings(w, GetParam())).value();
+  ASSERT_TRUE(original->reset(d.t[0], w.z0, w.R0.cwiseInverse().asDiagonal()).is_ok());
+  ASSERT_TRUE(original->update(d.y.col(0).data(), d.u.col(0).data()).is_ok());
+  constexpr Eigen::Index kCut = 100, kEnd = 300;
+  for (Eigen::Index k = 1; k <= kCut; ++k) {
+    ASSERT_TRUE(original->step(d.t[k], d.u.col(k - 1).data(), d.u.col(k).data(), d.y.col(k).data()).is_ok());
+  }
+  EXPECT_EQ(restored->restore(0.0, w.z0, w.R0.asDiagonal(), Eigen::VectorXd(1)).code(), StatusCode::kInvalidArgument)
+      << "a carried state of the wrong size";
+  EXPECT_EQ(restored->restore(0.0, w.z0.head(4), w.R0.asDiagonal(), {}).code(), StatusCode::kInvalidArgument);
+  ASSERT_TRUE(restored
+                  ->restore(original->time(), original->state(), original->covariance(),
+                            original->carried_state())
+                  .is_ok());
+  for (Eigen::Index k = kCut + 1; k < kEnd; ++k) {
+    ASSERT_TRUE(original->step(d.t[k], d.u.col(k - 1).data(), d.u.col(k).data(), d.y.col(k).data()).is_ok());
+    ASSERT_TRUE(restored->step(d.t[k], d.u.col(k - 1).data(), d.u.col(k).data(), d.y.col(k).data()).is_ok());
+    ASSERT_TRUE((original->state().array() == restored->state().array()).all()) << "sample " << k;
+    ASSERT_TRUE((original->covariance().array() == restored->covariance().array()).all()) << "sample " << k;
+    ASSERT_TRUE((original->estimated_inputs().array() == restored->estimated_inputs().array()).all());
+    ASSERT_EQ(original->nis(), restored->nis());
+  }
+}
+
 TEST(OptimalFilter, PredictNeedsAMeasurementFirst) {
   const Weights w;
   auto filter = make_filter(manipulator(), optimal_settings(w, OptimalForm::kContinuous)).value();

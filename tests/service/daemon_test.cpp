@@ -469,6 +469,8 @@ TEST_F(DaemonTest, SigtermEndsStreamsAndWatchesWithUnavailableAndExitsCleanly) {
   const grpc::Status stream_status = streamed.get();
   EXPECT_EQ(stream_status.error_code(), grpc::StatusCode::UNAVAILABLE) << stream_status.error_message();
   EXPECT_NE(stream_status.error_message().find("shutting down"), std::string::npos) << stream_status.error_message();
+  EXPECT_NE(stream_status.error_message().find("open the stream again"), std::string::npos)
+      << stream_status.error_message();
   const grpc::Status watch_status = watched.get();
   EXPECT_EQ(watch_status.error_code(), grpc::StatusCode::UNAVAILABLE) << watch_status.error_message();
   EXPECT_NE(watch_status.error_message().find("watch again"), std::string::npos) << watch_status.error_message();
@@ -477,6 +479,87 @@ TEST_F(DaemonTest, SigtermEndsStreamsAndWatchesWithUnavailableAndExitsCleanly) {
   connect();
   const v1::Job done = wait_for(slow.id());
   EXPECT_EQ(done.state(), v1::JOB_STATE_SUCCEEDED) << done.error().message();
+  // The session came back with the restart, as the message said.
+  grpc::ClientContext get_ctx;
+  v1::GetSessionRequest get;
+  get.set_id(session.id());
+  const grpc::Status got = sessions_->GetSession(&get_ctx, get, &session);
+  EXPECT_TRUE(got.ok()) << got.error_message();
+  EXPECT_EQ(session.state(), v1::SESSION_STATE_IDLE);
+}
+
+// An optimal filter session (the manipulator, case C) streamed half way,
+// riccatid restarted on its SQLite store, then the rest: every estimate
+// after the restart is the uninterrupted session's, to the bit.
+TEST_F(DaemonTest, AnOptimalFilterSessionContinuesBitForBitAfterARestart) {
+  const auto data =
+      read_csv_file(kData + "/flexible_manipulator.csv", ColumnMapping{"t", {"T"}, {"s1", "s2"}}).value();
+  auto create = [&] {
+    grpc::ClientContext ctx;
+    v1::SessionInfo info;
+    const grpc::Status s = sessions_->CreateSession(&ctx, testing::manipulator_case_c_session(), &info);
+    EXPECT_TRUE(s.ok()) << s.error_message();
+    return info.id();
+  };
+  // Samples [from, to) in batches of 20 (50 ms of data); the estimates.
+  auto stream = [&](const std::string& id, Eigen::Index from, Eigen::Index to) {
+    grpc::ClientContext ctx;
+    auto rw = sessions_->Stream(&ctx);
+    v1::StreamRequest open;
+    open.mutable_open()->set_session_id(id);
+    EXPECT_TRUE(rw->Write(open));
+    std::vector<v1::Estimate> out;
+    for (Eigen::Index first = from; first < to; first += 20) {
+      v1::StreamRequest batch;
+      for (Eigen::Index k = first; k < std::min(first + 20, to); ++k) testing::add_sample(batch, data, k);
+      v1::StreamResponse response;
+      if (!rw->Write(batch) || !rw->Read(&response)) break;
+      for (const auto& r : response.results()) {
+        EXPECT_TRUE(r.has_estimate()) << r.error().message();
+        out.push_back(r.estimate());
+      }
+    }
+    rw->WritesDone();
+    const grpc::Status s = rw->Finish();
+    EXPECT_TRUE(s.ok()) << s.error_message();
+    return out;
+  };
+  const std::vector<v1::Estimate> reference = stream(create(), 0, data.size());
+  ASSERT_EQ(static_cast<Eigen::Index>(reference.size()), data.size());
+
+  const Eigen::Index half = data.size() / 2;
+  const std::string id = create();
+  ASSERT_EQ(static_cast<Eigen::Index>(stream(id, 0, half).size()), half);
+  EXPECT_EQ(daemon_->stop(), 0);
+  daemon_->start();
+  connect();
+
+  v1::SessionInfo info;
+  {
+    grpc::ClientContext ctx;
+    v1::GetSessionRequest get;
+    get.set_id(id);
+    const grpc::Status s = sessions_->GetSession(&ctx, get, &info);
+    ASSERT_TRUE(s.ok()) << s.error_message();
+  }
+  EXPECT_EQ(info.t(), data.t[half - 1]);
+  EXPECT_EQ(info.measurements(), static_cast<std::uint64_t>(half));
+  const std::vector<v1::Estimate> rest = stream(id, half, data.size());
+  ASSERT_EQ(static_cast<Eigen::Index>(rest.size()), data.size() - half);
+  for (Eigen::Index k = half; k < data.size(); ++k) {
+    const v1::Estimate& e = rest[static_cast<std::size_t>(k - half)];
+    const v1::Estimate& r = reference[static_cast<std::size_t>(k)];
+    ASSERT_EQ(e.t(), r.t());
+    for (int j = 0; j < r.state_size(); ++j) ASSERT_EQ(e.state(j), r.state(j)) << "sample " << k << " state " << j;
+    for (int j = 0; j < r.std_size(); ++j) ASSERT_EQ(e.std(j), r.std(j)) << "sample " << k << " std " << j;
+    for (int j = 0; j < r.estimated_inputs_size(); ++j) {
+      ASSERT_EQ(e.estimated_inputs(j), r.estimated_inputs(j)) << "sample " << k << " input " << j;
+    }
+    for (int j = 0; j < r.residuals_size(); ++j) {
+      ASSERT_EQ(e.residuals(j), r.residuals(j)) << "sample " << k << " residual " << j;
+    }
+    ASSERT_EQ(e.nis(), r.nis()) << "sample " << k;
+  }
 }
 
 // A client that sends and never reads its responses: the daemon stops

@@ -1,4 +1,5 @@
-// Several riccatid sharing one PostgreSQL database: the job queue.
+// Several riccatid sharing one PostgreSQL database: the job queue, and
+// sessions resumed on another instance from their snapshots.
 //
 // Three instances on loopback ports, one worker each, a 2 s lease; 30
 // identification jobs (9 in the sanitized build) submitted round-robin; one
@@ -10,6 +11,7 @@
 #include <gtest/gtest.h>
 
 #include <chrono>
+#include <cstdio>
 #include <fstream>
 #include <map>
 #include <regex>
@@ -20,7 +22,9 @@
 #include "engine/identification.hpp"
 #include "engine/plugin_loader.hpp"
 #include "riccati/v1/datasets.grpc.pb.h"
+#include "riccati/internal/session_snapshot.pb.h"
 #include "riccati/v1/jobs.grpc.pb.h"
+#include "riccati/v1/sessions.grpc.pb.h"
 #include "service/daemon_fixture.hpp"
 #include "support/postgres.hpp"
 #include "support/requests.hpp"
@@ -250,6 +254,270 @@ TEST_F(DistributedTest, OneInstanceRunsTheSameJobs) {
   expect_single_run_results(cluster, ids, ended, 0);
   std::printf("[ distributed ] 1 instance x 1 worker, %d jobs: %.2f s wall\n", kJobs, wall_s);
   RecordProperty("wall_seconds", std::to_string(wall_s));
+}
+
+// ---- Sessions --------------------------------------------------------------
+
+const std::string kAlpha = "alpha-5d2e8c1f9a3b";  // tokens of two tenants
+const std::string kBeta = "beta-7a1c4e9b2f6d";
+
+// The tokens file line of `token`, from riccatid's own --hash-token.
+std::string token_line(const std::string& tenant, const std::string& token) {
+  const std::string command =
+      "echo " + token + " | " + std::string(RICCATI_DAEMON_BIN) + " --hash-token --tenant " + tenant;
+  FILE* out = popen(command.c_str(), "r");
+  std::string line;
+  char buffer[256];
+  while (out != nullptr && std::fgets(buffer, sizeof buffer, out) != nullptr) line += buffer;
+  if (out != nullptr) pclose(out);
+  return line;
+}
+
+std::unique_ptr<grpc::ClientContext> as(const std::string& token) {
+  auto ctx = std::make_unique<grpc::ClientContext>();
+  ctx->AddMetadata("authorization", "Bearer " + token);
+  ctx->set_deadline(std::chrono::system_clock::now() + std::chrono::seconds(60));
+  return ctx;
+}
+
+const Dataset& two_tank_data() {
+  static const Dataset data =
+      read_csv_file(kData + "/two_tank.csv", ColumnMapping{"t", {"F1", "F2"}, {"h1", "h2"}}).value();
+  return data;
+}
+
+// Instance A and B on one PostgreSQL, both serving tenants alpha and beta,
+// a 2 s lease and a snapshot at most every second while streaming.
+class SessionFailoverTest : public ::testing::Test {
+ protected:
+  void SetUp() override {
+    RICCATI_SKIP_WITHOUT_POSTGRES();
+    schema_ = std::make_unique<PostgresSchema>();
+    const auto tokens = dir_.path() / "tokens";
+    std::ofstream(tokens) << token_line("alpha", kAlpha) << token_line("beta", kBeta);
+    for (const std::string name : {"inst-a", "inst-b"}) {
+      auto daemon = std::make_unique<DaemonProcess>(
+          dir_.path() / name,
+          std::vector<std::string>{"--database", schema_->url(), "--instance-id", name, "--tokens-file",
+                                   tokens.string(), "--job-lease-seconds", "2", "--session-snapshot-seconds", "1",
+                                   "--log-level", "info"});
+      logs_.push_back(dir_.path() / (name + ".log"));
+      daemon->set_log_file(logs_.back());
+      daemon->start();
+      stubs_.push_back(v1::SessionService::NewStub(daemon->channel()));
+      daemons_.push_back(std::move(daemon));
+    }
+  }
+
+  DaemonProcess& a() { return *daemons_[0]; }
+  v1::SessionService::Stub& on_a() { return *stubs_[0]; }
+  v1::SessionService::Stub& on_b() { return *stubs_[1]; }
+
+  static std::string create(v1::SessionService::Stub& stub) {
+    v1::SessionInfo info;
+    const grpc::Status s = stub.CreateSession(as(kAlpha).get(), testing::two_tank_session(), &info);
+    EXPECT_TRUE(s.ok()) << s.error_message();
+    return info.id();
+  }
+
+  static grpc::Status get(v1::SessionService::Stub& stub, const std::string& id, v1::SessionInfo* info,
+                          const std::string& token = kAlpha) {
+    v1::GetSessionRequest request;
+    request.set_id(id);
+    return stub.GetSession(as(token).get(), request, info);
+  }
+
+  // Streams samples [from, to) in batches of 50 and ends the stream; the
+  // estimates, in order.
+  static std::vector<v1::Estimate> stream(v1::SessionService::Stub& stub, const std::string& id, Eigen::Index from,
+                                          Eigen::Index to) {
+    auto ctx = as(kAlpha);
+    auto rw = stub.Stream(ctx.get());
+    v1::StreamRequest open;
+    open.mutable_open()->set_session_id(id);
+    EXPECT_TRUE(rw->Write(open));
+    std::vector<v1::Estimate> out;
+    for (Eigen::Index first = from; first < to; first += 50) {
+      v1::StreamRequest batch;
+      for (Eigen::Index k = first; k < std::min(first + 50, to); ++k) testing::add_sample(batch, two_tank_data(), k);
+      v1::StreamResponse response;
+      if (!rw->Write(batch) || !rw->Read(&response)) break;
+      for (const auto& r : response.results()) {
+        EXPECT_TRUE(r.has_estimate()) << r.error().message();
+        out.push_back(r.estimate());
+      }
+    }
+    rw->WritesDone();
+    const grpc::Status s = rw->Finish();
+    EXPECT_TRUE(s.ok()) << s.error_message();
+    return out;
+  }
+
+  // What an uninterrupted session estimates at every sample (on B).
+  static std::vector<v1::Estimate> uninterrupted(v1::SessionService::Stub& stub) {
+    return stream(stub, create(stub), 0, two_tank_data().size());
+  }
+
+  // The session's snapshot in the store (default: none yet).
+  internal::SessionSnapshot stored(const std::string& id) const {
+    internal::SessionSnapshot out;
+    const pqxx::result r = schema_->exec("SELECT snapshot FROM session_snapshots WHERE session_id = '" + id + "'");
+    if (!r.empty()) {
+      EXPECT_TRUE(out.ParseFromString(pqxx::binarystring(r[0][0]).str()));
+    }
+    return out;
+  }
+
+  // GetSession on B until A's lease has expired (FAILED_PRECONDITION naming
+  // A until then), as a client whose instance died does.
+  v1::SessionInfo resume_on_b(const std::string& id) {
+    v1::SessionInfo info;
+    for (int attempt = 0;; ++attempt) {
+      const grpc::Status s = get(on_b(), id, &info);
+      if (s.ok()) return info;
+      EXPECT_EQ(s.error_code(), grpc::StatusCode::FAILED_PRECONDITION) << s.error_message();
+      EXPECT_NE(s.error_message().find("inst-a"), std::string::npos) << s.error_message();
+      if (attempt > 300 || s.error_code() != grpc::StatusCode::FAILED_PRECONDITION) {
+        ADD_FAILURE() << "never resumed on B: " << s.error_message();
+        return info;
+      }
+      std::this_thread::sleep_for(std::chrono::milliseconds(50));
+    }
+  }
+
+  // Estimates of samples first, first + 1, ... equal the uninterrupted
+  // session's, to the bit.
+  static void expect_same(const std::vector<v1::Estimate>& got, const std::vector<v1::Estimate>& reference,
+                          std::size_t first) {
+    ASSERT_EQ(first + got.size(), reference.size());
+    for (std::size_t i = 0; i < got.size(); ++i) {
+      const v1::Estimate& e = got[i];
+      const v1::Estimate& r = reference[first + i];
+      ASSERT_EQ(e.t(), r.t()) << "sample " << first + i;
+      ASSERT_EQ(e.state_size(), r.state_size());
+      for (int j = 0; j < e.state_size(); ++j) ASSERT_EQ(e.state(j), r.state(j)) << "sample " << first + i;
+      for (int j = 0; j < e.std_size(); ++j) ASSERT_EQ(e.std(j), r.std(j)) << "sample " << first + i;
+      for (int j = 0; j < e.innovation_size(); ++j) {
+        ASSERT_EQ(e.innovation(j), r.innovation(j)) << "sample " << first + i;
+        ASSERT_EQ(e.y_predicted(j), r.y_predicted(j)) << "sample " << first + i;
+      }
+      ASSERT_EQ(e.nis(), r.nis()) << "sample " << first + i;
+    }
+  }
+
+  std::string log_of(std::size_t i) const { return read_file(logs_[i]); }
+
+  TempDir dir_;
+  std::unique_ptr<PostgresSchema> schema_;
+  std::vector<std::unique_ptr<DaemonProcess>> daemons_;
+  std::vector<std::unique_ptr<v1::SessionService::Stub>> stubs_;
+  std::vector<std::filesystem::path> logs_;
+};
+
+TEST_F(SessionFailoverTest, ASessionDetachedFromAKilledInstanceContinuesOnAnotherBitForBit) {
+  const Dataset& data = two_tank_data();
+  const std::vector<v1::Estimate> reference = uninterrupted(on_b());
+  ASSERT_EQ(static_cast<Eigen::Index>(reference.size()), data.size());
+
+  const Eigen::Index half = data.size() / 2;
+  const std::string id = create(on_a());
+  ASSERT_EQ(static_cast<Eigen::Index>(stream(on_a(), id, 0, half).size()), half);
+  // The stream's end hands the snapshot to A's writer: wait until it is
+  // stored, then kill A before anything else happens.
+  for (int tries = 0; stored(id).accepted() != static_cast<std::uint64_t>(half); ++tries) {
+    ASSERT_LT(tries, 1000) << "the snapshot at the stream's end was never stored";
+    std::this_thread::sleep_for(std::chrono::milliseconds(10));
+  }
+  EXPECT_EQ(stored(id).instance(), "inst-a");
+  EXPECT_EQ(a().kill_now(), 128 + SIGKILL);
+
+  const v1::SessionInfo info = resume_on_b(id);
+  EXPECT_EQ(info.t(), data.t[half - 1]);
+  EXPECT_EQ(info.measurements(), static_cast<std::uint64_t>(half));
+  EXPECT_EQ(info.state(), v1::SESSION_STATE_IDLE);
+  const std::vector<v1::Estimate> rest = stream(on_b(), id, half, data.size());
+  expect_same(rest, reference, static_cast<std::size_t>(half));
+  EXPECT_NE(log_of(1).find("session resumed id=" + id + " from_instance=inst-a"), std::string::npos) << log_of(1);
+  EXPECT_EQ(stored(id).instance(), "inst-b") << "B stores it now";
+}
+
+TEST_F(SessionFailoverTest, AKillMidStreamResumesFromTheLastSnapshotAndTheClientResendsAfterT) {
+  const Dataset& data = two_tank_data();
+  const std::vector<v1::Estimate> reference = uninterrupted(on_b());
+  const std::string id = create(on_a());
+
+  // Stream in batches of 10 until a snapshot taken mid-stream is stored,
+  // then a few batches more (within the snapshot interval: the store is
+  // behind), and kill A with the stream open.
+  auto ctx = as(kAlpha);
+  auto rw = on_a().Stream(ctx.get());
+  v1::StreamRequest open;
+  open.mutable_open()->set_session_id(id);
+  ASSERT_TRUE(rw->Write(open));
+  Eigen::Index sent = 0;
+  int after_snapshot = -1;
+  while (after_snapshot < 3) {
+    ASSERT_LT(sent + 10, data.size()) << "no snapshot was stored while streaming";
+    v1::StreamRequest batch;
+    for (Eigen::Index k = sent; k < sent + 10; ++k) testing::add_sample(batch, data, k);
+    v1::StreamResponse response;
+    ASSERT_TRUE(rw->Write(batch) && rw->Read(&response));
+    sent += 10;
+    if (after_snapshot >= 0) {
+      ++after_snapshot;
+    } else if (stored(id).accepted() > 0) {
+      after_snapshot = 0;
+    }
+  }
+  EXPECT_EQ(a().kill_now(), 128 + SIGKILL);
+  ctx->TryCancel();
+  (void)rw->Finish();
+
+  const v1::SessionInfo info = resume_on_b(id);
+  ASSERT_GT(info.measurements(), 0u);
+  ASSERT_LT(info.measurements(), static_cast<std::uint64_t>(sent)) << "the last batches came after the snapshot";
+  const auto resumed_at = static_cast<Eigen::Index>(info.measurements());
+  EXPECT_EQ(info.t(), data.t[resumed_at - 1]);
+  // The client re-sends what came after t.
+  const std::vector<v1::Estimate> rest = stream(on_b(), id, resumed_at, data.size());
+  expect_same(rest, reference, static_cast<std::size_t>(resumed_at));
+}
+
+TEST_F(SessionFailoverTest, ALiveInstanceKeepsItsSessionsAndOtherTenantsSeeNone) {
+  const std::string id = create(on_a());
+  ASSERT_EQ(stream(on_a(), id, 0, 100).size(), 100u);
+
+  v1::SessionInfo info;
+  grpc::Status s = get(on_b(), id, &info);
+  EXPECT_EQ(s.error_code(), grpc::StatusCode::FAILED_PRECONDITION) << s.error_message();
+  EXPECT_NE(s.error_message().find("held by instance inst-a"), std::string::npos) << s.error_message();
+  {
+    auto ctx = as(kAlpha);
+    auto rw = on_b().Stream(ctx.get());
+    v1::StreamRequest open;
+    open.mutable_open()->set_session_id(id);
+    rw->Write(open);
+    rw->WritesDone();
+    s = rw->Finish();
+    EXPECT_EQ(s.error_code(), grpc::StatusCode::FAILED_PRECONDITION) << s.error_message();
+    EXPECT_NE(s.error_message().find("inst-a"), std::string::npos) << s.error_message();
+  }
+  // Another tenant: no such session, on either instance, and no hint of where.
+  for (auto* stub : {&on_a(), &on_b()}) {
+    s = get(*stub, id, &info, kBeta);
+    EXPECT_EQ(s.error_code(), grpc::StatusCode::NOT_FOUND) << s.error_message();
+    EXPECT_EQ(s.error_message().find("inst-a"), std::string::npos) << s.error_message();
+  }
+  // A's session is still A's, unchanged.
+  ASSERT_TRUE(get(on_a(), id, &info).ok());
+  EXPECT_EQ(info.measurements(), 100u);
+
+  // A clean stop releases its sessions: B resumes at once, where A left it.
+  EXPECT_EQ(a().stop(), 0);
+  s = get(on_b(), id, &info);
+  ASSERT_TRUE(s.ok()) << s.error_message();
+  EXPECT_EQ(info.measurements(), 100u);
+  EXPECT_EQ(info.t(), two_tank_data().t[99]);
 }
 
 }  // namespace

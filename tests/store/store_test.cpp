@@ -186,7 +186,7 @@ TEST_P(StoreTest, TenantsSeeOnlyTheirOwnRecords) {
   ASSERT_TRUE(store->put_dataset(record_for("ds-a", "alice", d, 1), d).is_ok());
   ASSERT_TRUE(store->put_job(job("job-a", "alice", 1)).is_ok());
   ASSERT_TRUE(store->put_result("alice", "job-a", "result").is_ok());
-  ASSERT_TRUE(store->put_session_snapshot("alice", "ses-a", "snap").is_ok());
+  ASSERT_TRUE(store->put_session_snapshot("alice", "ses-a", "inst-1", 60000, "snap").is_ok());
 
   EXPECT_EQ(store->get_dataset("bob", "ds-a").status().code(), StatusCode::kNotFound);
   EXPECT_EQ(store->load_dataset("bob", "ds-a").status().code(), StatusCode::kNotFound);
@@ -198,14 +198,17 @@ TEST_P(StoreTest, TenantsSeeOnlyTheirOwnRecords) {
   stolen.state = JobState::kCancelled;
   EXPECT_EQ(store->update_job(stolen).code(), StatusCode::kNotFound);
   EXPECT_EQ(store->get_result("bob", "job-a").status().code(), StatusCode::kNotFound);
-  EXPECT_EQ(store->get_session_snapshot("bob", "ses-a").status().code(), StatusCode::kNotFound);
-  EXPECT_EQ(store->put_session_snapshot("bob", "ses-a", "overwrite").code(), StatusCode::kNotFound);
+  // Not even the instance holding it is revealed to another tenant.
+  EXPECT_EQ(store->claim_session_snapshot("bob", "ses-a", "inst-2", 60000).status().code(), StatusCode::kNotFound);
+  EXPECT_EQ(store->claim_session_snapshot("bob", "ses-a", "inst-2", 60000).status().message(), "no session ses-a");
+  EXPECT_EQ(store->put_session_snapshot("bob", "ses-a", "inst-1", 60000, "overwrite").code(), StatusCode::kNotFound);
+  EXPECT_EQ(store->delete_session_snapshot("bob", "ses-a", "inst-1").code(), StatusCode::kNotFound);
   EXPECT_EQ(store->put_result("bob", "job-a", "theirs").code(), StatusCode::kNotFound);
   // Another tenant's id reads exactly as a missing one: no hint that it exists.
   EXPECT_EQ(store->get_job("bob", "job-a").status().message(), "no job job-a");
   // Alice still has everything, unchanged.
   EXPECT_EQ(store->get_job("alice", "job-a").value().state, JobState::kQueued);
-  EXPECT_EQ(store->get_session_snapshot("alice", "ses-a").value(), "snap");
+  EXPECT_EQ(store->claim_session_snapshot("alice", "ses-a", "inst-1", 60000).value(), "snap");
 }
 
 TEST_P(StoreTest, DuplicatesAndMissingRecords) {
@@ -424,6 +427,93 @@ TEST_P(StoreTest, ReleasedJobsAreQueuedAgainAndCancelsReachTheirOwner) {
   EXPECT_EQ(store->cancel_job("t", running.id).value().state, JobState::kCancelled) << "an ended job stays as it is";
 }
 
+TEST_P(StoreTest, ASessionSnapshotIsHeldByOneInstanceUnderALease) {
+  auto store = open();
+  EXPECT_EQ(store->claim_session_snapshot("t", "ses-1", "a", 60000).status().code(), StatusCode::kNotFound);
+  const std::string v1("\x00state 1", 8), v2("\x00state 2", 8);
+  ASSERT_TRUE(store->put_session_snapshot("t", "ses-1", "a", 60000, v1).is_ok());
+  EXPECT_EQ(store->claim_session_snapshot("t", "ses-1", "a", 60000).value(), v1) << "an owner claims its own";
+
+  const auto refused = store->claim_session_snapshot("t", "ses-1", "b", 60000);
+  EXPECT_EQ(refused.status().code(), StatusCode::kFailedPrecondition);
+  EXPECT_NE(refused.status().message().find("held by instance a"), std::string::npos) << refused.status().message();
+  const Status put_b = store->put_session_snapshot("t", "ses-1", "b", 60000, "b's");
+  EXPECT_EQ(put_b.code(), StatusCode::kAborted) << put_b.to_string();
+  EXPECT_NE(put_b.message().find("no longer held by b"), std::string::npos) << put_b.message();
+  EXPECT_EQ(store->delete_session_snapshot("t", "ses-1", "b").code(), StatusCode::kAborted);
+
+  ASSERT_TRUE(store->put_session_snapshot("t", "ses-1", "a", 60000, v2).is_ok());  // replaces
+  EXPECT_EQ(store->claim_session_snapshot("t", "ses-1", "a", 60000).value(), v2);
+  ASSERT_TRUE(store->delete_session_snapshot("t", "ses-1", "a").is_ok());
+  EXPECT_EQ(store->claim_session_snapshot("t", "ses-1", "a", 60000).status().code(), StatusCode::kNotFound);
+  EXPECT_EQ(store->delete_session_snapshot("t", "ses-1", "a").code(), StatusCode::kNotFound);
+}
+
+TEST_P(StoreTest, AnExpiredOrReleasedSessionLeaseIsTakenOverAndItsOldOwnerRefused) {
+  auto store = open();
+  ASSERT_TRUE(store->put_session_snapshot("t", "ses-1", "a", 1, "a's").is_ok());  // a 1 ms lease: "a" died
+  std::this_thread::sleep_for(std::chrono::milliseconds(20));
+  EXPECT_EQ(store->renew_session_leases("b", 60000).value(), 0) << "b holds nothing yet";
+  EXPECT_EQ(store->claim_session_snapshot("t", "ses-1", "b", 60000).value(), "a's");
+  EXPECT_EQ(store->put_session_snapshot("t", "ses-1", "a", 60000, "late").code(), StatusCode::kAborted);
+  EXPECT_EQ(store->delete_session_snapshot("t", "ses-1", "a").code(), StatusCode::kAborted);
+  EXPECT_EQ(store->renew_session_leases("a", 60000).value(), 0) << "a's renewals no longer reach it";
+  ASSERT_TRUE(store->put_session_snapshot("t", "ses-1", "b", 60000, "b's").is_ok());
+  EXPECT_EQ(store->claim_session_snapshot("t", "ses-1", "c", 60000).status().code(), StatusCode::kFailedPrecondition);
+
+  // Released (a clean shutdown): claimable at once, and renewals leave it so.
+  ASSERT_TRUE(store->put_session_snapshot("t", "ses-2", "a", 60000, "two").is_ok());
+  EXPECT_EQ(store->release_sessions("a").value(), 1);
+  EXPECT_EQ(store->renew_session_leases("a", 60000).value(), 0);
+  EXPECT_EQ(store->claim_session_snapshot("t", "ses-2", "c", 60000).value(), "two");
+  EXPECT_EQ(store->claim_session_snapshot("t", "ses-1", "c", 60000).status().code(), StatusCode::kFailedPrecondition)
+      << "b's lease is b's";
+  EXPECT_EQ(store->release_sessions("").value(), 2) << "every owner's";
+  EXPECT_EQ(store->claim_session_snapshot("t", "ses-1", "c", 60000).value(), "b's");
+
+  // A renewal keeps a lease past its first term.
+  ASSERT_TRUE(store->put_session_snapshot("t", "ses-3", "a", 10, "three").is_ok());
+  EXPECT_EQ(store->renew_session_leases("a", 60000).value(), 1);
+  std::this_thread::sleep_for(std::chrono::milliseconds(30));
+  EXPECT_EQ(store->claim_session_snapshot("t", "ses-3", "b", 60000).status().code(), StatusCode::kFailedPrecondition);
+}
+
+TEST_P(StoreTest, ConcurrentClaimsOfASessionHaveOneWinner) {
+  auto store = open();
+  ASSERT_TRUE(store->put_session_snapshot("t", "ses-1", "gone", 0, "snap").is_ok());  // stored released
+  std::vector<Result<std::string>> claimed(4, Status{StatusCode::kInternal, "not run"});
+  std::vector<std::thread> threads;
+  std::latch go(4);
+  for (int w = 0; w < 4; ++w) {
+    threads.emplace_back([&, w] {
+      go.arrive_and_wait();
+      claimed[w] = store->claim_session_snapshot("t", "ses-1", "worker-" + std::to_string(w), 60000);
+    });
+  }
+  for (auto& t : threads) t.join();
+  int won = 0;
+  for (const auto& c : claimed) {
+    if (c.is_ok()) {
+      ++won;
+      EXPECT_EQ(c.value(), "snap");
+    } else {
+      EXPECT_EQ(c.status().code(), StatusCode::kFailedPrecondition) << c.status().to_string();
+    }
+  }
+  EXPECT_EQ(won, 1);
+}
+
+TEST_P(StoreTest, AbandonedSessionSnapshotsAreDeletedAfterTheIdleTime) {
+  auto store = open();
+  ASSERT_TRUE(store->put_session_snapshot("t", "ses-dead", "a", 1, "dead").is_ok());
+  ASSERT_TRUE(store->put_session_snapshot("t", "ses-held", "b", 60000, "held").is_ok());
+  std::this_thread::sleep_for(std::chrono::milliseconds(20));
+  EXPECT_EQ(store->delete_abandoned_session_snapshots(60000).value(), 0) << "stored too recently";
+  EXPECT_EQ(store->delete_abandoned_session_snapshots(5).value(), 1);
+  EXPECT_EQ(store->claim_session_snapshot("t", "ses-dead", "c", 60000).status().code(), StatusCode::kNotFound);
+  EXPECT_EQ(store->claim_session_snapshot("t", "ses-held", "b", 60000).value(), "held");
+}
+
 INSTANTIATE_TEST_SUITE_P(
     Stores, StoreTest,
     ::testing::Values(StoreKind{"sqlite", false, [] { return std::unique_ptr<StorePlace>(new SqlitePlace); }},
@@ -469,7 +559,7 @@ TEST(PostgresStore, StoresOpeningAtOnceOnAnEmptyDatabaseAllSucceed) {
   for (int i = 0; i < kStores; ++i) ASSERT_TRUE(opened[i].is_ok()) << i << ": " << opened[i].status().to_string();
   const pqxx::result versions = schema.exec("SELECT version FROM riccati_schema_migrations ORDER BY version");
   // Each migration applied once, in order.
-  ASSERT_EQ(versions.size(), 2u);
+  ASSERT_EQ(versions.size(), 3u);
   for (int v = 0; v < static_cast<int>(versions.size()); ++v) EXPECT_EQ(versions[v][0].as<int>(), v + 1);
   // And they share one database: what one stores, another reads.
   ASSERT_TRUE(opened[0].value()->put_job_pass("t", "none", 1, "c").code() == StatusCode::kNotFound);
