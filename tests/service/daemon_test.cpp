@@ -625,7 +625,9 @@ TEST_F(DaemonTest, ASlowConsumerIsHeldBackNotBuffered) {
   // buffers, not by what the client sent (5000 x 30 kB of responses).
   std::printf("daemon RSS: %ld KiB before, %ld KiB while the client did not read (%d of %d messages accepted)\n",
               rss_before, rss_held, accepted_unread, kMessages);
-  if (!testing::kSanitized) EXPECT_LT(rss_held - rss_before, 32 * 1024);
+  if (!testing::kSanitized) {
+    EXPECT_LT(rss_held - rss_before, 32 * 1024);
+  }
 }
 
 // Every field of a request is checked before it is used: each bad value is
