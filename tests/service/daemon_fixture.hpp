@@ -5,6 +5,7 @@
 #include <fcntl.h>
 
 #include <grpcpp/grpcpp.h>
+#include <gtest/gtest.h>
 #include <signal.h>
 #include <sys/wait.h>
 #include <unistd.h>
@@ -23,6 +24,8 @@
 #include <vector>
 
 #include "riccati/v1/datasets.grpc.pb.h"
+#include "riccati/v1/sessions.grpc.pb.h"
+#include "support/requests.hpp"
 
 namespace riccati::testing {
 
@@ -185,5 +188,32 @@ class TempDir {
  private:
   std::filesystem::path path_;
 };
+
+// Streams samples [from, to) of `data` into session `id` in messages of
+// `batch`, ends the stream and returns the estimates in order; every
+// measurement is expected to get one.
+inline std::vector<v1::Estimate> stream_samples(v1::SessionService::Stub& sessions, grpc::ClientContext* ctx,
+                                                const std::string& id, const Dataset& data, Eigen::Index from,
+                                                Eigen::Index to, Eigen::Index batch) {
+  auto rw = sessions.Stream(ctx);
+  v1::StreamRequest open;
+  open.mutable_open()->set_session_id(id);
+  EXPECT_TRUE(rw->Write(open));
+  std::vector<v1::Estimate> out;
+  for (Eigen::Index first = from; first < to; first += batch) {
+    v1::StreamRequest request;
+    for (Eigen::Index k = first; k < std::min(first + batch, to); ++k) add_sample(request, data, k);
+    v1::StreamResponse response;
+    if (!rw->Write(request) || !rw->Read(&response)) break;
+    for (const auto& r : response.results()) {
+      EXPECT_TRUE(r.has_estimate()) << r.error().message();
+      out.push_back(r.estimate());
+    }
+  }
+  rw->WritesDone();
+  const grpc::Status s = rw->Finish();
+  EXPECT_TRUE(s.ok()) << s.error_message();
+  return out;
+}
 
 }  // namespace riccati::testing

@@ -504,25 +504,7 @@ TEST_F(DaemonTest, AnOptimalFilterSessionContinuesBitForBitAfterARestart) {
   // Samples [from, to) in batches of 20 (50 ms of data); the estimates.
   auto stream = [&](const std::string& id, Eigen::Index from, Eigen::Index to) {
     grpc::ClientContext ctx;
-    auto rw = sessions_->Stream(&ctx);
-    v1::StreamRequest open;
-    open.mutable_open()->set_session_id(id);
-    EXPECT_TRUE(rw->Write(open));
-    std::vector<v1::Estimate> out;
-    for (Eigen::Index first = from; first < to; first += 20) {
-      v1::StreamRequest batch;
-      for (Eigen::Index k = first; k < std::min(first + 20, to); ++k) testing::add_sample(batch, data, k);
-      v1::StreamResponse response;
-      if (!rw->Write(batch) || !rw->Read(&response)) break;
-      for (const auto& r : response.results()) {
-        EXPECT_TRUE(r.has_estimate()) << r.error().message();
-        out.push_back(r.estimate());
-      }
-    }
-    rw->WritesDone();
-    const grpc::Status s = rw->Finish();
-    EXPECT_TRUE(s.ok()) << s.error_message();
-    return out;
+    return testing::stream_samples(*sessions_, &ctx, id, data, from, to, 20);
   };
   const std::vector<v1::Estimate> reference = stream(create(), 0, data.size());
   ASSERT_EQ(static_cast<Eigen::Index>(reference.size()), data.size());

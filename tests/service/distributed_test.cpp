@@ -332,25 +332,7 @@ class SessionFailoverTest : public ::testing::Test {
   static std::vector<v1::Estimate> stream(v1::SessionService::Stub& stub, const std::string& id, Eigen::Index from,
                                           Eigen::Index to) {
     auto ctx = as(kAlpha);
-    auto rw = stub.Stream(ctx.get());
-    v1::StreamRequest open;
-    open.mutable_open()->set_session_id(id);
-    EXPECT_TRUE(rw->Write(open));
-    std::vector<v1::Estimate> out;
-    for (Eigen::Index first = from; first < to; first += 50) {
-      v1::StreamRequest batch;
-      for (Eigen::Index k = first; k < std::min(first + 50, to); ++k) testing::add_sample(batch, two_tank_data(), k);
-      v1::StreamResponse response;
-      if (!rw->Write(batch) || !rw->Read(&response)) break;
-      for (const auto& r : response.results()) {
-        EXPECT_TRUE(r.has_estimate()) << r.error().message();
-        out.push_back(r.estimate());
-      }
-    }
-    rw->WritesDone();
-    const grpc::Status s = rw->Finish();
-    EXPECT_TRUE(s.ok()) << s.error_message();
-    return out;
+    return testing::stream_samples(stub, ctx.get(), id, two_tank_data(), from, to, 50);
   }
 
   // What an uninterrupted session estimates at every sample (on B).
