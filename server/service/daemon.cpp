@@ -141,6 +141,7 @@ Status Daemon::start() {
   stored_sessions.lease = queue.lease;
   stored_sessions.snapshot_interval = config_.session_snapshot_interval;
   stored_sessions.exclusive_store = queue.exclusive_store;
+  stored_sessions.metrics = &metrics_;
   sessions_ = std::make_unique<SessionManager>(models_, config_.session_idle_timeout, config_.limits, store_.get(),
                                                stored_sessions);
   RICCATI_RETURN_IF_ERROR(sessions_->start());

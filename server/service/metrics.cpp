@@ -122,6 +122,17 @@ Metrics::Metrics() : registry_(std::make_shared<prometheus::Registry>()), scrape
                        .Help("Time to process one streamed measurement (check, filter step, estimate)")
                        .Register(*registry_)
                        .Add({}, exponential(5e-6, 2.0, 15));
+  auto& snapshots = prometheus::BuildCounter()
+                        .Name("riccati_session_snapshots_total")
+                        .Help("Session snapshots written to the store: stored, or failed (retried, or the session lost)")
+                        .Register(*registry_);
+  snapshots_stored_ = &snapshots.Add({{"outcome", "stored"}});
+  snapshots_failed_ = &snapshots.Add({{"outcome", "failed"}});
+  sessions_resumed_ = &prometheus::BuildCounter()
+                           .Name("riccati_sessions_resumed_total")
+                           .Help("Sessions this instance resumed from their snapshot (another instance's, or an earlier run's)")
+                           .Register(*registry_)
+                           .Add({});
   jobs_ended_ = &prometheus::BuildCounter()
                      .Name("riccati_jobs_ended_total")
                      .Help("Jobs this instance ended, by kind and final state")
@@ -158,6 +169,10 @@ Result<int> Metrics::serve(const std::string& address) {
 }
 
 void Metrics::stop_serving() { exposer_.reset(); }
+
+void Metrics::session_snapshot(bool stored) { (stored ? snapshots_stored_ : snapshots_failed_)->Increment(); }
+
+void Metrics::session_resumed() { sessions_resumed_->Increment(); }
 
 void Metrics::measurement(bool estimated, std::chrono::steady_clock::duration step) {
   (estimated ? estimated_ : refused_)->Increment();

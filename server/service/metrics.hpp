@@ -6,6 +6,8 @@
 //   riccati_measurements_total{outcome}      estimated / refused (sessions)
 //   riccati_measurement_seconds              filter step per measurement (histogram)
 //   riccati_sessions_open                    at scrape time
+//   riccati_session_snapshots_total{outcome} stored / failed (sessions' snapshots in the store)
+//   riccati_sessions_resumed_total           sessions this instance resumed from a snapshot
 //   riccati_jobs{state}                      queued / running in the store, at scrape time
 //   riccati_jobs_ended_total{kind,state}     jobs this instance ended
 //   riccati_job_seconds{kind}                claim to end, on this instance (histogram)
@@ -52,6 +54,8 @@ class Metrics {
   void stop_serving();
 
   void measurement(bool estimated, std::chrono::steady_clock::duration step);
+  void session_snapshot(bool stored);
+  void session_resumed();
   void job_ended(const std::string& kind, JobState state, std::chrono::steady_clock::duration took);
   void rpc_finished(const std::string& method, int code);
 
@@ -66,6 +70,9 @@ class Metrics {
   prometheus::Counter* estimated_;
   prometheus::Counter* refused_;
   prometheus::Histogram* step_seconds_;
+  prometheus::Counter* snapshots_stored_;
+  prometheus::Counter* snapshots_failed_;
+  prometheus::Counter* sessions_resumed_;
   prometheus::Family<prometheus::Counter>* jobs_ended_;
   prometheus::Family<prometheus::Histogram>* job_seconds_;
   std::unique_ptr<prometheus::Exposer> exposer_;

@@ -354,6 +354,7 @@ Result<std::shared_ptr<Session>> SessionManager::create(const std::string& tenan
     // be resumed elsewhere.
     const Status stored = store_->put_session_snapshot(tenant, session->id(), options_.instance_id,
                                                        options_.lease.count(), session->snapshot(options_.instance_id));
+    counted(stored);
     if (!stored.is_ok()) {
       std::lock_guard lock(mu_);
       sessions_.erase(session->id());
@@ -420,6 +421,7 @@ Result<std::shared_ptr<Session>> SessionManager::resume(const std::string& tenan
   const v1::SessionInfo info = session->info();
   spdlog::info("session resumed id={} from_instance={} t={} measurements={} tenant={}", id, snapshot.instance(),
                info.t(), info.measurements(), tenant);
+  if (options_.metrics != nullptr) options_.metrics->session_resumed();
   return session;
 }
 
@@ -501,12 +503,17 @@ void SessionManager::writer_loop() {
   }
 }
 
+void SessionManager::counted(const Status& stored) const {
+  if (options_.metrics != nullptr) options_.metrics->session_snapshot(stored.is_ok());
+}
+
 bool SessionManager::write(std::map<std::string, Pending>& batch) {
   bool all = true;
   std::lock_guard io(io_mu_);
   for (auto& [id, snapshot] : batch) {
     const Status stored =
         store_->put_session_snapshot(snapshot.tenant, id, options_.instance_id, options_.lease.count(), snapshot.bytes);
+    counted(stored);
     if (stored.is_ok()) continue;
     if (stored.code() == StatusCode::kAborted) {
       lost(id, stored);

@@ -24,6 +24,7 @@
 #pragma once
 
 #include "service/limits.hpp"
+#include "service/metrics.hpp"
 
 #include <chrono>
 #include <condition_variable>
@@ -123,6 +124,7 @@ struct SessionStoreOptions {
   // The store is this instance's alone (SQLite): at start every lease is
   // released, whoever held it (an earlier run under another id).
   bool exclusive_store = true;
+  Metrics* metrics = nullptr;  // counts snapshots stored or failed and sessions resumed; may be null
 };
 
 class SessionManager {
@@ -175,6 +177,8 @@ class SessionManager {
   bool write(std::map<std::string, Pending>& batch);
   // Another instance resumed `id`: drop it here.
   void lost(const std::string& id, const Status& why);
+  // Counts a snapshot put, stored or failed (metrics).
+  void counted(const Status& stored) const;
 
   const ModelRegistry& models_;
   const std::chrono::seconds idle_timeout_;

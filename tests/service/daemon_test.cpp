@@ -1194,8 +1194,17 @@ TEST(DaemonMetrics, ThePrometheusEndpointCountsWhatHappened) {
     ASSERT_EQ(state.state(), v1::JOB_STATE_SUCCEEDED);
   }
 
-  const std::string page = http_get(port, "/metrics");
+  // The session's snapshots: one at its creation (before the client heard
+  // of it), one when its stream ended (by the writer thread: waited for).
+  std::string page = http_get(port, "/metrics");
+  for (int i = 0; i < 100 && sample_value(page, R"(riccati_session_snapshots_total{outcome="stored"})") < 2; ++i) {
+    std::this_thread::sleep_for(std::chrono::milliseconds(50));
+    page = http_get(port, "/metrics");
+  }
   ASSERT_FALSE(page.empty()) << "no metrics on port " << port;
+  EXPECT_EQ(sample_value(page, R"(riccati_session_snapshots_total{outcome="stored"})"), 2) << page;
+  EXPECT_EQ(sample_value(page, R"(riccati_session_snapshots_total{outcome="failed"})"), 0);
+  EXPECT_EQ(sample_value(page, "riccati_sessions_resumed_total"), 0);
   EXPECT_EQ(sample_value(page, R"(riccati_measurements_total{outcome="estimated"})"), 6) << page;
   EXPECT_EQ(sample_value(page, R"(riccati_measurements_total{outcome="refused"})"), 1);
   EXPECT_EQ(sample_value(page, "riccati_measurement_seconds_count"), 7);
@@ -1209,6 +1218,21 @@ TEST(DaemonMetrics, ThePrometheusEndpointCountsWhatHappened) {
   EXPECT_EQ(sample_value(page, R"(riccati_rpc_total{code="OK",method="/riccati.v1.SessionService/Stream"})"), 1);
   EXPECT_EQ(sample_value(page, R"(riccati_rpc_total{code="OK",method="/riccati.v1.DatasetService/UploadDataset"})"),
             1);
+  EXPECT_EQ(daemon.stop(), 0);
+
+  // Restarted, the daemon resumes the session from its snapshot when asked.
+  daemon.start();
+  sessions = v1::SessionService::NewStub(daemon.channel());
+  {
+    grpc::ClientContext ctx;
+    v1::GetSessionRequest get;
+    get.set_id(session.id());
+    v1::SessionInfo resumed;
+    ASSERT_TRUE(sessions->GetSession(&ctx, get, &resumed).ok());
+    EXPECT_EQ(resumed.measurements(), 6u);
+  }
+  page = http_get(port, "/metrics");
+  EXPECT_EQ(sample_value(page, "riccati_sessions_resumed_total"), 1) << page;
   EXPECT_EQ(daemon.stop(), 0);
 }
 
