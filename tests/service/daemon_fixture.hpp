@@ -150,25 +150,40 @@ class DaemonProcess {
   std::shared_ptr<grpc::Channel> channel_;
 };
 
-// Uploads `bytes` as one dataset, in 64 KiB chunks, as the CLI does.
-inline grpc::Status upload_dataset(v1::DatasetService::Stub& datasets, const std::string& name,
-                                   const std::string& bytes, const std::vector<std::string>& inputs,
-                                   const std::vector<std::string>& outputs, v1::DatasetInfo* info) {
-  grpc::ClientContext ctx;
-  auto writer = datasets.UploadDataset(&ctx, info);
+// The first message of an upload: the file's name and its column mapping.
+inline v1::UploadDatasetRequest upload_header(const std::string& name, const std::vector<std::string>& inputs,
+                                              const std::vector<std::string>& outputs) {
   v1::UploadDatasetRequest header;
   header.mutable_header()->set_name(name);
   for (const auto& i : inputs) header.mutable_header()->add_input_columns(i);
   for (const auto& o : outputs) header.mutable_header()->add_output_columns(o);
-  writer->Write(header);
-  constexpr std::size_t kChunk = 64 * 1024;
-  for (std::size_t at = 0; at < bytes.size(); at += kChunk) {
-    v1::UploadDatasetRequest chunk;
-    chunk.set_chunk(bytes.substr(at, kChunk));
-    writer->Write(chunk);
+  return header;
+}
+
+// Uploads `bytes` as the file `name` in chunks of `chunk_size`, on `ctx`
+// (which may carry a tenant's token); the status of the upload.
+inline grpc::Status upload_dataset(v1::DatasetService::Stub& datasets, grpc::ClientContext* ctx,
+                                   const std::string& name, const std::string& bytes,
+                                   const std::vector<std::string>& inputs, const std::vector<std::string>& outputs,
+                                   v1::DatasetInfo* info, std::size_t chunk_size = 64 * 1024) {
+  auto writer = datasets.UploadDataset(ctx, info);
+  if (writer->Write(upload_header(name, inputs, outputs))) {
+    for (std::size_t at = 0; at < bytes.size(); at += chunk_size) {
+      v1::UploadDatasetRequest chunk;
+      chunk.set_chunk(bytes.substr(at, chunk_size));
+      if (!writer->Write(chunk)) break;  // refused: Finish() says why
+    }
   }
   writer->WritesDone();
   return writer->Finish();
+}
+
+// The same without a token, in 64 KiB chunks, as the CLI does.
+inline grpc::Status upload_dataset(v1::DatasetService::Stub& datasets, const std::string& name,
+                                   const std::string& bytes, const std::vector<std::string>& inputs,
+                                   const std::vector<std::string>& outputs, v1::DatasetInfo* info) {
+  grpc::ClientContext ctx;
+  return upload_dataset(datasets, &ctx, name, bytes, inputs, outputs, info);
 }
 
 // A fresh directory under the system's temp directory, removed at the end.

@@ -738,10 +738,8 @@ TEST(DaemonFaults, AFailingModelEndsOnlyItsOwnSessionAndJob) {
     grpc::ClientContext ctx;
     v1::DatasetInfo info;
     auto writer = datasets->UploadDataset(&ctx, &info);
+    writer->Write(testing::upload_header("nan.csv", {}, {"position"}));
     v1::UploadDatasetRequest part;
-    part.mutable_header()->set_name("nan.csv");
-    part.mutable_header()->add_output_columns("position");
-    writer->Write(part);
     part.set_chunk("t,position\n0,0\n0.1,0\n0.2,0\n");
     writer->Write(part);
     writer->WritesDone();
@@ -1040,11 +1038,7 @@ TEST_F(DaemonTest, ClientDeadlinesAndCancellationEndOnlyTheirOwnCall) {
     grpc::ClientContext ctx;
     v1::DatasetInfo info;
     auto writer = datasets_->UploadDataset(&ctx, &info);
-    v1::UploadDatasetRequest header;
-    header.mutable_header()->set_name("cut.csv");
-    for (const char* i : {"F1", "F2"}) header.mutable_header()->add_input_columns(i);
-    for (const char* o : {"h1", "h2"}) header.mutable_header()->add_output_columns(o);
-    ASSERT_TRUE(writer->Write(header));
+    ASSERT_TRUE(writer->Write(testing::upload_header("cut.csv", {"F1", "F2"}, {"h1", "h2"})));
     v1::UploadDatasetRequest chunk;
     const std::string csv = read_file(kData + "/two_tank.csv");
     chunk.set_chunk(csv.substr(0, csv.find('\n', 4096) + 1));  // whole lines: a parsable start

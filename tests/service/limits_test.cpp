@@ -62,19 +62,8 @@ class LimitsTest : public ::testing::Test {
   grpc::Status upload(const std::string& tenant, const std::string& bytes, v1::DatasetInfo* info,
                       std::size_t chunk_size = 64 << 10) {
     auto ctx = as(tenant);
-    auto writer = datasets_->UploadDataset(ctx.get(), info);
-    v1::UploadDatasetRequest header;
-    header.mutable_header()->set_name("data.csv");
-    for (const char* i : {"F1", "F2"}) header.mutable_header()->add_input_columns(i);
-    for (const char* o : {"h1", "h2"}) header.mutable_header()->add_output_columns(o);
-    writer->Write(header);
-    for (std::size_t at = 0; at < bytes.size(); at += chunk_size) {
-      v1::UploadDatasetRequest chunk;
-      chunk.set_chunk(bytes.substr(at, chunk_size));
-      if (!writer->Write(chunk)) break;
-    }
-    writer->WritesDone();
-    return writer->Finish();
+    return testing::upload_dataset(*datasets_, ctx.get(), "data.csv", bytes, {"F1", "F2"}, {"h1", "h2"}, info,
+                                   chunk_size);
   }
 
   static void expect_limit(const grpc::Status& s, const std::string& limit) {

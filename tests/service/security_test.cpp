@@ -82,17 +82,8 @@ class TokensTest : public ::testing::Test {
   std::string upload_two_tank(const std::string& token) {
     auto ctx = as(token);
     v1::DatasetInfo info;
-    auto writer = datasets_->UploadDataset(ctx.get(), &info);
-    v1::UploadDatasetRequest header;
-    header.mutable_header()->set_name("two_tank.csv");
-    for (const char* i : {"F1", "F2"}) header.mutable_header()->add_input_columns(i);
-    for (const char* o : {"h1", "h2"}) header.mutable_header()->add_output_columns(o);
-    writer->Write(header);
-    v1::UploadDatasetRequest chunk;
-    chunk.set_chunk(read_file(kData + "/two_tank.csv"));
-    writer->Write(chunk);
-    writer->WritesDone();
-    const grpc::Status s = writer->Finish();
+    const grpc::Status s = testing::upload_dataset(*datasets_, ctx.get(), "two_tank.csv",
+                                                   read_file(kData + "/two_tank.csv"), {"F1", "F2"}, {"h1", "h2"}, &info);
     EXPECT_TRUE(s.ok()) << s.error_message();
     return info.id();
   }

@@ -52,18 +52,8 @@ TEST(Soak, SessionsAndJobsForMinutesWithoutErrorsOrMemoryGrowth) {
     std::ifstream in(csv_path);
     std::stringstream bytes;
     bytes << in.rdbuf();
-    grpc::ClientContext ctx;
     v1::DatasetInfo info;
-    auto writer = datasets->UploadDataset(&ctx, &info);
-    v1::UploadDatasetRequest part;
-    part.mutable_header()->set_name("two_tank.csv");
-    for (const char* i : {"F1", "F2"}) part.mutable_header()->add_input_columns(i);
-    for (const char* o : {"h1", "h2"}) part.mutable_header()->add_output_columns(o);
-    writer->Write(part);
-    part.set_chunk(bytes.str());
-    writer->Write(part);
-    writer->WritesDone();
-    ASSERT_TRUE(writer->Finish().ok());
+    ASSERT_TRUE(testing::upload_dataset(*datasets, "two_tank.csv", bytes.str(), {"F1", "F2"}, {"h1", "h2"}, &info).ok());
     dataset_id = info.id();
   }
 
