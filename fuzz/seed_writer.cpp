@@ -11,6 +11,7 @@
 
 #include "riccati/v1/jobs.pb.h"
 #include "riccati/v1/sessions.pb.h"
+#include "support/mat_files.hpp"
 #include "support/requests.hpp"
 
 namespace fs = std::filesystem;
@@ -83,6 +84,16 @@ int main(int argc, char** argv) {
       !write_mat(out / "mat/v5_zlib.mat", MAT_FT_MAT5, MAT_COMPRESSION_ZLIB, 8)) {
     std::fprintf(stderr, "seed_writer: could not write the MAT seeds\n");
     return 1;
+  }
+  // Variables beside T and Y that the reader must skip: a struct and a cell.
+  {
+    namespace mat5 = riccati::testing::mat5;
+    const std::string notes = mat5::struct_with_empty_field("notes", "rig");
+    const std::string labels = mat5::cell("labels", {1, 1}, mat5::numeric_matrix({"", {1, 1}, {1.0}}));
+    const std::vector<riccati::testing::MatVariable> variables = {{"T", {1, 3}, {0, 1, 2}}, {"Y", {1, 3}, {1, 2, 3}}};
+    write_file(out / "mat/others.mat", riccati::testing::mat5_file(variables, false, notes + labels));
+    write_file(out / "mat/others_zlib.mat",
+               riccati::testing::mat5_file(variables, true, mat5::compressed(notes) + mat5::compressed(labels)));
   }
 
   using namespace riccati;

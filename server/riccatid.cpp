@@ -32,7 +32,7 @@ int main(int argc, char** argv) {
   // (scripts/gen-config-reference.sh).
   auto* listen = app.add_option("--listen", flags.listen, "Address to listen on (host:port; port 0: any free)")
                      ->capture_default_str();
-  auto* data_dir = app.add_option("--data-dir", flags.data_dir, "Directory of the SQLite database and scratch files")
+  auto* data_dir = app.add_option("--data-dir", flags.data_dir, "Directory of the SQLite database")
                        ->capture_default_str();
   auto* database = app.add_option("--database", flags.database,
                                   "sqlite (default: riccati.db in the data directory) or a PostgreSQL URL, "

@@ -166,7 +166,7 @@ int main(int argc, char** argv) {
   data->require_subcommand(1);
   UploadOptions upload;
   auto* upload_cmd = data->add_subcommand("upload", "Upload a CSV or MAT file");
-  upload_cmd->add_option("file", upload.file, "CSV (header row) or MAT (T, U, Y) file")->required();
+  upload_cmd->add_option("file", upload.file, "CSV (header row) or MAT file (level 5, as MATLAB saves with -v7; variables T, U, Y)")->required();
   upload_cmd->add_option("--inputs", upload.inputs, "Input columns")->delimiter(',');
   upload_cmd->add_option("--outputs", upload.outputs, "Output columns")->delimiter(',')->required();
   upload_cmd->add_option("--time", upload.time, "Time column")->capture_default_str();

@@ -1,7 +1,8 @@
 #include "engine/dataset.hpp"
 
 #include <matio.h>
-#include <zlib.h>
+#include <sys/mman.h>
+#include <unistd.h>
 
 #include <algorithm>
 #include <array>
@@ -9,6 +10,7 @@
 #include <cerrno>
 #include <charconv>
 #include <cmath>
+#include <cstring>
 #include <cstdint>
 #include <filesystem>
 #include <fstream>
@@ -18,6 +20,8 @@
 #include <system_error>
 #include <utility>
 #include <vector>
+
+#include "engine/mat_screen.hpp"
 
 namespace riccati {
 namespace {
@@ -222,148 +226,6 @@ struct MatVarFreer {
 using MatFile = std::unique_ptr<mat_t, MatFileCloser>;
 using MatVar = std::unique_ptr<matvar_t, MatVarFreer>;
 
-std::uint32_t read_u32(const unsigned char* bytes, bool little_endian) {
-  const std::uint32_t b0 = bytes[0], b1 = bytes[1], b2 = bytes[2], b3 = bytes[3];
-  return little_endian ? b0 | b1 << 8 | b2 << 16 | b3 << 24 : b3 | b2 << 8 | b1 << 16 | b0 << 24;
-}
-
-// The first bytes of a variable's data, inflated (miCOMPRESSED elements hold
-// a zlib stream of one miMATRIX element); fewer if the stream ends or is
-// corrupt before.
-std::string inflate_prefix(const std::string& compressed, std::size_t want) {
-  std::string out(want, '\0');
-  z_stream z{};
-  if (inflateInit(&z) != Z_OK) return "";
-  z.next_in = reinterpret_cast<Bytef*>(const_cast<char*>(compressed.data()));
-  z.avail_in = static_cast<uInt>(compressed.size());
-  z.next_out = reinterpret_cast<Bytef*>(out.data());
-  z.avail_out = static_cast<uInt>(want);
-  while (z.avail_out > 0 && inflate(&z, Z_SYNC_FLUSH) == Z_OK) {
-  }
-  out.resize(want - z.avail_out);
-  inflateEnd(&z);
-  return out;
-}
-
-// matio allocates what a variable's header says (its dimensions, its size)
-// before it reads any data, and a corrupt file can say anything: check the
-// header of an miMATRIX element, `header` being its first bytes after its
-// tag and `size` the byte count its tag claims. Empty: it looks sound.
-std::string matrix_header_problem(const std::string& header, std::uint64_t size, bool little_endian) {
-  constexpr std::uint32_t kUInt32 = 6, kInt32 = 5;
-  constexpr std::uint32_t kMaxRank = 32;
-  if (header.size() < 24) return size < 24 ? "its header is cut short" : "";  // left to matio: nothing to allocate
-  const auto* bytes = reinterpret_cast<const unsigned char*>(header.data());
-  const std::uint32_t flags_type = read_u32(bytes, little_endian), flags_size = read_u32(bytes + 4, little_endian);
-  if (flags_type != kUInt32 || flags_size != 8) return "its array flags are malformed";
-  const std::uint32_t dims_type = read_u32(bytes + 16, little_endian), dims_size = read_u32(bytes + 20, little_endian);
-  if (dims_type != kInt32 || dims_size % 4 != 0 || dims_size < 8 || dims_size > 4 * kMaxRank) {
-    return "its dimensions are malformed";
-  }
-  if (24 + static_cast<std::uint64_t>(dims_size) > size) return "its dimensions run past its end";
-  return "";
-}
-
-// Returns the size of the file after checking it is complete as far as can
-// be told cheaply: matio reads a truncated v5 file without complaint, leaving
-// the missing bytes as whatever was in memory, so check that every top-level
-// element fits in the file. v4 and v7.3 (HDF5) files are left to matio.
-Result<std::uintmax_t> check_mat_file_complete(const std::string& path, const std::string& source) {
-  errno = 0;
-  std::ifstream in(path, std::ios::binary | std::ios::ate);
-  if (!in) return open_error(path, errno != 0 ? errno : ENOENT);
-  const std::streamoff file_size = in.tellg();
-  if (file_size <= 0) return invalid_argument(source + ": the file is empty");
-  const auto size = static_cast<std::uintmax_t>(file_size);
-
-  constexpr std::streamoff kHeaderSize = 128;  // text, subsystem offset, version, endian indicator
-  constexpr std::streamoff kTagSize = 8;       // element type and byte count
-  if (file_size < kHeaderSize) return size;
-  std::array<unsigned char, 4> version_and_endian{};
-  in.seekg(kHeaderSize - 4);
-  if (!in.read(reinterpret_cast<char*>(version_and_endian.data()), 4)) return size;
-  const bool little_endian = version_and_endian[2] == 'I' && version_and_endian[3] == 'M';
-  const bool big_endian = version_and_endian[2] == 'M' && version_and_endian[3] == 'I';
-  if (!little_endian && !big_endian) return size;
-  const unsigned version = little_endian ? version_and_endian[0] | version_and_endian[1] << 8
-                                         : version_and_endian[1] | version_and_endian[0] << 8;
-  if (version != 0x0100) return size;
-
-  for (std::streamoff offset = kHeaderSize; file_size - offset >= kTagSize;) {
-    std::array<unsigned char, kTagSize> tag{};
-    in.seekg(offset);
-    if (!in.read(reinterpret_cast<char*>(tag.data()), kTagSize)) break;
-    // In the "small element" form the data sits inside the tag itself.
-    const bool small_element = (read_u32(tag.data(), little_endian) >> 16) != 0;
-    const std::streamoff element_size = small_element ? kTagSize : kTagSize + read_u32(tag.data() + 4, little_endian);
-    if (element_size > file_size - offset) {
-      return invalid_argument(source + ": the file is truncated or corrupt (the variable at byte " + std::to_string(offset) +
-                              " needs " + std::to_string(element_size) + " bytes, only " +
-                              std::to_string(file_size - offset) + " remain)");
-    }
-    const std::uint32_t type = read_u32(tag.data(), little_endian);
-    constexpr std::uint32_t kMatrix = 14, kCompressed = 15;
-    // Deflate shrinks data at most about 1032:1.
-    constexpr std::uint64_t kMaxCompressionRatio = 1032;
-    constexpr std::size_t kHeaderBytes = 32;
-    std::string problem;
-    if (!small_element && type == kMatrix) {
-      std::string header(std::min<std::streamoff>(kHeaderBytes, element_size - kTagSize), '\0');
-      in.read(header.data(), static_cast<std::streamsize>(header.size()));
-      problem = matrix_header_problem(header, read_u32(tag.data() + 4, little_endian), little_endian);
-    } else if (!small_element && type == kCompressed) {
-      std::string compressed(static_cast<std::size_t>(element_size - kTagSize), '\0');
-      in.read(compressed.data(), static_cast<std::streamsize>(compressed.size()));
-      const std::string inner = inflate_prefix(compressed, kTagSize + kHeaderBytes);
-      if (inner.size() < kTagSize) {
-        problem = "its compressed data is corrupt";
-      } else {
-        const auto* inner_tag = reinterpret_cast<const unsigned char*>(inner.data());
-        const std::uint64_t inner_size = read_u32(inner_tag + 4, little_endian);
-        if (read_u32(inner_tag, little_endian) != kMatrix) {
-          problem = "its compressed data is not a variable";
-        } else if (inner_size > compressed.size() * kMaxCompressionRatio) {
-          problem = "it claims " + std::to_string(inner_size) + " bytes, more than " +
-                    std::to_string(compressed.size()) + " compressed bytes can hold";
-        } else {
-          problem = matrix_header_problem(inner.substr(kTagSize), inner_size, little_endian);
-        }
-      }
-    }
-    if (!problem.empty()) {
-      return invalid_argument(source + ": the file is corrupt (the variable at byte " + std::to_string(offset) + ": " +
-                              problem + ")");
-    }
-    offset += element_size;
-  }
-  return size;
-}
-
-const char* class_name(const matvar_t& var) {
-  if (var.isLogical) return "logical";
-  switch (var.class_type) {
-    case MAT_C_DOUBLE: return "double";
-    case MAT_C_SINGLE: return "single";
-    case MAT_C_INT8: return "int8";
-    case MAT_C_UINT8: return "uint8";
-    case MAT_C_INT16: return "int16";
-    case MAT_C_UINT16: return "uint16";
-    case MAT_C_INT32: return "int32";
-    case MAT_C_UINT32: return "uint32";
-    case MAT_C_INT64: return "int64";
-    case MAT_C_UINT64: return "uint64";
-    case MAT_C_CHAR: return "char";
-    case MAT_C_CELL: return "cell";
-    case MAT_C_STRUCT: return "struct";
-    case MAT_C_SPARSE: return "sparse";
-    case MAT_C_FUNCTION: return "function handle";
-    case MAT_C_OBJECT: return "object";
-    case MAT_C_OPAQUE: return "opaque object";
-    case MAT_C_EMPTY: break;
-  }
-  return "unknown class";
-}
-
 std::string dims_text(const matvar_t& var) {
   std::string text;
   for (int k = 0; k < var.rank; ++k) {
@@ -384,43 +246,47 @@ std::size_t element_count(const matvar_t& var) {
   return count;
 }
 
-Status check_real_double_matrix(const matvar_t& var, const char* name, const std::string& source) {
-  const std::string what = source + ": variable " + in_quotes(name);
-  if (var.class_type != MAT_C_DOUBLE || var.isComplex || var.isLogical) {
-    return invalid_argument(what + " must be a real double matrix, found " + (var.isComplex ? "complex " : "") +
-                            class_name(var));
-  }
-  if (var.rank != 2) return invalid_argument(what + " must be a 2-D matrix, found " + dims_text(var));
-  return Status::ok();
-}
-
-// Reads a real double matrix; returns a null MatVar if it is absent and optional.
-Result<MatVar> read_double_matrix(mat_t* mat, const char* name, bool required, std::uintmax_t file_size,
-                                  const std::string& source) {
-  // The header first: matio allocates whatever the dimensions say before it
-  // reads a single value, and a corrupt file can say anything.
-  const MatVar info(Mat_VarReadInfo(mat, name));
-  if (info == nullptr) {
-    if (!required) return MatVar{};
-    return invalid_argument(source + ": missing variable " + in_quotes(name) +
-                            " (expected T [1 x N], Y [ny x N] and optionally U [nu x N])");
-  }
-  RICCATI_RETURN_IF_ERROR(check_real_double_matrix(*info, name, source));
-  // Deflate, which v5 and v7.3 files use, shrinks data at most about 1032:1.
-  constexpr std::uintmax_t kMaxCompressionRatio = 1032;
-  const std::size_t count = element_count(*info);
-  if (count / kMaxCompressionRatio > file_size / sizeof(double)) {
-    return invalid_argument(source + ": variable " + in_quotes(name) + " claims to be " + dims_text(*info) +
-                            ", more than the file can hold (is it corrupt?)");
-  }
-
+// Reads a variable that the screen kept and checked (a real double matrix
+// whose values fit in the file); only what matio makes of the data is left
+// to check.
+Result<MatVar> read_double_matrix(mat_t* mat, const char* name, const std::string& source) {
   MatVar var(Mat_VarRead(mat, name));
-  if (var == nullptr || var->rank != 2 || var->dims[0] != info->dims[0] || var->dims[1] != info->dims[1] ||
+  const std::size_t count = var == nullptr ? 0 : element_count(*var);
+  if (var == nullptr || var->class_type != MAT_C_DOUBLE || var->isComplex || var->rank != 2 ||
       (count > 0 && (var->data == nullptr || var->nbytes < count * sizeof(double)))) {
     return invalid_argument(source + ": variable " + in_quotes(name) + " cannot be read (is the file truncated or corrupt?)");
   }
   return var;
 }
+
+// matio opens files by name only: the screened copy of an upload goes to an
+// anonymous in-memory file, named through /proc/self/fd.
+class MemoryFile {
+ public:
+  static Result<MemoryFile> holding(std::string_view bytes) {
+    MemoryFile file(memfd_create("riccati-mat", MFD_CLOEXEC));
+    if (file.fd_ < 0) return internal_error(std::string("cannot create an in-memory file: ") + std::strerror(errno));
+    for (std::size_t done = 0; done < bytes.size();) {
+      const ssize_t n = write(file.fd_, bytes.data() + done, bytes.size() - done);
+      if (n < 0 && errno == EINTR) continue;
+      if (n <= 0) return internal_error(std::string("cannot write an in-memory file: ") + std::strerror(errno));
+      done += static_cast<std::size_t>(n);
+    }
+    return file;
+  }
+  MemoryFile(MemoryFile&& other) noexcept : fd_(std::exchange(other.fd_, -1)) {}
+  MemoryFile& operator=(MemoryFile&&) = delete;
+  MemoryFile(const MemoryFile&) = delete;
+  MemoryFile& operator=(const MemoryFile&) = delete;
+  ~MemoryFile() {
+    if (fd_ >= 0) close(fd_);
+  }
+  std::string path() const { return "/proc/self/fd/" + std::to_string(fd_); }
+
+ private:
+  explicit MemoryFile(int fd) : fd_(fd) {}
+  int fd_;
+};
 
 // Checks that U or Y is [rows x num_samples], one column per sample.
 Status check_columns(const matvar_t& var, const char* name, std::size_t num_samples, const std::string& source) {
@@ -585,31 +451,44 @@ Result<Dataset> read_csv_file(const std::string& path, const ColumnMapping& mapp
   return parse_csv(text, mapping, base_name(path));
 }
 
-Result<Dataset> read_mat_file(const std::string& path, const ColumnMapping& mapping) {
-  const std::string source = base_name(path);
-  RICCATI_ASSIGN_OR_RETURN(const std::uintmax_t file_size, check_mat_file_complete(path, source));
-  const MatFile mat(Mat_Open(path.c_str(), MAT_ACC_RDONLY));
-  if (mat == nullptr) {
-    return invalid_argument("cannot open " + in_quotes(path) + " as a MAT file (not a MAT file, or truncated or corrupt)");
+Result<Dataset> parse_mat(std::string_view bytes, const ColumnMapping& mapping, std::string source_name,
+                          std::uint64_t max_value_bytes) {
+  Dataset data;
+  data.name = std::move(source_name);
+  const std::string& source = data.name;
+  RICCATI_ASSIGN_OR_RETURN(const ScreenedMatFile screened,
+                           screen_mat_file(bytes, {"T", "U", "Y"}, source, max_value_bytes));
+  const auto has = [&screened](const char* name) {
+    return std::find(screened.found.begin(), screened.found.end(), name) != screened.found.end();
+  };
+  for (const char* name : {"T", "Y"}) {
+    if (!has(name)) {
+      return invalid_argument(source + ": missing variable " + in_quotes(name) +
+                              " (expected T [1 x N], Y [ny x N] and optionally U [nu x N])");
+    }
   }
+  RICCATI_ASSIGN_OR_RETURN(const MemoryFile file, MemoryFile::holding(screened.bytes));
+  const MatFile mat(Mat_Open(file.path().c_str(), MAT_ACC_RDONLY));
+  if (mat == nullptr) return invalid_argument(source + ": matio cannot open it (is the file corrupt?)");
 
-  RICCATI_ASSIGN_OR_RETURN(const MatVar time, read_double_matrix(mat.get(), "T", true, file_size, source));
+  RICCATI_ASSIGN_OR_RETURN(const MatVar time, read_double_matrix(mat.get(), "T", source));
   if (time->dims[0] != 1 && time->dims[1] != 1) {
     return invalid_argument(source + ": variable \"T\" must be a vector [1 x N], found " + dims_text(*time));
   }
   const std::size_t num_samples = element_count(*time);
 
-  RICCATI_ASSIGN_OR_RETURN(const MatVar outputs, read_double_matrix(mat.get(), "Y", true, file_size, source));
+  RICCATI_ASSIGN_OR_RETURN(const MatVar outputs, read_double_matrix(mat.get(), "Y", source));
   if (element_count(*outputs) == 0) return invalid_argument(source + ": variable \"Y\" is empty; at least one output is needed");
   RICCATI_RETURN_IF_ERROR(check_columns(*outputs, "Y", num_samples, source));
 
   // U absent or empty: a system without inputs.
-  RICCATI_ASSIGN_OR_RETURN(const MatVar inputs, read_double_matrix(mat.get(), "U", false, file_size, source));
+  MatVar inputs;
+  if (has("U")) {
+    RICCATI_ASSIGN_OR_RETURN(inputs, read_double_matrix(mat.get(), "U", source));
+  }
   const bool has_inputs = inputs != nullptr && element_count(*inputs) > 0;
   if (has_inputs) RICCATI_RETURN_IF_ERROR(check_columns(*inputs, "U", num_samples, source));
 
-  Dataset data;
-  data.name = source;
   data.t = Eigen::Map<const Eigen::VectorXd>(static_cast<const double*>(time->data), static_cast<Index>(num_samples));
   data.y = as_matrix(*outputs);
   if (has_inputs) {
@@ -621,6 +500,11 @@ Result<Dataset> read_mat_file(const std::string& path, const ColumnMapping& mapp
   RICCATI_ASSIGN_OR_RETURN(data.output_names, signal_names(mapping.outputs, data.y.rows(), "y", "output", "Y", source));
   RICCATI_RETURN_IF_ERROR(validate_dataset(data));
   return data;
+}
+
+Result<Dataset> read_mat_file(const std::string& path, const ColumnMapping& mapping) {
+  RICCATI_ASSIGN_OR_RETURN(const std::string bytes, read_whole_file(path));
+  return parse_mat(bytes, mapping, base_name(path));
 }
 
 Result<Dataset> read_dataset_file(const std::string& path, const ColumnMapping& mapping) {

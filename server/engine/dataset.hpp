@@ -5,6 +5,8 @@
 #pragma once
 
 #include <Eigen/Core>
+#include <cstdint>
+#include <limits>
 #include <string>
 #include <string_view>
 #include <vector>
@@ -43,9 +45,15 @@ Status validate_dataset(const Dataset& data);
 Result<Dataset> parse_csv(std::string_view text, const ColumnMapping& mapping, std::string source_name);
 Result<Dataset> read_csv_file(const std::string& path, const ColumnMapping& mapping);
 
-// MAT file (v5/v7.3 via matio) holding T [1 x N], U [nu x N], Y [ny x N].
-// Names are taken from `mapping` when given, else "u1".., "y1"...; U may be
-// absent or empty (no inputs); mapping.time is not used (time is always T).
+// A level 5 MAT file (MATLAB's -v6 and -v7, compressed or not; see
+// mat_screen.hpp for what is refused) holding T [1 x N], U [nu x N] and
+// Y [ny x N]; other variables are ignored. Names are taken from `mapping`
+// when given, else "u1".., "y1"...; U may be absent or empty (no inputs);
+// mapping.time is not used (time is always T). `max_value_bytes` bounds the
+// values T, U and Y claim (RESOURCE_EXHAUSTED past it), which a compressed
+// file could otherwise inflate a thousandfold.
+Result<Dataset> parse_mat(std::string_view bytes, const ColumnMapping& mapping, std::string source_name,
+                          std::uint64_t max_value_bytes = std::numeric_limits<std::uint64_t>::max());
 Result<Dataset> read_mat_file(const std::string& path, const ColumnMapping& mapping);
 
 // Reads a CSV or MAT file, chosen by its extension (.csv, .mat).

@@ -20,7 +20,7 @@ namespace riccati::service {
 
 struct DaemonConfig {
   std::string listen = "127.0.0.1:7531";  // host:port; port 0 picks a free one
-  std::string data_dir = "riccati-data";  // the SQLite database and scratch files
+  std::string data_dir = "riccati-data";  // the SQLite database
   // The store: empty or "sqlite" for SQLite in data_dir/riccati.db, or a
   // PostgreSQL URL (postgresql://user:password@host:port/dbname?...).
   std::string database;

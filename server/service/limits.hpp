@@ -13,7 +13,7 @@ namespace riccati::service {
 
 struct Limits {
   std::int64_t max_message_bytes = 64ll << 20;         // largest gRPC message received
-  std::int64_t max_dataset_bytes = 256ll << 20;        // one upload
+  std::int64_t max_dataset_bytes = 256ll << 20;        // one upload, and its values inflated
   std::int64_t max_dataset_samples = 10'000'000;       // samples of one dataset
   std::int64_t max_tenant_dataset_bytes = 4ll << 30;   // all of a tenant's stored datasets
   std::int64_t max_batch = 4096;                       // measurements per stream message
@@ -32,7 +32,7 @@ struct LimitSpec {
 
 inline constexpr LimitSpec kLimitSpecs[] = {
     {"max_message_bytes", &Limits::max_message_bytes, "Largest gRPC message received (bytes)"},
-    {"max_dataset_bytes", &Limits::max_dataset_bytes, "Largest upload (bytes)"},
+    {"max_dataset_bytes", &Limits::max_dataset_bytes, "Largest upload, and most bytes the values of a MAT upload may inflate to"},
     {"max_dataset_samples", &Limits::max_dataset_samples, "Most samples in one dataset"},
     {"max_tenant_dataset_bytes", &Limits::max_tenant_dataset_bytes, "All of a tenant's datasets (bytes uploaded)"},
     {"max_batch", &Limits::max_batch, "Most measurements in one stream message"},

@@ -100,32 +100,12 @@ grpc::Status DatasetServiceImpl::UploadDataset(grpc::ServerContext* context,
   mapping.inputs.assign(header.input_columns().begin(), header.input_columns().end());
   mapping.outputs.assign(header.output_columns().begin(), header.output_columns().end());
 
-  Result<Dataset> parsed = [&]() -> Result<Dataset> {
-    if (format == v1::DATASET_FORMAT_CSV) return parse_csv(bytes, mapping, name);
-    // matio reads files only: a private scratch file, removed at once.
-    const std::string path = scratch_dir_ + "/" + new_id("upload") + ".mat";
-    {
-      std::ofstream out(path, std::ios::binary);
-      out.write(bytes.data(), static_cast<std::streamsize>(bytes.size()));
-      if (!out) return internal_error("cannot write scratch file " + path);
-    }
-    Result<Dataset> data = read_mat_file(path, mapping);
-    std::filesystem::remove(path);
-    if (!data.is_ok()) {
-      // Name the upload, not the scratch file.
-      std::string message = data.status().message();
-      for (auto pos = message.find(path); pos != std::string::npos; pos = message.find(path)) {
-        message.replace(pos, path.size(), name);
-      }
-      const std::string scratch_name = std::filesystem::path(path).filename().string();
-      for (auto pos = message.find(scratch_name); pos != std::string::npos; pos = message.find(scratch_name)) {
-        message.replace(pos, scratch_name.size(), name);
-      }
-      return Status(data.status().code(), message);
-    }
-    data.value().name = name;
-    return data;
-  }();
+  Result<Dataset> parsed = format == v1::DATASET_FORMAT_CSV
+                               ? parse_csv(bytes, mapping, name)
+                               : parse_mat(bytes, mapping, name, static_cast<std::uint64_t>(limits_.max_dataset_bytes));
+  if (parsed.status().code() == StatusCode::kResourceExhausted) {
+    return to_grpc(limit_reached("max_dataset_bytes", limits_.max_dataset_bytes, parsed.status().message()));
+  }
   if (!parsed.is_ok()) return to_grpc(parsed.status());
   const Dataset& data = parsed.value();
   if (data.size() > limits_.max_dataset_samples) {

@@ -39,8 +39,8 @@ class ModelServiceImpl final : public v1::ModelService::Service {
 
 class DatasetServiceImpl final : public v1::DatasetService::Service {
  public:
-  DatasetServiceImpl(const Authenticator& auth, Store& store, std::string scratch_dir, Limits limits)
-      : auth_(auth), store_(store), scratch_dir_(std::move(scratch_dir)), limits_(limits) {}
+  DatasetServiceImpl(const Authenticator& auth, Store& store, Limits limits)
+      : auth_(auth), store_(store), limits_(limits) {}
   grpc::Status UploadDataset(grpc::ServerContext*, grpc::ServerReader<v1::UploadDatasetRequest>*,
                              v1::DatasetInfo*) override;
   grpc::Status GetDataset(grpc::ServerContext*, const v1::GetDatasetRequest*, v1::DatasetInfo*) override;
@@ -52,7 +52,6 @@ class DatasetServiceImpl final : public v1::DatasetService::Service {
  private:
   const Authenticator& auth_;
   Store& store_;
-  const std::string scratch_dir_;  // where MAT uploads are written for matio to read
   const Limits limits_;
 };
 

@@ -14,6 +14,8 @@
 #include <string_view>
 #include <vector>
 
+#include "support/mat_files.hpp"
+
 namespace riccati {
 namespace {
 
@@ -25,31 +27,31 @@ ColumnMapping two_tank_mapping() { return {"t", {"F1", "F2"}, {"h1", "h2"}}; }
 ColumnMapping rotating_arm_mapping() { return {"t", {"i"}, {"q", "qdot"}}; }
 
 // Passes when `status` failed with `code` and its message contains every part.
-testing::AssertionResult FailsWith(const Status& status, StatusCode code, std::initializer_list<std::string_view> parts) {
-  if (status.is_ok()) return testing::AssertionFailure() << "succeeded; expected " << status_code_name(code);
-  if (status.code() != code) return testing::AssertionFailure() << "wrong code: " << status.to_string();
+::testing::AssertionResult FailsWith(const Status& status, StatusCode code, std::initializer_list<std::string_view> parts) {
+  if (status.is_ok()) return ::testing::AssertionFailure() << "succeeded; expected " << status_code_name(code);
+  if (status.code() != code) return ::testing::AssertionFailure() << "wrong code: " << status.to_string();
   for (const std::string_view part : parts) {
     if (status.message().find(part) == std::string::npos) {
-      return testing::AssertionFailure() << "message \"" << status.message() << "\" lacks \"" << part << "\"";
+      return ::testing::AssertionFailure() << "message \"" << status.message() << "\" lacks \"" << part << "\"";
     }
   }
-  return testing::AssertionSuccess();
+  return ::testing::AssertionSuccess();
 }
 
 // Element-wise |a - b| <= tolerance * max(|a|, |b|).
-testing::AssertionResult RelativelyEqual(const Eigen::MatrixXd& a, const Eigen::MatrixXd& b, double tolerance) {
+::testing::AssertionResult RelativelyEqual(const Eigen::MatrixXd& a, const Eigen::MatrixXd& b, double tolerance) {
   if (a.rows() != b.rows() || a.cols() != b.cols()) {
-    return testing::AssertionFailure() << "sizes differ: " << a.rows() << "x" << a.cols() << " vs " << b.rows() << "x"
+    return ::testing::AssertionFailure() << "sizes differ: " << a.rows() << "x" << a.cols() << " vs " << b.rows() << "x"
                                        << b.cols();
   }
   for (Eigen::Index j = 0; j < a.cols(); ++j) {
     for (Eigen::Index i = 0; i < a.rows(); ++i) {
       if (std::abs(a(i, j) - b(i, j)) > tolerance * std::max(std::abs(a(i, j)), std::abs(b(i, j)))) {
-        return testing::AssertionFailure() << "(" << i << ", " << j << "): " << a(i, j) << " vs " << b(i, j);
+        return ::testing::AssertionFailure() << "(" << i << ", " << j << "): " << a(i, j) << " vs " << b(i, j);
       }
     }
   }
-  return testing::AssertionSuccess();
+  return ::testing::AssertionSuccess();
 }
 
 std::string read_bytes(const std::string& path) {
@@ -63,71 +65,19 @@ void write_bytes(const fs::path& path, std::string_view bytes) {
   ASSERT_TRUE(out.good()) << path;
 }
 
-// Crafted MAT files for the cases the fixtures do not cover, written here
-// (little-endian level 5, uncompressed) so the test does not need matio.
-struct MatVariable {
-  std::string name;
-  std::vector<std::int32_t> dims;
-  std::vector<double> values;  // column-major
-  enum class Type { kDouble, kInt32, kComplexDouble } type = Type::kDouble;
-};
-
-void append_u32(std::string& out, std::uint32_t v) {
-  for (int k = 0; k < 4; ++k) out.push_back(static_cast<char>(v >> (8 * k) & 0xff));
-}
-
-void append_element(std::string& out, std::uint32_t type, const std::string& payload) {
-  append_u32(out, type);
-  append_u32(out, static_cast<std::uint32_t>(payload.size()));
-  out += payload;
-  out.append((8 - payload.size() % 8) % 8, '\0');
-}
-
-template <typename T>
-std::string raw(const std::vector<T>& values) {
-  std::string bytes(values.size() * sizeof(T), '\0');
-  if (!values.empty()) std::memcpy(bytes.data(), values.data(), bytes.size());
-  return bytes;
-}
-
-std::string mat5_file(const std::vector<MatVariable>& variables) {
-  constexpr std::uint32_t miINT8 = 1, miINT32 = 5, miUINT32 = 6, miDOUBLE = 9, miMATRIX = 14;
-  constexpr std::uint32_t mxDOUBLE_CLASS = 6, mxINT32_CLASS = 12, kComplexFlag = 0x0800;
-  std::string file = "MATLAB 5.0 MAT-file, written by dataset_test";
-  file.resize(116, ' ');
-  file.append(8, '\0');     // no subsystem data
-  file.append("\x00\x01" "IM", 4);  // version 0x0100, little-endian
-  for (const MatVariable& var : variables) {
-    const bool is_int = var.type == MatVariable::Type::kInt32;
-    const bool is_complex = var.type == MatVariable::Type::kComplexDouble;
-    std::string body;
-    std::string flags;
-    append_u32(flags, (is_int ? mxINT32_CLASS : mxDOUBLE_CLASS) | (is_complex ? kComplexFlag : 0));
-    append_u32(flags, 0);
-    append_element(body, miUINT32, flags);
-    append_element(body, miINT32, raw(var.dims));
-    append_element(body, miINT8, var.name);
-    if (is_int) {
-      append_element(body, miINT32, raw(std::vector<std::int32_t>(var.values.begin(), var.values.end())));
-    } else {
-      append_element(body, miDOUBLE, raw(var.values));
-    }
-    if (is_complex) append_element(body, miDOUBLE, raw(std::vector<double>(var.values.size(), 0.0)));
-    append_element(file, miMATRIX, body);
-  }
-  return file;
-}
+using testing::MatVariable;
+using testing::mat5_file;
 
 // Five samples of a one-input, two-output rig.
 const std::vector<double> kTime = {0, 0.5, 1, 1.5, 2};
 const std::vector<double> kInputs = {1, 2, 3, 4, 5};
 const std::vector<double> kOutputs = {10, 20, 11, 21, 12, 22, 13, 23, 14, 24};  // [2 x 5], column-major
 
-class DatasetFileTest : public testing::Test {
+class DatasetFileTest : public ::testing::Test {
  protected:
   void SetUp() override {
-    const testing::TestInfo* info = testing::UnitTest::GetInstance()->current_test_info();
-    dir_ = fs::path(testing::TempDir()) / (std::string("riccati_dataset_") + info->name());
+    const ::testing::TestInfo* info = ::testing::UnitTest::GetInstance()->current_test_info();
+    dir_ = fs::path(::testing::TempDir()) / (std::string("riccati_dataset_") + info->name());
     fs::remove_all(dir_);
     fs::create_directories(dir_);
   }
@@ -438,9 +388,70 @@ TEST_F(DatasetFileTest, TruncatedMatFileIsAnError) {
                         {"truncated or corrupt"}));
 }
 
-TEST_F(DatasetFileTest, TextFileIsNotAMatFile) {
-  const std::string path = write("notes.mat", "these are not the samples you are looking for\n");
-  EXPECT_TRUE(FailsWith(read_mat_file(path, ColumnMapping{}).status(), StatusCode::kInvalidArgument, {path, "MAT file"}));
+TEST_F(DatasetFileTest, OnlyLevel5MatFilesAreRead) {
+  const std::string short_text = "these are not the samples you are looking for\n";
+  EXPECT_TRUE(FailsWith(read_mat_file(write("notes.mat", short_text), ColumnMapping{}).status(),
+                        StatusCode::kInvalidArgument, {"notes.mat: not a MAT file", "level 5", "-v7"}));
+  std::string long_text;
+  while (long_text.size() < 300) long_text += short_text;
+  EXPECT_TRUE(FailsWith(read_mat_file(write("notes.mat", long_text), ColumnMapping{}).status(),
+                        StatusCode::kInvalidArgument, {"notes.mat: not a MAT file of level 5"}));
+  // v7.3 is HDF5, which is not given untrusted bytes: the user is told how to save instead.
+  std::string v73 = mat5_file({{"T", {1, 5}, kTime}, {"Y", {2, 5}, kOutputs}});
+  v73[125] = 0x02;
+  EXPECT_TRUE(FailsWith(read_mat_file(write("v73.mat", v73), ColumnMapping{}).status(), StatusCode::kInvalidArgument,
+                        {"v73.mat: a MAT file of version 7.3 (HDF5)", "-v7"}));
+}
+
+// MATLAB's -v7 compresses each variable; the crafted file's values must come
+// back exactly as from the uncompressed one.
+TEST_F(DatasetFileTest, CompressedVariablesReadLikeUncompressedOnes) {
+  const std::vector<MatVariable> variables = {{"T", {1, 5}, kTime}, {"U", {1, 5}, kInputs}, {"Y", {2, 5}, kOutputs}};
+  const Result<Dataset> plain = read_mat_file(write("plain.mat", mat5_file(variables)), ColumnMapping{});
+  const Result<Dataset> deflated = read_mat_file(write("deflated.mat", mat5_file(variables, true)), ColumnMapping{});
+  ASSERT_TRUE(plain.is_ok()) << plain.status().to_string();
+  ASSERT_TRUE(deflated.is_ok()) << deflated.status().to_string();
+  EXPECT_EQ(deflated->t, plain->t);
+  EXPECT_EQ(deflated->u, plain->u);
+  EXPECT_EQ(deflated->y, plain->y);
+  EXPECT_EQ(deflated->y(1, 3), 23.0);
+}
+
+// Variables other than T, U and Y are not riccati's business, whatever they
+// are: a struct of notes is skipped, and so is a cell whose header claims
+// 335,544,328 elements in a few bytes, for which matio would have asked for
+// 2.7 GB (what the fuzzer found in CI). Named T, a cell is an error.
+TEST_F(DatasetFileTest, OtherVariablesAreSkippedUnreadEvenCorruptCells) {
+  const std::string others = testing::mat5::struct_with_empty_field("notes", "rig") +
+                             testing::mat5::cell("labels", {1, 335'544'328}) +
+                             testing::mat5::compressed(testing::mat5::cell("more_labels", {1, 335'544'328}));
+  const std::vector<MatVariable> variables = {{"T", {1, 5}, kTime}, {"Y", {2, 5}, kOutputs}};
+  for (const bool compress : {false, true}) {
+    SCOPED_TRACE(compress ? "compressed" : "uncompressed");
+    const Result<Dataset> data = read_mat_file(write("others.mat", mat5_file(variables, compress, others)), ColumnMapping{});
+    ASSERT_TRUE(data.is_ok()) << data.status().to_string();
+    EXPECT_EQ(data->y(1, 4), 24.0);
+  }
+  const std::string cell_t = testing::mat5::file_header() + testing::mat5::cell("T", {1, 5}) +
+                             testing::mat5::numeric_matrix({"Y", {2, 5}, kOutputs});
+  EXPECT_TRUE(FailsWith(read_mat_file(write("cell.mat", cell_t), ColumnMapping{}).status(), StatusCode::kInvalidArgument,
+                        {"cell.mat: variable \"T\" must be a real double matrix, found cell"}));
+}
+
+// A compressed variable may inflate a thousandfold: the values that T, U and
+// Y claim are bounded (the daemon bounds them by max_dataset_bytes).
+TEST_F(DatasetFileTest, InflatedValuesAreBoundedBeforeMatioAllocates) {
+  const std::string bytes = read_bytes(kDataDir + "/two_tank.mat");
+  constexpr std::uint64_t kValueBytes = (1 + 2 + 2) * 2000 * sizeof(double);  // T, U and Y of 2000 samples
+  EXPECT_TRUE(parse_mat(bytes, two_tank_mapping(), "two_tank.mat", kValueBytes).is_ok());
+  EXPECT_TRUE(FailsWith(parse_mat(bytes, two_tank_mapping(), "two_tank.mat", kValueBytes - 1).status(),
+                        StatusCode::kResourceExhausted, {"two_tank.mat: its variables claim 80000 bytes", "79999 allowed"}));
+  // A million zero samples deflate to about a kilobyte.
+  const std::vector<double> zeros(1'000'000, 0.0);
+  const std::string bomb = mat5_file({{"T", {1, 1'000'000}, zeros}, {"Y", {1, 1'000'000}, zeros}}, true);
+  ASSERT_LT(bomb.size(), 20'000u);
+  EXPECT_TRUE(FailsWith(parse_mat(bomb, ColumnMapping{}, "bomb.mat", 1 << 20).status(), StatusCode::kResourceExhausted,
+                        {"bomb.mat: its variables claim 8000000 bytes", "\"T\" is 1 x 1000000"}));
 }
 
 TEST_F(DatasetFileTest, CraftedMatFileReadsLikeMatlabWouldWriteIt) {

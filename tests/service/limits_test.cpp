@@ -12,6 +12,7 @@
 #include "riccati/v1/jobs.grpc.pb.h"
 #include "riccati/v1/sessions.grpc.pb.h"
 #include "service/daemon_fixture.hpp"
+#include "support/mat_files.hpp"
 #include "support/requests.hpp"
 
 namespace riccati {
@@ -43,7 +44,7 @@ class LimitsTest : public ::testing::Test {
         std::vector<std::string>{"--tokens-file", tokens.string(),
                                  "--max-tenant-sessions", "2", "--max-sessions", "3",
                                  "--max-tenant-jobs", "1", "--max-passes", "400",
-                                 "--max-dataset-samples", "1000",
+                                 "--max-dataset-samples", "1000", "--max-dataset-bytes", "200000",
                                  "--max-tenant-dataset-bytes", std::to_string(csv_bytes * 5 / 2),
                                  "--max-batch", "4", "--max-message-bytes", std::to_string(256 << 10)});
     daemon_->start();
@@ -60,10 +61,9 @@ class LimitsTest : public ::testing::Test {
   }
 
   grpc::Status upload(const std::string& tenant, const std::string& bytes, v1::DatasetInfo* info,
-                      std::size_t chunk_size = 64 << 10) {
+                      std::size_t chunk_size = 64 << 10, const std::string& name = "data.csv") {
     auto ctx = as(tenant);
-    return testing::upload_dataset(*datasets_, ctx.get(), "data.csv", bytes, {"F1", "F2"}, {"h1", "h2"}, info,
-                                   chunk_size);
+    return testing::upload_dataset(*datasets_, ctx.get(), name, bytes, {"F1", "F2"}, {"h1", "h2"}, info, chunk_size);
   }
 
   static void expect_limit(const grpc::Status& s, const std::string& limit) {
@@ -142,6 +142,23 @@ TEST_F(LimitsTest, DatasetSamplesTenantBytesAndMessageSize) {
   v1::DeleteDatasetResponse deleted;
   ASSERT_TRUE(datasets_->DeleteDataset(as("alpha").get(), del, &deleted).ok());
   EXPECT_TRUE(upload("alpha", csv_, &info).ok());
+}
+
+// max_dataset_bytes bounds an upload and also what its values inflate to:
+// a compressed MAT file of a few kilobytes may claim gigabytes.
+TEST_F(LimitsTest, DatasetBytesBoundTheValuesOfACompressedMatFile) {
+  std::vector<double> t(500), u(2 * 500, 1.0), y(2 * 500, 1.0);
+  for (std::size_t k = 0; k < t.size(); ++k) t[k] = 0.1 * static_cast<double>(k);
+  const std::string fits = testing::mat5_file({{"T", {1, 500}, t}, {"U", {2, 500}, u}, {"Y", {2, 500}, y}}, true);
+  v1::DatasetInfo info;
+  const grpc::Status ok = upload("alpha", fits, &info, 64 << 10, "rig.mat");
+  ASSERT_TRUE(ok.ok()) << ok.error_message();
+  EXPECT_EQ(info.samples(), 500u);
+
+  const std::vector<double> zeros(20'000, 0.0);
+  const std::string bomb = testing::mat5_file({{"T", {1, 20'000}, zeros}, {"Y", {1, 20'000}, zeros}}, true);
+  ASSERT_LT(bomb.size(), 2'000u);
+  expect_limit(upload("alpha", bomb, &info, 64 << 10, "bomb.mat"), "max_dataset_bytes = 200000");
 }
 
 TEST_F(LimitsTest, MeasurementsPerMessage) {
