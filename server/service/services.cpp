@@ -309,7 +309,9 @@ grpc::Status SessionServiceImpl::GetSession(grpc::ServerContext* context, const 
 
 grpc::Status SessionServiceImpl::ListSessions(grpc::ServerContext* context, const v1::ListSessionsRequest*,
                                               v1::ListSessionsResponse* response) {
-  for (const auto& s : sessions_.list(auth_.tenant(*context))) *response->add_sessions() = s->info();
+  Result<std::vector<v1::SessionInfo>> listed = sessions_.list(auth_.tenant(*context));
+  if (!listed.is_ok()) return to_grpc(listed.status());
+  for (v1::SessionInfo& info : listed.value()) *response->add_sessions() = std::move(info);
   return grpc::Status::OK;
 }
 

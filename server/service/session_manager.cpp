@@ -2,11 +2,38 @@
 
 #include <spdlog/spdlog.h>
 
+#include <algorithm>
 #include <cmath>
+#include <set>
 
 #include "service/convert.hpp"
 
 namespace riccati::service {
+namespace {
+
+// What ListSessions shows of a session that another instance serves, or
+// that waits to be resumed: its last snapshot, and who holds it.
+v1::SessionInfo stored_info(const std::string& id, const internal::SessionSnapshot& s, const std::string& holder) {
+  v1::SessionInfo info;
+  info.set_id(id);
+  info.set_model(s.request().model());
+  info.set_filter(s.request().filter().kind());
+  info.set_state(s.has_diverged()                     ? v1::SESSION_STATE_DIVERGED
+                 : (s.streaming() && !holder.empty()) ? v1::SESSION_STATE_STREAMING
+                                                      : v1::SESSION_STATE_IDLE);
+  info.set_measurements(s.accepted());
+  if (s.started()) {
+    info.set_t(s.t());
+    *info.mutable_state_estimate() = s.z();
+  }
+  set_timestamp(s.created_ms(), info.mutable_created());
+  set_timestamp(s.last_active_ms(), info.mutable_last_active());
+  if (s.has_diverged()) *info.mutable_error() = s.diverged();
+  info.set_instance(holder);
+  return info;
+}
+
+}  // namespace
 
 Session::Session(std::string id, std::string tenant, v1::CreateSessionRequest request, std::int64_t created_ms,
                  ModelPtr model, std::unique_ptr<Filter> filter, InitialState initial_state, Eigen::VectorXd x0,
@@ -183,6 +210,7 @@ std::string Session::encode(const std::string& instance) const {
   out.set_received(received_);
   out.set_accepted(accepted_);
   if (!diverged_.is_ok()) *out.mutable_diverged() = to_error(diverged_);
+  out.set_streaming(streaming_);
   return out.SerializeAsString();
 }
 
@@ -425,12 +453,29 @@ Result<std::shared_ptr<Session>> SessionManager::resume(const std::string& tenan
   return session;
 }
 
-std::vector<std::shared_ptr<Session>> SessionManager::list(const std::string& tenant) {
-  std::vector<std::shared_ptr<Session>> out;
-  std::lock_guard lock(mu_);
-  for (const auto& [id, s] : sessions_) {
-    if (s->tenant() == tenant) out.push_back(s);
+Result<std::vector<v1::SessionInfo>> SessionManager::list(const std::string& tenant) {
+  std::vector<v1::SessionInfo> out;
+  std::set<std::string> here;
+  {
+    std::lock_guard lock(mu_);
+    for (const auto& [id, s] : sessions_) {
+      if (s->tenant() != tenant) continue;
+      out.push_back(s->info());
+      out.back().set_instance(options_.instance_id);
+      here.insert(id);
+    }
   }
+  if (store_ == nullptr) return out;
+  // The others: served by other instances, or waiting to be resumed.
+  RICCATI_ASSIGN_OR_RETURN(const std::vector<SessionSnapshotRecord> stored, store_->list_session_snapshots(tenant));
+  for (const SessionSnapshotRecord& record : stored) {
+    internal::SessionSnapshot snapshot;
+    if (here.contains(record.session_id) || !snapshot.ParseFromString(record.snapshot) || snapshot.tenant() != tenant) {
+      continue;  // an unreadable one: get() says why when the client asks for it
+    }
+    out.push_back(stored_info(record.session_id, snapshot, record.holder));
+  }
+  std::sort(out.begin(), out.end(), [](const v1::SessionInfo& a, const v1::SessionInfo& b) { return a.id() < b.id(); });
   return out;
 }
 

@@ -146,7 +146,9 @@ class SessionManager {
   Result<std::shared_ptr<Session>> create(const std::string& tenant, const v1::CreateSessionRequest& request);
   // A session here, or one resumed from its snapshot in the store.
   Result<std::shared_ptr<Session>> get(const std::string& tenant, const std::string& id);
-  std::vector<std::shared_ptr<Session>> list(const std::string& tenant);
+  // The tenant's sessions, by id: those here, and those that the store
+  // holds for other instances or for none (ListSessions).
+  Result<std::vector<v1::SessionInfo>> list(const std::string& tenant);
   Status close(const std::string& tenant, const std::string& id);
   std::size_t size();
 

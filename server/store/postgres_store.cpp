@@ -715,6 +715,19 @@ class PostgresStore final : public Store {
     });
   }
 
+  Result<std::vector<SessionSnapshotRecord>> list_session_snapshots(const std::string& tenant) override {
+    return run<pqxx::nontransaction>(
+        "listing the session snapshots of " + tenant, true, [&](auto& tx) -> Result<std::vector<SessionSnapshotRecord>> {
+          const pqxx::result r = tx.exec_params(
+              "SELECT session_id, CASE WHEN lease_until_ms > " RICCATI_PG_NOW_MS
+              " THEN owner ELSE '' END, snapshot FROM session_snapshots WHERE tenant = $1 ORDER BY session_id",
+              tenant);
+          std::vector<SessionSnapshotRecord> records;
+          for (const auto& row : r) records.push_back({row[0].as<std::string>(), row[1].as<std::string>(), bytes_of(row[2])});
+          return records;
+        });
+  }
+
   Result<int> delete_abandoned_session_snapshots(std::int64_t idle_ms) override {
     return run<pqxx::nontransaction>("deleting abandoned session snapshots", true, [&](auto& tx) -> Result<int> {
       const pqxx::result r = tx.exec_params(

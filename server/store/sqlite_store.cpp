@@ -622,6 +622,19 @@ class SqliteStore final : public Store {
     });
   }
 
+  Result<std::vector<SessionSnapshotRecord>> list_session_snapshots(const std::string& tenant) override {
+    std::lock_guard lock(mu_);
+    Statement q(db_.get(),
+                "SELECT session_id, CASE WHEN lease_until_ms > ? THEN owner ELSE '' END, snapshot "
+                "FROM session_snapshots WHERE tenant = ? ORDER BY session_id");
+    q.integer(wall_clock_ms()).text(tenant);
+    std::vector<SessionSnapshotRecord> records;
+    int rc;
+    while ((rc = q.step()) == SQLITE_ROW) records.push_back({q.column_text(0), q.column_text(1), q.column_blob(2)});
+    if (rc != SQLITE_DONE) return error("listing the session snapshots of " + tenant);
+    return records;
+  }
+
   Result<int> delete_abandoned_session_snapshots(std::int64_t idle_ms) override {
     std::lock_guard lock(mu_);
     const std::int64_t now = wall_clock_ms();

@@ -56,6 +56,13 @@ Status session_lease_lost(const std::string& id, const std::string& owner);
 // `remaining_ms` more (claim_session_snapshot).
 Status session_held_elsewhere(const std::string& id, const std::string& holder, std::int64_t remaining_ms);
 
+// A stored session snapshot, as list_session_snapshots gives it.
+struct SessionSnapshotRecord {
+  std::string session_id;
+  std::string holder;  // the instance whose lease is live; empty when none holds it
+  std::string snapshot;
+};
+
 struct JobRecord {
   std::string id;
   std::string tenant;
@@ -181,6 +188,9 @@ class Store {
   // owner holds it under a live lease (it was resumed there).
   virtual Status delete_session_snapshot(const std::string& tenant, const std::string& session_id,
                                          const std::string& owner) = 0;
+  // The tenant's snapshots, by session id: ListSessions shows with them the
+  // sessions that other instances serve or that wait to be resumed.
+  virtual Result<std::vector<SessionSnapshotRecord>> list_session_snapshots(const std::string& tenant) = 0;
   // Deletes the snapshots that nobody holds (their leases ended) and that
   // were last stored more than `idle_ms` ago: sessions of instances that
   // died, which nobody resumed within the idle timeout. Returns how many.

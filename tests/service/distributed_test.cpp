@@ -327,6 +327,13 @@ class SessionFailoverTest : public ::testing::Test {
     return stub.GetSession(as(token).get(), request, info);
   }
 
+  static std::vector<v1::SessionInfo> list(v1::SessionService::Stub& stub, const std::string& token = kAlpha) {
+    v1::ListSessionsResponse response;
+    const grpc::Status s = stub.ListSessions(as(token).get(), {}, &response);
+    EXPECT_TRUE(s.ok()) << s.error_message();
+    return {response.sessions().begin(), response.sessions().end()};
+  }
+
   // Streams samples [from, to) in batches of 50 and ends the stream; the
   // estimates, in order.
   static std::vector<v1::Estimate> stream(v1::SessionService::Stub& stub, const std::string& id, Eigen::Index from,
@@ -469,6 +476,32 @@ TEST_F(SessionFailoverTest, ALiveInstanceKeepsItsSessionsAndOtherTenantsSeeNone)
   const std::string id = create(on_a());
   ASSERT_EQ(stream(on_a(), id, 0, 100).size(), 100u);
 
+  // Both instances list the session; B as of A's snapshot at the stream's
+  // end, which A stores in the background.
+  std::vector<v1::SessionInfo> on_b_list;
+  for (int i = 0; i < 200; ++i) {
+    on_b_list = list(on_b());
+    if (on_b_list.size() == 1 && on_b_list[0].measurements() == 100u) break;
+    std::this_thread::sleep_for(std::chrono::milliseconds(25));
+  }
+  const std::vector<v1::SessionInfo> on_a_list = list(on_a());
+  ASSERT_EQ(on_b_list.size(), 1u);
+  ASSERT_EQ(on_a_list.size(), 1u);
+  for (const v1::SessionInfo& listed : {on_a_list[0], on_b_list[0]}) {
+    EXPECT_EQ(listed.id(), id);
+    EXPECT_EQ(listed.instance(), "inst-a");
+    EXPECT_EQ(listed.model(), "two_tank");
+    EXPECT_EQ(listed.state(), v1::SESSION_STATE_IDLE);
+    EXPECT_EQ(listed.measurements(), 100u);
+    EXPECT_EQ(listed.t(), two_tank_data().t[99]);
+  }
+  // The snapshot keeps doubles exactly.
+  EXPECT_EQ(std::vector<double>(on_b_list[0].state_estimate().begin(), on_b_list[0].state_estimate().end()),
+            std::vector<double>(on_a_list[0].state_estimate().begin(), on_a_list[0].state_estimate().end()));
+  EXPECT_EQ(on_a_list[0].state_estimate_size(), 6);
+  EXPECT_TRUE(list(on_a(), kBeta).empty());
+  EXPECT_TRUE(list(on_b(), kBeta).empty());
+
   v1::SessionInfo info;
   grpc::Status s = get(on_b(), id, &info);
   EXPECT_EQ(s.error_code(), grpc::StatusCode::FAILED_PRECONDITION) << s.error_message();
@@ -494,12 +527,19 @@ TEST_F(SessionFailoverTest, ALiveInstanceKeepsItsSessionsAndOtherTenantsSeeNone)
   ASSERT_TRUE(get(on_a(), id, &info).ok());
   EXPECT_EQ(info.measurements(), 100u);
 
-  // A clean stop releases its sessions: B resumes at once, where A left it.
+  // A clean stop releases its sessions: no instance serves it, and B
+  // resumes it at once, where A left it.
   EXPECT_EQ(a().stop(), 0);
+  on_b_list = list(on_b());
+  ASSERT_EQ(on_b_list.size(), 1u);
+  EXPECT_EQ(on_b_list[0].instance(), "");
   s = get(on_b(), id, &info);
   ASSERT_TRUE(s.ok()) << s.error_message();
   EXPECT_EQ(info.measurements(), 100u);
   EXPECT_EQ(info.t(), two_tank_data().t[99]);
+  on_b_list = list(on_b());
+  ASSERT_EQ(on_b_list.size(), 1u);
+  EXPECT_EQ(on_b_list[0].instance(), "inst-b");
 }
 
 }  // namespace

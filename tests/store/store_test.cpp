@@ -203,6 +203,7 @@ TEST_P(StoreTest, TenantsSeeOnlyTheirOwnRecords) {
   EXPECT_EQ(store->claim_session_snapshot("bob", "ses-a", "inst-2", 60000).status().message(), "no session ses-a");
   EXPECT_EQ(store->put_session_snapshot("bob", "ses-a", "inst-1", 60000, "overwrite").code(), StatusCode::kNotFound);
   EXPECT_EQ(store->delete_session_snapshot("bob", "ses-a", "inst-1").code(), StatusCode::kNotFound);
+  EXPECT_TRUE(store->list_session_snapshots("bob").value().empty());
   EXPECT_EQ(store->put_result("bob", "job-a", "theirs").code(), StatusCode::kNotFound);
   // Another tenant's id reads exactly as a missing one: no hint that it exists.
   EXPECT_EQ(store->get_job("bob", "job-a").status().message(), "no job job-a");
@@ -463,7 +464,17 @@ TEST_P(StoreTest, AnExpiredOrReleasedSessionLeaseIsTakenOverAndItsOldOwnerRefuse
 
   // Released (a clean shutdown): claimable at once, and renewals leave it so.
   ASSERT_TRUE(store->put_session_snapshot("t", "ses-2", "a", 60000, "two").is_ok());
+  const auto holders = [&store] {
+    std::vector<std::string> out;
+    const auto records = store->list_session_snapshots("t");
+    for (const SessionSnapshotRecord& r : records.value()) {
+      out.push_back(r.session_id + ":" + r.holder + ":" + r.snapshot);
+    }
+    return out;
+  };
+  EXPECT_EQ(holders(), (std::vector<std::string>{"ses-1:b:b's", "ses-2:a:two"}));
   EXPECT_EQ(store->release_sessions("a").value(), 1);
+  EXPECT_EQ(holders(), (std::vector<std::string>{"ses-1:b:b's", "ses-2::two"})) << "a released one has no holder";
   EXPECT_EQ(store->renew_session_leases("a", 60000).value(), 0);
   EXPECT_EQ(store->claim_session_snapshot("t", "ses-2", "c", 60000).value(), "two");
   EXPECT_EQ(store->claim_session_snapshot("t", "ses-1", "c", 60000).status().code(), StatusCode::kFailedPrecondition)
