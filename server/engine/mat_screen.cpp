@@ -197,7 +197,7 @@ Result<ScreenedMatFile> screen_mat_file(std::string_view bytes, const std::vecto
     }
     const bool is_wanted = std::find(wanted.begin(), wanted.end(), matrix.name) != wanted.end();
     const bool is_first = std::find(screened.found.begin(), screened.found.end(), matrix.name) == screened.found.end();
-    if (matrix.name.empty() || !is_wanted || !is_first) continue;
+    if (!is_wanted || !is_first) continue;
 
     RICCATI_RETURN_IF_ERROR(check_wanted(matrix, size, source + ": variable \"" + matrix.name + "\""));
     value_bytes += std::uint64_t{matrix.dims[0]} * matrix.dims[1] * sizeof(double);  // each <= size < 2^43
