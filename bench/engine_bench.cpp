@@ -12,8 +12,8 @@
 #include <Eigen/Cholesky>
 #include <cmath>
 
-#include "engine/identification.hpp"
-#include "engine/plugin_loader.hpp"
+#include "engine/estimation/identification.hpp"
+#include "engine/models/plugin_loader.hpp"
 #include "support/two_tank_hensen.hpp"
 
 namespace riccati {

@@ -7,9 +7,9 @@
 //   build/bin/engine_bench --benchmark_filter=OptimalFilterStep
 #include <benchmark/benchmark.h>
 
-#include "engine/dataset.hpp"
-#include "engine/filter.hpp"
-#include "engine/plugin_loader.hpp"
+#include "engine/data/dataset.hpp"
+#include "engine/filters/filter.hpp"
+#include "engine/models/plugin_loader.hpp"
 
 namespace riccati {
 namespace {

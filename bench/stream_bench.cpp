@@ -35,7 +35,7 @@
 #include <thread>
 #include <vector>
 
-#include "engine/dataset.hpp"
+#include "engine/data/dataset.hpp"
 #include "riccati/v1/sessions.grpc.pb.h"
 #include "service/daemon.hpp"
 #include "support/requests.hpp"

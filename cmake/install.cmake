@@ -7,7 +7,7 @@
 #                                   riccati_add_model_plugin(), for plugin authors
 #
 # The models directory is fixed relative to bin/: default_models_dir()
-# (server/engine/plugin_loader.cpp) looks in <dir of the binary>/../lib/riccati/models,
+# (server/engine/models/plugin_loader.cpp) looks in <dir of the binary>/../lib/riccati/models,
 # as it does in the build tree (build/bin, build/lib/riccati/models). It is
 # therefore not CMAKE_INSTALL_LIBDIR, which is lib/x86_64-linux-gnu under
 # /usr on Debian: plugins are private to riccati, like /usr/lib/<package>.

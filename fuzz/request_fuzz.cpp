@@ -12,13 +12,13 @@
 #include <memory>
 #include <spdlog/spdlog.h>
 
-#include "engine/dataset.hpp"
-#include "engine/identification.hpp"
-#include "engine/plugin_loader.hpp"
+#include "engine/data/dataset.hpp"
+#include "engine/estimation/identification.hpp"
+#include "engine/models/plugin_loader.hpp"
 #include "riccati/v1/jobs.pb.h"
 #include "riccati/v1/sessions.pb.h"
 #include "service/convert.hpp"
-#include "service/session_manager.hpp"
+#include "service/sessions/session_manager.hpp"
 
 namespace {
 

@@ -11,9 +11,9 @@
 #include <string>
 #include <string_view>
 
-#include "engine/identification.hpp"
-#include "engine/model.hpp"
-#include "engine/validation.hpp"
+#include "engine/estimation/identification.hpp"
+#include "engine/models/model.hpp"
+#include "engine/estimation/validation.hpp"
 #include "riccati/v1/common.pb.h"
 #include "riccati/v1/datasets.pb.h"
 #include "riccati/v1/jobs.pb.h"

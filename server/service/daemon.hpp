@@ -8,12 +8,12 @@
 #include <memory>
 #include <string>
 
-#include "engine/plugin_loader.hpp"
+#include "engine/models/plugin_loader.hpp"
 #include "service/auth.hpp"
-#include "service/job_manager.hpp"
+#include "service/jobs/job_manager.hpp"
 #include "service/metrics.hpp"
-#include "service/services.hpp"
-#include "service/session_manager.hpp"
+#include "service/rpc/services.hpp"
+#include "service/sessions/session_manager.hpp"
 #include "store/store.hpp"
 
 namespace riccati::service {

@@ -22,7 +22,7 @@
 #include <string>
 #include <vector>
 
-#include "engine/dataset.hpp"
+#include "engine/data/dataset.hpp"
 #include "engine/status.hpp"
 
 namespace riccati {

@@ -15,9 +15,9 @@
 #include <string>
 #include <vector>
 
-#include "engine/identification.hpp"
-#include "engine/plugin_loader.hpp"
-#include "engine/validation.hpp"
+#include "engine/estimation/identification.hpp"
+#include "engine/models/plugin_loader.hpp"
+#include "engine/estimation/validation.hpp"
 
 namespace {
 

@@ -10,8 +10,8 @@
 
 #include "service/daemon_fixture.hpp"
 #include "support/two_tank_hensen.hpp"
-#include "engine/identification.hpp"
-#include "engine/plugin_loader.hpp"
+#include "engine/estimation/identification.hpp"
+#include "engine/models/plugin_loader.hpp"
 
 namespace riccati {
 namespace {

@@ -7,9 +7,9 @@
 #include <cstddef>
 #include <ostream>
 
-#include "engine/dataset.hpp"
-#include "engine/filter.hpp"
-#include "engine/plugin_loader.hpp"
+#include "engine/data/dataset.hpp"
+#include "engine/filters/filter.hpp"
+#include "engine/models/plugin_loader.hpp"
 
 extern "C" {
 void* __libc_malloc(std::size_t size);

@@ -1,4 +1,4 @@
-#include "engine/dataset.hpp"
+#include "engine/data/dataset.hpp"
 
 #include <gtest/gtest.h>
 

@@ -6,8 +6,8 @@
 #include <nlohmann/json.hpp>
 #include <stop_token>
 
-#include "engine/identification.hpp"
-#include "engine/plugin_loader.hpp"
+#include "engine/estimation/identification.hpp"
+#include "engine/models/plugin_loader.hpp"
 
 namespace riccati {
 namespace {

@@ -1,6 +1,6 @@
 // Integrators against closed-form solutions, used the way filters use them:
 // one integrator object advanced over many successive sample intervals.
-#include "engine/integrator.hpp"
+#include "engine/integrators/integrator.hpp"
 
 #include <gtest/gtest.h>
 

@@ -13,8 +13,8 @@
 #include <random>
 #include <unsupported/Eigen/MatrixFunctions>
 
-#include "engine/filter.hpp"
-#include "engine/model.hpp"
+#include "engine/filters/filter.hpp"
+#include "engine/models/model.hpp"
 #include "riccati/model.hpp"
 
 namespace riccati {

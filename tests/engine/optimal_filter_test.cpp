@@ -17,10 +17,10 @@
 #include <string>
 #include <vector>
 
-#include "engine/dataset.hpp"
-#include "engine/filter.hpp"
-#include "engine/identification.hpp"
-#include "engine/plugin_loader.hpp"
+#include "engine/data/dataset.hpp"
+#include "engine/filters/filter.hpp"
+#include "engine/estimation/identification.hpp"
+#include "engine/models/plugin_loader.hpp"
 #include "riccati/model.hpp"
 
 namespace riccati {

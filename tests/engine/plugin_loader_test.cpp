@@ -14,8 +14,8 @@
 #include <vector>
 
 #include "engine/bad_plugins/pendulum_table.hpp"
-#include "engine/model.hpp"
-#include "engine/plugin_loader.hpp"
+#include "engine/models/model.hpp"
+#include "engine/models/plugin_loader.hpp"
 
 namespace riccati {
 namespace {

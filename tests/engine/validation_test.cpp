@@ -4,8 +4,8 @@
 #include <fstream>
 #include <nlohmann/json.hpp>
 
-#include "engine/plugin_loader.hpp"
-#include "engine/validation.hpp"
+#include "engine/models/plugin_loader.hpp"
+#include "engine/estimation/validation.hpp"
 
 namespace riccati {
 namespace {

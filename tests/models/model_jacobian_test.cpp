@@ -15,8 +15,8 @@
 #include <string>
 #include <vector>
 
-#include "engine/model.hpp"
-#include "engine/plugin_loader.hpp"
+#include "engine/models/model.hpp"
+#include "engine/models/plugin_loader.hpp"
 
 namespace riccati {
 namespace {

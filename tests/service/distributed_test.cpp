@@ -19,8 +19,8 @@
 #include <sstream>
 #include <thread>
 
-#include "engine/identification.hpp"
-#include "engine/plugin_loader.hpp"
+#include "engine/estimation/identification.hpp"
+#include "engine/models/plugin_loader.hpp"
 #include "riccati/v1/datasets.grpc.pb.h"
 #include "riccati/internal/session_snapshot.pb.h"
 #include "riccati/v1/jobs.grpc.pb.h"

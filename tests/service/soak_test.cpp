@@ -17,7 +17,7 @@
 #include <thread>
 #include <vector>
 
-#include "engine/dataset.hpp"
+#include "engine/data/dataset.hpp"
 #include "riccati/v1/datasets.grpc.pb.h"
 #include "riccati/v1/jobs.grpc.pb.h"
 #include "riccati/v1/sessions.grpc.pb.h"

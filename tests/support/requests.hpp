@@ -7,7 +7,7 @@
 #include <string>
 #include <vector>
 
-#include "engine/dataset.hpp"
+#include "engine/data/dataset.hpp"
 
 #include "riccati/v1/jobs.pb.h"
 #include "riccati/v1/sessions.pb.h"

@@ -4,7 +4,7 @@
 // the tests and benchmarks that run it in-process as a reference.
 #pragma once
 
-#include "engine/identification.hpp"
+#include "engine/estimation/identification.hpp"
 
 namespace riccati::testing {
 

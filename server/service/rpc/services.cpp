@@ -1,4 +1,4 @@
-#include "service/services.hpp"
+#include "service/rpc/services.hpp"
 
 #include <optional>
 
@@ -9,7 +9,7 @@
 #include <filesystem>
 #include <fstream>
 
-#include "engine/validation.hpp"
+#include "engine/estimation/validation.hpp"
 #include "service/auth.hpp"
 #include "service/convert.hpp"
 

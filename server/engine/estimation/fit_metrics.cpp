@@ -1,4 +1,4 @@
-#include "engine/fit_metrics.hpp"
+#include "engine/estimation/fit_metrics.hpp"
 
 #include <cmath>
 #include <limits>

@@ -1,4 +1,4 @@
-#include "service/job_manager.hpp"
+#include "service/jobs/job_manager.hpp"
 
 #include <spdlog/spdlog.h>
 #include <unistd.h>
@@ -6,8 +6,8 @@
 #include <cstdio>
 #include <random>
 
-#include "engine/identification.hpp"
-#include "engine/validation.hpp"
+#include "engine/estimation/identification.hpp"
+#include "engine/estimation/validation.hpp"
 #include "service/convert.hpp"
 
 namespace riccati::service {

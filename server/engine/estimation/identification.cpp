@@ -1,4 +1,4 @@
-#include "engine/identification.hpp"
+#include "engine/estimation/identification.hpp"
 
 #include <algorithm>
 

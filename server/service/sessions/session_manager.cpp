@@ -1,4 +1,4 @@
-#include "service/session_manager.hpp"
+#include "service/sessions/session_manager.hpp"
 
 #include <spdlog/spdlog.h>
 

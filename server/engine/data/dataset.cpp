@@ -1,4 +1,4 @@
-#include "engine/dataset.hpp"
+#include "engine/data/dataset.hpp"
 
 #include <matio.h>
 #include <sys/mman.h>
@@ -21,7 +21,7 @@
 #include <utility>
 #include <vector>
 
-#include "engine/mat_screen.hpp"
+#include "engine/data/mat_screen.hpp"
 
 namespace riccati {
 namespace {

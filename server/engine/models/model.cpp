@@ -1,4 +1,4 @@
-#include "engine/model.hpp"
+#include "engine/models/model.hpp"
 
 #include <array>
 #include <cstddef>

@@ -35,7 +35,7 @@
 #include <thread>
 #include <vector>
 
-#include "engine/plugin_loader.hpp"
+#include "engine/models/plugin_loader.hpp"
 #include "riccati/v1/jobs.pb.h"
 #include "store/store.hpp"
 

@@ -1,4 +1,4 @@
-#include "engine/integrator.hpp"
+#include "engine/integrators/integrator.hpp"
 
 #include <cmath>
 #include <cstdio>

@@ -11,16 +11,16 @@
 #include <mutex>
 #include <set>
 
-#include "engine/plugin_loader.hpp"
+#include "engine/models/plugin_loader.hpp"
 #include "riccati/v1/datasets.grpc.pb.h"
 #include "riccati/v1/jobs.grpc.pb.h"
 #include "riccati/v1/models.grpc.pb.h"
 #include "riccati/v1/sessions.grpc.pb.h"
 #include "service/auth.hpp"
-#include "service/job_manager.hpp"
+#include "service/jobs/job_manager.hpp"
 #include "service/limits.hpp"
 #include "service/metrics.hpp"
-#include "service/session_manager.hpp"
+#include "service/sessions/session_manager.hpp"
 #include "store/store.hpp"
 
 namespace riccati::service {

@@ -1,4 +1,4 @@
-#include "engine/filter.hpp"
+#include "engine/filters/filter.hpp"
 
 #include <Eigen/Cholesky>
 #include <Eigen/QR>

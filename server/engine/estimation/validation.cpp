@@ -1,4 +1,4 @@
-#include "engine/validation.hpp"
+#include "engine/estimation/validation.hpp"
 
 #include <string>
 

@@ -37,9 +37,9 @@
 #include <thread>
 #include <vector>
 
-#include "engine/filter.hpp"
-#include "engine/identification.hpp"
-#include "engine/plugin_loader.hpp"
+#include "engine/filters/filter.hpp"
+#include "engine/estimation/identification.hpp"
+#include "engine/models/plugin_loader.hpp"
 #include "riccati/internal/session_snapshot.pb.h"
 #include "riccati/v1/sessions.pb.h"
 #include "store/store.hpp"

@@ -13,9 +13,9 @@
 #include <stop_token>
 #include <vector>
 
-#include "engine/dataset.hpp"
-#include "engine/filter.hpp"
-#include "engine/model.hpp"
+#include "engine/data/dataset.hpp"
+#include "engine/filters/filter.hpp"
+#include "engine/models/model.hpp"
 #include "engine/status.hpp"
 
 namespace riccati {

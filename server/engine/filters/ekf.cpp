@@ -16,7 +16,7 @@
 #include <algorithm>
 #include <string>
 
-#include "engine/filter.hpp"
+#include "engine/filters/filter.hpp"
 
 namespace riccati {
 

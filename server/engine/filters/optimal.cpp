@@ -37,7 +37,7 @@
 #include <string>
 #include <vector>
 
-#include "engine/filter.hpp"
+#include "engine/filters/filter.hpp"
 
 namespace riccati {
 

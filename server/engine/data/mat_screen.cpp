@@ -1,4 +1,4 @@
-#include "engine/mat_screen.hpp"
+#include "engine/data/mat_screen.hpp"
 
 #include <zlib.h>
 

@@ -22,7 +22,7 @@
 #include <type_traits>
 #include <utility>
 
-#include "engine/integrator.hpp"
+#include "engine/integrators/integrator.hpp"
 
 namespace riccati {
 namespace {

@@ -25,7 +25,7 @@
 #include <limits>
 #include <string>
 
-#include "engine/filter.hpp"
+#include "engine/filters/filter.hpp"
 
 namespace riccati {
 

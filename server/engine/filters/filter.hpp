@@ -12,8 +12,8 @@
 #include <memory>
 #include <string_view>
 
-#include "engine/integrator.hpp"
-#include "engine/model.hpp"
+#include "engine/integrators/integrator.hpp"
+#include "engine/models/model.hpp"
 #include "engine/status.hpp"
 
 namespace riccati {

@@ -5,11 +5,11 @@
 #include <Eigen/Core>
 #include <vector>
 
-#include "engine/dataset.hpp"
-#include "engine/filter.hpp"
-#include "engine/fit_metrics.hpp"
-#include "engine/identification.hpp"
-#include "engine/model.hpp"
+#include "engine/data/dataset.hpp"
+#include "engine/filters/filter.hpp"
+#include "engine/estimation/fit_metrics.hpp"
+#include "engine/estimation/identification.hpp"
+#include "engine/models/model.hpp"
 
 namespace riccati {
 

@@ -5,7 +5,7 @@
 #include <string_view>
 #include <vector>
 
-#include "engine/model.hpp"
+#include "engine/models/model.hpp"
 #include "engine/status.hpp"
 
 namespace riccati {

@@ -1,4 +1,4 @@
-#include "engine/plugin_loader.hpp"
+#include "engine/models/plugin_loader.hpp"
 
 #include <dlfcn.h>
 #include <sys/stat.h>
