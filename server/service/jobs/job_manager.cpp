@@ -150,16 +150,36 @@ Result<JobRecord> JobManager::get(const std::string& tenant, const std::string& 
   {
     std::lock_guard lock(mu_);
     auto it = live_.find(id);
-    if (it != live_.end() && it->second.record.tenant == tenant) return it->second.record;
+    if (it != live_.end() && it->second.record.tenant == tenant && !it->second.ending) return it->second.record;
   }
   return store_.get_job(tenant, id);
+}
+
+Result<std::vector<JobRecord>> JobManager::list(const std::string& tenant) {
+  RICCATI_ASSIGN_OR_RETURN(std::vector<JobRecord> jobs, store_.list_jobs(tenant));
+  std::lock_guard lock(mu_);
+  for (JobRecord& job : jobs) {
+    // Live progress is fresher than the store's; an ending job's is not.
+    auto it = live_.find(job.id);
+    if (it != live_.end() && it->second.record.tenant == tenant && !it->second.ending) job = it->second.record;
+  }
+  return jobs;
+}
+
+Result<std::string> JobManager::result(const std::string& tenant, const std::string& id) {
+  // The result first: the store writes it with the job's end, so a job that
+  // has one has ended, whatever a reader saw before.
+  Result<std::string> stored = store_.get_result(tenant, id);
+  if (stored.status().code() != StatusCode::kNotFound) return stored;
+  RICCATI_ASSIGN_OR_RETURN(const JobRecord job, get(tenant, id));
+  return failed_precondition("job " + id + " has no result: it is " + job_state_name(job.state));
 }
 
 Result<JobRecord> JobManager::cancel(const std::string& tenant, const std::string& id) {
   {
     std::lock_guard lock(mu_);
     auto it = live_.find(id);
-    if (it != live_.end() && it->second.record.tenant == tenant) {
+    if (it != live_.end() && it->second.record.tenant == tenant && !it->second.ending) {
       it->second.cancel_requested = true;
       it->second.stop.request_stop();
       return it->second.record;
@@ -198,13 +218,16 @@ Result<JobRecord> JobManager::wait_for_change(const std::string& tenant, const s
     }
     auto it = live_.find(id);
     if (it != live_.end() && it->second.record.tenant == tenant) {
+      // Until its end is stored, or while it is being stored (then the store
+      // is read: it has the end and the result together, or neither).
       changed_.wait_until(lock, deadline, [&] {
         auto found = live_.find(id);
-        return stopping_ || found == live_.end() || found->second.version != *version;
+        return stopping_ || found == live_.end() ||
+               (found->second.ending ? false : found->second.version != *version);
       });
       if (stopping_) continue;
       auto found = live_.find(id);
-      if (found != live_.end()) {
+      if (found != live_.end() && !found->second.ending) {
         *version = found->second.version;
         return found->second.record;
       }
@@ -219,7 +242,10 @@ Result<JobRecord> JobManager::wait_for_change(const std::string& tenant, const s
     lock.lock();
     // A claim by a worker here ends the wait early (changed_ is notified).
     changed_.wait_until(lock, std::min(deadline, std::chrono::steady_clock::now() + kStorePoll),
-                        [&] { return stopping_ || live_.count(id) > 0; });
+                        [&] {
+                          auto found = live_.find(id);
+                          return stopping_ || (found != live_.end() && !found->second.ending);
+                        });
   }
 }
 
@@ -343,6 +369,11 @@ void JobManager::finish(JobRecord job, const Result<std::string>& result,
     job.state = outcome.code() == StatusCode::kCancelled ? JobState::kCancelled : JobState::kFailed;
     job.error_code = static_cast<int>(outcome.code());
     job.error_message = outcome.message();
+  }
+  {
+    std::lock_guard lock(mu_);
+    auto it = live_.find(job.id);
+    if (it != live_.end()) it->second.ending = true;
   }
   const Status stored = store_.finish_job(job, instance_, result.is_ok() ? &result.value() : nullptr);
   // Counted before watchers here hear of the end, so that what they see

@@ -82,6 +82,11 @@ class JobManager {
   Result<JobRecord> submit_validation(const std::string& tenant, const v1::ValidationSpec& spec);
   Result<JobRecord> cancel(const std::string& tenant, const std::string& id);
   Result<JobRecord> get(const std::string& tenant, const std::string& id);
+  // The tenant's jobs, oldest first, with the progress of those running here.
+  Result<std::vector<JobRecord>> list(const std::string& tenant);
+  // The result of a job that succeeded (encoded JobResult); FAILED_PRECONDITION
+  // naming the job's state when it has none.
+  Result<std::string> result(const std::string& tenant, const std::string& id);
 
   // Blocks until the job has changed since `*version` (0 = return now),
   // the job has ended, `deadline` passes, or shutdown; returns the job then.
@@ -98,6 +103,10 @@ class JobManager {
     std::stop_source stop;
     bool cancel_requested = false;
     bool lease_lost = false;  // another instance holds it now: drop the outcome
+    // Its end is being stored: from now on the store, where the end and the
+    // result appear together, is what every reader sees, so that no reader
+    // hears "running" here after another heard the end from the store.
+    bool ending = false;
   };
 
   Result<JobRecord> enqueue(JobRecord record);

@@ -253,14 +253,9 @@ grpc::Status JobServiceImpl::GetJob(grpc::ServerContext* context, const v1::GetJ
 
 grpc::Status JobServiceImpl::ListJobs(grpc::ServerContext* context, const v1::ListJobsRequest*,
                                       v1::ListJobsResponse* response) {
-  const std::string tenant = auth_.tenant(*context);
-  auto jobs = store_.list_jobs(tenant);
+  auto jobs = jobs_.list(auth_.tenant(*context));
   if (!jobs.is_ok()) return to_grpc(jobs.status());
-  for (const auto& stored : jobs.value()) {
-    // Live progress is fresher than the store's.
-    auto live = jobs_.get(tenant, stored.id);
-    *response->add_jobs() = to_proto(live.is_ok() ? live.value() : stored);
-  }
+  for (const JobRecord& job : jobs.value()) *response->add_jobs() = to_proto(job);
   return grpc::Status::OK;
 }
 
@@ -274,14 +269,7 @@ grpc::Status JobServiceImpl::CancelJob(grpc::ServerContext* context, const v1::C
 
 grpc::Status JobServiceImpl::GetResult(grpc::ServerContext* context, const v1::GetResultRequest* request,
                                        v1::JobResult* response) {
-  const std::string tenant = auth_.tenant(*context);
-  auto job = jobs_.get(tenant, request->job_id());
-  if (!job.is_ok()) return to_grpc(job.status());
-  if (job.value().state != JobState::kSucceeded) {
-    return to_grpc(failed_precondition("job " + request->job_id() + " has no result: it is " +
-                                       job_state_name(job.value().state)));
-  }
-  auto encoded = store_.get_result(tenant, request->job_id());
+  auto encoded = jobs_.result(auth_.tenant(*context), request->job_id());
   if (!encoded.is_ok()) return to_grpc(encoded.status());
   if (!response->ParseFromString(encoded.value())) {
     return to_grpc(internal_error("stored result of job " + request->job_id() + " is unreadable"));

@@ -57,7 +57,7 @@ class DatasetServiceImpl final : public v1::DatasetService::Service {
 
 class JobServiceImpl final : public v1::JobService::Service {
  public:
-  JobServiceImpl(const Authenticator& auth, JobManager& jobs, Store& store) : auth_(auth), jobs_(jobs), store_(store) {}
+  JobServiceImpl(const Authenticator& auth, JobManager& jobs) : auth_(auth), jobs_(jobs) {}
   grpc::Status SubmitIdentification(grpc::ServerContext*, const v1::IdentificationSpec*, v1::Job*) override;
   grpc::Status SubmitValidation(grpc::ServerContext*, const v1::ValidationSpec*, v1::Job*) override;
   grpc::Status WatchJob(grpc::ServerContext*, const v1::WatchJobRequest*, grpc::ServerWriter<v1::Job>*) override;
@@ -69,7 +69,6 @@ class JobServiceImpl final : public v1::JobService::Service {
  private:
   const Authenticator& auth_;
   JobManager& jobs_;
-  Store& store_;
 };
 
 // Stream uses gRPC's callback API (a reactor per stream): no thread is held
