@@ -84,6 +84,10 @@ Result<Eigen::MatrixXd> from_covariance(const v1::Covariance& c, Eigen::Index n,
       }
       return m;
     }
+    case v1::Covariance::kScalar: {
+      if (!std::isfinite(c.scalar())) return invalid_argument(field + ".scalar is not finite");
+      return Eigen::MatrixXd(Eigen::MatrixXd::Identity(n, n) * c.scalar());
+    }
     case v1::Covariance::FORM_NOT_SET:
       break;
   }
