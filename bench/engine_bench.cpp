@@ -57,14 +57,14 @@ void TwoTankFilterStep(benchmark::State& state, FilterKind kind) {
   const IdentificationSettings s = fixture.hensen(kind);
   auto filter = make_filter(fixture.model, s.filter).value();
   Eigen::VectorXd z0(6);
-  z0 << fixture.data.y.col(0), s.theta0;
+  z0 << fixture.data.y.col(0), s.initial.theta0;
   const Dataset& d = fixture.data;
   Eigen::Index k = 0;
-  (void)filter->reset(d.t[0], z0, s.P0);
+  (void)filter->reset(d.t[0], z0, s.initial.P0);
   for (auto _ : state) {
     if (++k == d.size()) {
       k = 1;
-      (void)filter->reset(d.t[0], z0, s.P0);
+      (void)filter->reset(d.t[0], z0, s.initial.P0);
     }
     Status st = filter->predict(d.t[k], d.u.col(k - 1).data(), d.u.col(k).data());
     if (st.is_ok()) st = filter->update(d.y.col(k).data(), d.u.col(k).data());

@@ -17,7 +17,7 @@
 #include "engine/models/plugin_loader.hpp"
 #include "riccati/v1/jobs.pb.h"
 #include "riccati/v1/sessions.pb.h"
-#include "service/convert.hpp"
+#include "service/jobs/job_convert.hpp"
 #include "service/sessions/session_manager.hpp"
 
 namespace {

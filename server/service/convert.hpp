@@ -1,34 +1,32 @@
-// Conversions between the API (riccati.v1 protobuf) and the engine.
-//
-// The one place where request fields are checked and turned into engine
-// settings: sizes against the model, finiteness, enums. Errors name the
-// field ("filter.r: ...") so a client knows what to fix.
+// Conversions between the API (riccati.v1 protobuf) and the engine that every
+// service uses: statuses, vectors, matrices, covariances, timestamps and
+// enums. What is particular to a service is converted beside it
+// (run_settings.hpp for the filter settings of sessions and jobs,
+// jobs/job_convert.hpp for job specs and results, the rpc/ handlers for the
+// rest). Errors name the request field ("filter.r: ...") so a client knows
+// what to fix.
 #pragma once
 
+#include <google/protobuf/timestamp.pb.h>
 #include <grpcpp/grpcpp.h>
 
+#include <Eigen/Core>
 #include <cstdint>
 #include <string>
 #include <string_view>
 
-#include "engine/estimation/identification.hpp"
-#include "engine/models/model.hpp"
-#include "engine/estimation/validation.hpp"
+#include "engine/status.hpp"
+#include "riccati/enum_names.hpp"
 #include "riccati/v1/common.pb.h"
-#include "riccati/v1/datasets.pb.h"
-#include "riccati/v1/jobs.pb.h"
-#include "riccati/v1/models.pb.h"
-#include "store/store.hpp"
 
 namespace riccati::service {
 
 // Status <-> gRPC (the codes are the same numbers).
 grpc::Status to_grpc(const Status& status);
 v1::Error to_error(const Status& status);
+// The inverse of to_error (a stored divergence); a code of 0 reads as `otherwise`.
+Status from_error(const v1::Error& error, StatusCode otherwise);
 
-std::int64_t now_ms();
-// A new random id such as "job-3f9a0c1d5e7b2a64" (64 random bits).
-std::string new_id(std::string_view prefix);
 void set_timestamp(std::int64_t unix_ms, google::protobuf::Timestamp* out);
 
 // Vectors and matrices.
@@ -42,30 +40,30 @@ void copy_values(const Vector& v, google::protobuf::RepeatedField<double>* out) 
   for (Eigen::Index i = 0; i < v.size(); ++i) out->Add(v[i]);
 }
 
-// A covariance of size n x n from its diagonal or full form; `required`
-// false makes an absent one zero.
+// A covariance of size n x n from its scalar, diagonal or full form;
+// `required` false makes an absent one zero.
 Result<Eigen::MatrixXd> from_covariance(const v1::Covariance& c, Eigen::Index n, bool required,
                                         const std::string& field);
 
-Result<IntegratorSettings> from_proto(const v1::IntegratorSettings& s);
-HoldOrder from_proto(v1::HoldOrder hold);
-Result<FilterSettings> from_proto(const v1::FilterSettings& s, const Model& model);
-Result<IdentificationSettings> from_proto(const v1::IdentificationSpec& spec, const Model& model);
-// Everything of a validation spec except where the parameters come from.
-Result<ValidationSettings> from_proto(const v1::ValidationSpec& spec, const Model& model);
-void initial_state_from_proto(const v1::InitialState& s, InitialState* mode, Eigen::VectorXd* x0);
-// The initial covariance of a run: p0, or for the optimal filter R0^-1 from
-// filter.optimal.r0 (one of the two).
-Result<Eigen::MatrixXd> initial_covariance(const v1::Covariance& p0, const v1::FilterSettings& filter,
-                                           const Model& model);
+// An engine enum from the API's: by name (the API's short name is the
+// engine's, enum_names.hpp), with `parse` the engine's parser for it. The
+// API's UNSPECIFIED (0) leaves `*out` as it is: the engine's default.
+template <typename T>
+Status enum_from_proto(int number, const google::protobuf::EnumDescriptor& descriptor,
+                       Result<T> (*parse)(std::string_view), const std::string& field, T* out) {
+  if (number == 0) return Status::ok();
+  const google::protobuf::EnumValueDescriptor* value = descriptor.FindValueByNumber(number);
+  if (value == nullptr) {
+    return invalid_argument(field + " " + std::to_string(number) + " is unknown (expected " +
+                            api::enum_choice_list(descriptor) + ")");
+  }
+  Result<T> parsed = parse(api::enum_value_name(*value));
+  if (!parsed.is_ok()) return parsed.status().with_context(field);
+  *out = parsed.value();
+  return Status::ok();
+}
 
-v1::ModelInfo to_proto(const Model& model);
-v1::DatasetInfo to_proto(const DatasetRecord& record);
-v1::IdentificationResult to_proto(const IdentificationResult& r);
-// The inverse of to_proto (a stored result or checkpoint).
-Result<IdentificationResult> from_proto(const v1::IdentificationResult& r);
-v1::ValidationResult to_proto(const ValidationResult& r, const Eigen::VectorXd& theta);
-v1::FilterKind to_proto(FilterKind kind);
-v1::JobState to_proto(JobState state);
+// The API's enum value of the engine's `name` (0 if the API has none).
+int enum_to_proto(const google::protobuf::EnumDescriptor& descriptor, std::string_view name);
 
 }  // namespace riccati::service

@@ -148,7 +148,8 @@ Status Daemon::start() {
 
   RICCATI_ASSIGN_OR_RETURN(auth_, Authenticator::create(config_.security.tokens_file));
   model_service_ = std::make_unique<ModelServiceImpl>(models_);
-  dataset_service_ = std::make_unique<DatasetServiceImpl>(*auth_, *store_, config_.limits);
+  datasets_ = std::make_unique<DatasetManager>(*store_, config_.limits);
+  dataset_service_ = std::make_unique<DatasetServiceImpl>(*auth_, *datasets_);
   job_service_ = std::make_unique<JobServiceImpl>(*auth_, *jobs_);
   session_service_ = std::make_unique<SessionServiceImpl>(*auth_, *sessions_, config_.limits, metrics_);
 

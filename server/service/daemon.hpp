@@ -12,7 +12,11 @@
 #include "service/auth.hpp"
 #include "service/jobs/job_manager.hpp"
 #include "service/metrics.hpp"
-#include "service/rpc/services.hpp"
+#include "service/datasets/dataset_manager.hpp"
+#include "service/rpc/dataset_service.hpp"
+#include "service/rpc/job_service.hpp"
+#include "service/rpc/model_service.hpp"
+#include "service/rpc/session_service.hpp"
 #include "service/sessions/session_manager.hpp"
 #include "store/store.hpp"
 
@@ -61,6 +65,7 @@ class Daemon {
   Metrics metrics_;  // first in, last out: the server's interceptor counts into it
   ModelRegistry models_;
   std::unique_ptr<Store> store_;
+  std::unique_ptr<DatasetManager> datasets_;
   std::unique_ptr<JobManager> jobs_;
   std::unique_ptr<SessionManager> sessions_;
   std::shared_ptr<const Authenticator> auth_;

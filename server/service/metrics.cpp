@@ -179,10 +179,10 @@ void Metrics::measurement(bool estimated, std::chrono::steady_clock::duration st
   step_seconds_->Observe(std::chrono::duration<double>(step).count());
 }
 
-void Metrics::job_ended(const std::string& kind, JobState state, std::chrono::steady_clock::duration took) {
-  jobs_ended_->Add({{"kind", kind}, {"state", job_state_name(state)}}).Increment();
+void Metrics::job_ended(JobKind kind, JobState state, std::chrono::steady_clock::duration took) {
+  jobs_ended_->Add({{"kind", job_kind_name(kind)}, {"state", job_state_name(state)}}).Increment();
   // 10 ms to about 3 h.
-  job_seconds_->Add({{"kind", kind}}, exponential(0.01, 4.0, 11)).Observe(std::chrono::duration<double>(took).count());
+  job_seconds_->Add({{"kind", job_kind_name(kind)}}, exponential(0.01, 4.0, 11)).Observe(std::chrono::duration<double>(took).count());
 }
 
 void Metrics::rpc_finished(const std::string& method, int code) {

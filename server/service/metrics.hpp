@@ -56,7 +56,7 @@ class Metrics {
   void measurement(bool estimated, std::chrono::steady_clock::duration step);
   void session_snapshot(bool stored);
   void session_resumed();
-  void job_ended(const std::string& kind, JobState state, std::chrono::steady_clock::duration took);
+  void job_ended(JobKind kind, JobState state, std::chrono::steady_clock::duration took);
   void rpc_finished(const std::string& method, int code);
 
   // Counts every call the server finishes (add to the ServerBuilder).

@@ -210,7 +210,7 @@ JobRecord read_job(const pqxx::row& r) {
   JobRecord j;
   j.id = r[0].as<std::string>();
   j.tenant = r[1].as<std::string>();
-  j.kind = r[2].as<std::string>();
+  j.kind = parse_job_kind(r[2].as<std::string>());
   j.state = parse_job_state(r[3].as<std::string>()).value_or(JobState::kFailed);
   j.spec = bytes_of(r[4]);
   j.pass = r[5].as<int>();
@@ -463,7 +463,7 @@ class PostgresStore final : public Store {
       tx.exec_params(std::string("INSERT INTO jobs (") + kJobColumns +
                          ") VALUES ($1, $2, $3, $4, $5::bytea, $6, $7, $8, $9, $10::bytea, $11, $12, $13, $14, $15, "
                          "$16, $17, $18)",
-                     j.id, j.tenant, j.kind, job_state_name(j.state), pqxx::binarystring(j.spec), j.pass, j.passes,
+                     j.id, j.tenant, job_kind_name(j.kind), job_state_name(j.state), pqxx::binarystring(j.spec), j.pass, j.passes,
                      j.sample, j.samples, to_bytea(j.theta.data(), j.theta.size()), j.error_code, j.error_message,
                      j.created_ms, j.started_ms, j.finished_ms, j.owner, j.lease_until_ms, j.cancel_requested);
       return Status::ok();
@@ -520,9 +520,10 @@ class PostgresStore final : public Store {
       const pqxx::result r = tx.exec_params(
           std::string("UPDATE jobs SET state = 'running', owner = $1, lease_until_ms = " RICCATI_PG_NOW_MS
                       " + $2, started_ms = CASE WHEN started_ms = 0 THEN " RICCATI_PG_NOW_MS
-                      " ELSE started_ms END WHERE id = (SELECT id FROM jobs WHERE state = 'queued' OR "
+                      " ELSE started_ms END WHERE id = (SELECT id FROM jobs WHERE (state = 'queued' OR "
                       "(state = 'running' AND lease_until_ms < " RICCATI_PG_NOW_MS
-                      ") ORDER BY created_ms, seq LIMIT 1 FOR UPDATE SKIP LOCKED) RETURNING ") +
+                      ")) AND kind IN (") + known_job_kinds_sql() +
+              ") ORDER BY created_ms, seq LIMIT 1 FOR UPDATE SKIP LOCKED) RETURNING " +
               kJobColumns,
           owner, lease_ms);
       if (r.empty()) return std::optional<JobRecord>();

@@ -199,7 +199,7 @@ JobRecord read_job(const Statement& s) {
   JobRecord j;
   j.id = s.column_text(0);
   j.tenant = s.column_text(1);
-  j.kind = s.column_text(2);
+  j.kind = parse_job_kind(s.column_text(2));
   j.state = parse_state(s.column_text(3));
   j.spec = s.column_blob(4);
   j.pass = static_cast<int>(s.column_int(5));
@@ -359,7 +359,7 @@ class SqliteStore final : public Store {
     Statement q(db_.get(), (std::string("INSERT INTO jobs (") + kJobColumns +
                             ") VALUES (?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?)")
                                .c_str());
-    q.text(j.id).text(j.tenant).text(j.kind).text(job_state_name(j.state)).blob(j.spec).integer(j.pass)
+    q.text(j.id).text(j.tenant).text(job_kind_name(j.kind)).text(job_state_name(j.state)).blob(j.spec).integer(j.pass)
         .integer(j.passes).integer(j.sample).integer(j.samples).blob(to_blob(j.theta.data(), j.theta.size()))
         .integer(j.error_code).text(j.error_message).integer(j.created_ms).integer(j.started_ms)
         .integer(j.finished_ms).text(j.owner).integer(j.lease_until_ms).integer(j.cancel_requested ? 1 : 0);
@@ -414,8 +414,8 @@ class SqliteStore final : public Store {
     return in_transaction([&]() -> Result<std::optional<JobRecord>> {
       const std::int64_t now = wall_clock_ms();
       Statement q(db_.get(), (std::string("SELECT ") + kJobColumns +
-                              " FROM jobs WHERE state = 'queued' OR (state = 'running' AND lease_until_ms < ?) "
-                              "ORDER BY created_ms, rowid LIMIT 1")
+                              " FROM jobs WHERE (state = 'queued' OR (state = 'running' AND lease_until_ms < ?)) "
+                              "AND kind IN (" + known_job_kinds_sql() + ") ORDER BY created_ms, rowid LIMIT 1")
                                  .c_str());
       q.integer(now);
       const int rc = q.step();

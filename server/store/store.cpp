@@ -23,6 +23,30 @@ std::optional<JobState> parse_job_state(const std::string& name) {
   return std::nullopt;
 }
 
+const char* job_kind_name(JobKind kind) {
+  switch (kind) {
+    case JobKind::kIdentification: return "identification";
+    case JobKind::kValidation: return "validation";
+    case JobKind::kUnknown: break;
+  }
+  return "unknown";
+}
+
+JobKind parse_job_kind(const std::string& name) {
+  for (JobKind kind : {JobKind::kIdentification, JobKind::kValidation}) {
+    if (name == job_kind_name(kind)) return kind;
+  }
+  return JobKind::kUnknown;
+}
+
+std::string known_job_kinds_sql() {
+  std::string list;
+  for (JobKind kind : {JobKind::kIdentification, JobKind::kValidation}) {
+    list += std::string(list.empty() ? "" : ", ") + "'" + job_kind_name(kind) + "'";
+  }
+  return list;
+}
+
 bool is_terminal(JobState state) {
   return state == JobState::kSucceeded || state == JobState::kFailed || state == JobState::kCancelled;
 }

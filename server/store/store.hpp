@@ -43,6 +43,15 @@ struct DatasetRecord {
 
 enum class JobState { kQueued, kRunning, kSucceeded, kFailed, kCancelled };
 
+// What a job does. kUnknown is only ever read: a kind that a newer riccatid
+// sharing the store wrote; this one lists such jobs but never claims them.
+enum class JobKind { kIdentification, kValidation, kUnknown };
+
+const char* job_kind_name(JobKind kind);  // "identification", "validation"
+JobKind parse_job_kind(const std::string& name);  // kUnknown for any other name
+// The kinds this riccatid runs, as an SQL list: 'identification', 'validation'.
+std::string known_job_kinds_sql();
+
 const char* job_state_name(JobState state);  // "queued", "running", ...
 // The state named so by job_state_name; nullopt for any other name.
 std::optional<JobState> parse_job_state(const std::string& name);
@@ -66,7 +75,7 @@ struct SessionSnapshotRecord {
 struct JobRecord {
   std::string id;
   std::string tenant;
-  std::string kind;  // "identification" or "validation"
+  JobKind kind = JobKind::kIdentification;
   JobState state = JobState::kQueued;
   std::string spec;  // opaque: encoded by the service layer
   // Progress (identification): pass and sample are 1-based; 0 = not started.
@@ -117,8 +126,8 @@ class Store {
   // The job queue. Several riccatid may share one store (PostgreSQL); each
   // job runs on one of them at a time, under a lease that its owner renews.
   //
-  // claim_job: the oldest job that is queued, or running under an expired
-  // lease (its instance died), becomes running, owned by `owner` for
+  // claim_job: the oldest job of a kind this riccatid knows that is queued,
+  // or running under an expired lease (its instance died), becomes running, owned by `owner` for
   // `lease_ms` from now; started_ms is set at its first claim. Two callers
   // never get the same job. nullopt: nothing to run.
   virtual Result<std::optional<JobRecord>> claim_job(const std::string& owner, std::int64_t lease_ms) = 0;

@@ -16,6 +16,7 @@
 #include <vector>
 
 #include "engine/estimation/identification.hpp"
+#include "engine/filters/filter_kinds.hpp"
 #include "engine/models/plugin_loader.hpp"
 #include "engine/estimation/validation.hpp"
 
@@ -146,10 +147,10 @@ Status identify_command(const CommonOptions& o, const IdentifyOptions& io) {
   RICCATI_ASSIGN_OR_RETURN(f.Q, diagonal(io.q, model->nz(), "--q"));
   if (io.r.empty()) return invalid_argument("--r (measurement noise variances) is required");
   RICCATI_ASSIGN_OR_RETURN(f.R, diagonal(io.r, model->ny(), "--r"));
-  RICCATI_ASSIGN_OR_RETURN(s.P0, diagonal(io.p0, model->nz(), "--p0"));
-  s.theta0 = io.theta0.empty() ? model->theta_default() : to_vector(io.theta0);
+  RICCATI_ASSIGN_OR_RETURN(s.initial.P0, diagonal(io.p0, model->nz(), "--p0"));
+  s.initial.theta0 = io.theta0.empty() ? model->theta_default() : to_vector(io.theta0);
   s.passes = io.passes;
-  RICCATI_RETURN_IF_ERROR(initial_state_option(o.x0, &s.initial_state, &s.x0));
+  RICCATI_RETURN_IF_ERROR(initial_state_option(o.x0, &s.initial.mode, &s.initial.x0));
 
   const auto start = std::chrono::steady_clock::now();
   RICCATI_ASSIGN_OR_RETURN(const IdentificationResult r, identify(model, data, s));
@@ -162,7 +163,7 @@ Status identify_command(const CommonOptions& o, const IdentifyOptions& io) {
   if (with_truth) std::printf(" %12s %9s", "true", "error %");
   std::printf("\n");
   for (int i = 0; i < model->ntheta(); ++i) {
-    std::printf("%-10s %12.6g %14.8g %12.4g %12.6g", model->param_names()[i].c_str(), s.theta0[i], r.theta_mean[i],
+    std::printf("%-10s %12.6g %14.8g %12.4g %12.6g", model->param_names()[i].c_str(), s.initial.theta0[i], r.theta_mean[i],
                 r.theta_std[i], r.theta[i]);
     if (with_truth) {
       std::printf(" %12.6g %9.3f", io.truth[i], 100.0 * (r.theta_mean[i] - io.truth[i]) / io.truth[i]);
@@ -229,7 +230,7 @@ int main(int argc, char** argv) {
   IdentifyOptions io;
   auto* identify_cmd = app.add_subcommand("identify", "Multi-pass identification of a model's parameters");
   add_common(identify_cmd, &id_common);
-  identify_cmd->add_option("--filter", io.filter, "ekf or ukf")->capture_default_str();
+  identify_cmd->add_option("--filter", io.filter, "Filter: " + filter_kind_names())->capture_default_str();
   identify_cmd->add_option("--theta0", io.theta0, "Initial parameters (default: the model's defaults)")
       ->delimiter(',');
   identify_cmd->add_option("--p0", io.p0, "Initial variances of [x; theta] (one value: all)")

@@ -7,6 +7,7 @@
 #include <stop_token>
 
 #include "engine/estimation/identification.hpp"
+#include "engine/filters/filter_kinds.hpp"
 #include "engine/models/plugin_loader.hpp"
 
 namespace riccati {
@@ -62,11 +63,11 @@ IdentificationSettings hensen_two_tank(FilterKind kind) {
   s.filter.integrator.substeps = 10;
   s.filter.Q = vec(h["Q"]).asDiagonal();
   s.filter.R = vec(h["R"]).asDiagonal();
-  s.initial_state = InitialState::kFirstMeasurement;
-  s.theta0 = vec(h["theta0"]);
+  s.initial.mode = InitialState::kFirstMeasurement;
+  s.initial.theta0 = vec(h["theta0"]);
   Eigen::VectorXd p0(6);
   p0 << vec(h["P_x0"]), vec(h["P_theta0"]);
-  s.P0 = p0.asDiagonal();
+  s.initial.P0 = p0.asDiagonal();
   s.passes = h["passes"].get<int>();
   return s;
 }
@@ -121,12 +122,12 @@ TEST(RotaryPendulum, UkfRecoversParametersFromThirtyPercentOff) {
   s.filter.integrator.substeps = 10;
   s.filter.Q = Eigen::MatrixXd::Zero(7, 7);
   s.filter.R = Eigen::Vector2d(1e-8, 1e-8).asDiagonal();
-  s.initial_state = InitialState::kGiven;
-  s.x0 = vec(meta["true_initial_state"]);
-  s.theta0 = truth.cwiseProduct(Eigen::Vector3d(1.3, 0.7, 1.3));
+  s.initial.mode = InitialState::kGiven;
+  s.initial.x0 = vec(meta["true_initial_state"]);
+  s.initial.theta0 = truth.cwiseProduct(Eigen::Vector3d(1.3, 0.7, 1.3));
   Eigen::VectorXd p0(7);
   p0 << 0, 0, 0, 0, (0.3 * truth).cwiseAbs2();
-  s.P0 = p0.asDiagonal();
+  s.initial.P0 = p0.asDiagonal();
   s.passes = 3;
 
   auto result = identify(builtin("rotary_pendulum"), data, s);
@@ -233,7 +234,7 @@ TEST(Identification, ModelFailureIsReportedWithWhereItHappened) {
   // FAILED_PRECONDITION naming the pass, the sample and the state.
   const Dataset data = load("two_tank.csv", {"F1", "F2"}, {"h1", "h2"});
   IdentificationSettings s = hensen_two_tank(FilterKind::kEkf);
-  s.theta0[0] = 0.0;
+  s.initial.theta0[0] = 0.0;
   auto result = identify(builtin("two_tank"), data, s);
   ASSERT_FALSE(result.is_ok());
   EXPECT_EQ(result.status().code(), StatusCode::kFailedPrecondition);
@@ -252,7 +253,7 @@ TEST(Identification, RejectsMismatchedDatasetAndSettings) {
 
   const Dataset full = load("two_tank.csv", {"F1", "F2"}, {"h1", "h2"});
   IdentificationSettings s = hensen_two_tank(FilterKind::kEkf);
-  s.theta0 = Eigen::Vector3d(1, 2, 3);
+  s.initial.theta0 = Eigen::Vector3d(1, 2, 3);
   result = identify(builtin("two_tank"), full, s);
   ASSERT_FALSE(result.is_ok());
   EXPECT_NE(result.status().message().find("theta0 has 3 entries"), std::string::npos) << result.status().message();

@@ -1,4 +1,4 @@
-// The optimal filter (OPTIMAL_FILTER.md) against references written here,
+// The optimal filter (docs/optimal-filter.md) against references written here,
 // independently of the engine and of the SDK's automatic differentiation:
 //  - on the flexible manipulator, the split-step form equals the equivalent
 //    continuous-discrete EKF of sec. 5 (hand-written, analytic Jacobian), and
@@ -48,7 +48,7 @@ Eigen::VectorXd vec(std::initializer_list<double> v) {
   return out;
 }
 
-// Case C of OPTIMAL_FILTER.md sec. 6: V over [EoM 1, EoM 2, T, s1, s2],
+// Case C of docs/optimal-filter.md sec. 6: V over [EoM 1, EoM 2, T, s1, s2],
 // W over [s1 s2 v1 v2 c1 c2 k b J1 J2], R0 = P0^-1 and the paper's x0.
 struct Weights {
   Eigen::VectorXd V = vec({1e6, 1e6, 1e4, 1e6, 1e6});
@@ -450,9 +450,9 @@ TEST(OptimalFilter, MultiPassIdentificationRunsTheOptimalFilterToo) {
   const Weights w;
   IdentificationSettings s;
   s.filter = optimal_settings(w, OptimalForm::kContinuous);
-  s.x0 = w.z0.head(4);
-  s.theta0 = w.z0.tail(6);
-  s.P0 = w.R0.cwiseInverse().asDiagonal();
+  s.initial.x0 = w.z0.head(4);
+  s.initial.theta0 = w.z0.tail(6);
+  s.initial.P0 = w.R0.cwiseInverse().asDiagonal();
   s.passes = 2;
   s.end_sample = 2000;  // 5 s
   const auto r = identify(manipulator(), manipulator_data(), s);

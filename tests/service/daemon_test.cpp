@@ -226,9 +226,9 @@ TEST_F(DaemonTest, StreamingASessionEqualsTheOfflineFilter) {
   s.filter.kind = FilterKind::kUkf;
   s.filter.R = Eigen::Vector2d(4e-6, 4e-6).asDiagonal();
   s.filter.Q = Eigen::MatrixXd::Zero(7, 7);
-  s.x0 = Eigen::VectorXd::Zero(4);
-  s.theta0 = Eigen::Vector3d(0.06, 0.15, 0.22);
-  s.P0 = Eigen::MatrixXd::Identity(7, 7) * 1e-4;
+  s.initial.x0 = Eigen::VectorXd::Zero(4);
+  s.initial.theta0 = Eigen::Vector3d(0.06, 0.15, 0.22);
+  s.initial.P0 = Eigen::MatrixXd::Identity(7, 7) * 1e-4;
   auto offline = identify(registry.find("rotary_pendulum"), data, s);
   ASSERT_TRUE(offline.is_ok()) << offline.status().to_string();
   ASSERT_EQ(static_cast<Eigen::Index>(estimates.size()), data.size());
@@ -312,9 +312,9 @@ TEST_F(DaemonTest, OptimalFilterSessionIdentifiesTheManipulator) {
   const v1::OptimalSettings& weights = create.filter().optimal();
   s.filter.optimal.V = vector_of(weights.v().diagonal().values()).asDiagonal();
   s.filter.optimal.W = vector_of(weights.w().diagonal().values()).asDiagonal();
-  s.x0 = vector_of(create.initial_state().x0());
-  s.theta0 = vector_of(create.theta0());
-  s.P0 = vector_of(weights.r0().diagonal().values()).cwiseInverse().asDiagonal();
+  s.initial.x0 = vector_of(create.initial_state().x0());
+  s.initial.theta0 = vector_of(create.theta0());
+  s.initial.P0 = vector_of(weights.r0().diagonal().values()).cwiseInverse().asDiagonal();
   auto offline = identify(registry.find("flexible_manipulator"), data, s);
   ASSERT_TRUE(offline.is_ok()) << offline.status().to_string();
   double gap = 0.0;

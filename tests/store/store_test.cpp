@@ -127,7 +127,7 @@ class StoreTest : public ::testing::TestWithParam<StoreKind> {
     JobRecord j;
     j.id = id;
     j.tenant = tenant;
-    j.kind = "identification";
+    j.kind = JobKind::kIdentification;
     j.spec = std::string("\x00\x01spec", 6);  // binary-safe
     j.passes = 10;
     j.samples = 2000;
@@ -290,7 +290,7 @@ TEST_P(StoreTest, ReopeningFindsEverything) {
   }
   auto store = open();
   EXPECT_TRUE(store->load_dataset("t", "ds-1").value().y.isApprox(d.y));
-  EXPECT_EQ(store->get_job("t", "job-1").value().kind, "identification");
+  EXPECT_EQ(store->get_job("t", "job-1").value().kind, JobKind::kIdentification);
   EXPECT_EQ(store->get_result("t", "job-1").value(), "r");
   EXPECT_EQ(store->list_job_passes("t", "job-1").value(), std::vector<std::string>{"c"});
 }
@@ -577,9 +577,9 @@ TEST(PostgresStore, StoresOpeningAtOnceOnAnEmptyDatabaseAllSucceed) {
   JobRecord j;
   j.id = "job-1";
   j.tenant = "t";
-  j.kind = "identification";
+  j.kind = JobKind::kIdentification;
   ASSERT_TRUE(opened[0].value()->put_job(j).is_ok());
-  EXPECT_EQ(opened[kStores - 1].value()->get_job("t", "job-1").value().kind, "identification");
+  EXPECT_EQ(opened[kStores - 1].value()->get_job("t", "job-1").value().kind, JobKind::kIdentification);
 }
 
 TEST(PostgresStore, RefusesANewerSchemaNamingTheDatabaseWithoutItsPassword) {
@@ -632,7 +632,7 @@ TEST(PostgresStore, ReconnectsAfterTheServerDropsItsConnections) {
   JobRecord j;
   j.id = "job-1";
   j.tenant = "t";
-  j.kind = "identification";
+  j.kind = JobKind::kIdentification;
   ASSERT_TRUE(store->put_job(j).is_ok());
   const auto cut = [&] {
     return schema.exec("SELECT pg_terminate_backend(pid) FROM pg_stat_activity WHERE application_name = '" +

@@ -41,7 +41,7 @@ inline v1::CreateSessionRequest two_tank_session() {
 }
 
 // The flexible manipulator (400 Hz) in an optimal filter session with the
-// weights of case C of OPTIMAL_FILTER.md, the initial confidence given as R0
+// weights of case C of docs/optimal-filter.md, the initial confidence given as R0
 // (the session's initial covariance is its inverse); RK4, one step a sample.
 inline v1::CreateSessionRequest manipulator_case_c_session() {
   const std::vector<double> V = {1e6, 1e6, 1e4, 1e6, 1e6};

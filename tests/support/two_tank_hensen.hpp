@@ -15,11 +15,11 @@ inline IdentificationSettings two_tank_hensen(FilterKind kind = FilterKind::kEkf
   s.filter.integrator.substeps = 10;
   s.filter.Q = Eigen::MatrixXd::Zero(6, 6);
   s.filter.R = Eigen::Vector2d(1e-3, 1e-3).asDiagonal();
-  s.initial_state = InitialState::kFirstMeasurement;
-  s.theta0 = Eigen::Vector4d(20, 20, 1, 1);
+  s.initial.mode = InitialState::kFirstMeasurement;
+  s.initial.theta0 = Eigen::Vector4d(20, 20, 1, 1);
   Eigen::VectorXd p0(6);
   p0 << 0, 0, 10, 10, 10, 10;
-  s.P0 = p0.asDiagonal();
+  s.initial.P0 = p0.asDiagonal();
   s.passes = passes;
   return s;
 }

@@ -5,7 +5,9 @@
 // Each pass filters the whole dataset. The first pass starts from
 // [x0; theta0] and P0. Every later pass restarts the states and their
 // covariance from the first pass's values and keeps theta and its covariance
-// from the end of the previous pass (Hensen 1999, ch. 2).
+// from the end of the previous pass (Hensen 1999, ch. 2). A pass is the
+// on-line run of the filter over the samples (online_runner.hpp), so a
+// session streaming the same samples gives the first pass's estimates.
 #pragma once
 
 #include <Eigen/Core>
@@ -14,26 +16,17 @@
 #include <vector>
 
 #include "engine/data/dataset.hpp"
+#include "engine/estimation/binding.hpp"
+#include "engine/estimation/online_runner.hpp"
 #include "engine/filters/filter.hpp"
 #include "engine/models/model.hpp"
 #include "engine/status.hpp"
 
 namespace riccati {
 
-// Where the initial states come from.
-enum class InitialState {
-  kGiven,             // x0 as given
-  kFirstMeasurement,  // the toolbox's "Y(t0)": each state that has an output of
-                      // the same name starts at its first measurement; the
-                      // others at x0 (zero if not given)
-};
-
 struct IdentificationSettings {
   FilterSettings filter;
-  InitialState initial_state = InitialState::kGiven;
-  Eigen::VectorXd x0;      // [nx]; may be empty with kFirstMeasurement
-  Eigen::VectorXd theta0;  // [ntheta]
-  Eigen::MatrixXd P0;      // [nz x nz] initial covariance of [x; theta]
+  InitialEstimate initial;  // [x0; theta0] and P0 of the first pass
   int passes = 1;
   // Trial identification: filter only samples [first_sample, end_sample)
   // (end_sample < 0 means to the end). The toolbox's "trial".
@@ -68,7 +61,7 @@ struct IdentificationProgress {
   int passes = 0;
   Eigen::Index sample = 0;   // 1-based, within the pass
   Eigen::Index samples = 0;
-  const Eigen::VectorXd* theta = nullptr;  // current estimate
+  const Eigen::VectorXd* state = nullptr;  // the estimate of [x; theta] now
 };
 
 // Called after every sample; keep it cheap (throttle in the callback).
@@ -95,14 +88,6 @@ struct IdentificationHooks {
   std::stop_token stop;  // checked between samples: a stop request ends the run with kCancelled
   const IdentificationCheckpoint* resume = nullptr;  // start after the passes it holds
 };
-
-// Orders a dataset's inputs and outputs as the model's (by name when the
-// names match, else by position when the counts match) and checks the sizes.
-Result<Dataset> bind_dataset(const Model& model, const Dataset& data);
-
-// The initial state [nx] for a run, from the settings and the first sample.
-Result<Eigen::VectorXd> initial_state(const Model& model, const Dataset& bound, InitialState mode,
-                                      const Eigen::VectorXd& x0, Eigen::Index first_sample);
 
 Status validate(const IdentificationSettings& settings, const Model& model);
 

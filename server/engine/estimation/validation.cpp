@@ -70,7 +70,8 @@ Result<Eigen::MatrixXd> simulate(const Model& model, const Eigen::VectorXd& t, c
 Result<ValidationResult> validate_model(const Model& model, const Dataset& data, const ValidationSettings& settings) {
   RICCATI_ASSIGN_OR_RETURN(const Dataset bound, bind_dataset(model, data));
   RICCATI_ASSIGN_OR_RETURN(const Eigen::VectorXd x0,
-                           initial_state(model, bound, settings.initial_state, settings.x0, 0));
+                           initial_state(model, settings.initial_state, settings.x0,
+                                         {bound.y.col(0).data(), static_cast<std::size_t>(bound.y.rows())}));
   ValidationResult result;
   RICCATI_ASSIGN_OR_RETURN(result.y_simulated,
                            simulate(model, bound.t, bound.u, x0, settings.theta, settings.simulation));

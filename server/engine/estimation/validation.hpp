@@ -8,7 +8,8 @@
 #include "engine/data/dataset.hpp"
 #include "engine/filters/filter.hpp"
 #include "engine/estimation/fit_metrics.hpp"
-#include "engine/estimation/identification.hpp"
+#include "engine/estimation/binding.hpp"
+#include "engine/estimation/online_runner.hpp"
 #include "engine/models/model.hpp"
 
 namespace riccati {

@@ -16,7 +16,7 @@
 #include <algorithm>
 #include <string>
 
-#include "engine/filters/filter.hpp"
+#include "engine/filters/kalman_filter.hpp"
 
 namespace riccati {
 
@@ -84,10 +84,10 @@ CovarianceDerivativeFn covariance_derivative_for(int nx) {
   }
 }
 
-class Ekf final : public Filter {
+class Ekf final : public KalmanFilter {
  public:
   Ekf(ModelPtr model, const FilterSettings& settings, std::unique_ptr<Integrator> integrator)
-      : Filter(std::move(model), settings), integrator_(std::move(integrator)), rhs_(this) {
+      : KalmanFilter(std::move(model), settings), integrator_(std::move(integrator)), rhs_(this) {
     const int nx = model_->nx(), nz = model_->nz(), ny = model_->ny();
     const int nth = nz - nx;
     y_.resize(nx + nx * nx + nx * nth);
@@ -194,6 +194,10 @@ class Ekf final : public Filter {
 };
 
 }  // namespace
+
+Status validate_ekf(const FilterSettings& settings, const Model& model) {
+  return validate_noise_covariances(settings, model);
+}
 
 std::unique_ptr<Filter> make_ekf(ModelPtr model, const FilterSettings& settings,
                                  std::unique_ptr<Integrator> integrator) {

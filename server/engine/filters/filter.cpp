@@ -5,32 +5,9 @@
 #include <cmath>
 #include <string>
 
+#include "engine/filters/filter_kinds.hpp"
+
 namespace riccati {
-
-// Defined in ekf.cpp and ukf.cpp.
-std::unique_ptr<Filter> make_ekf(ModelPtr model, const FilterSettings& settings,
-                                 std::unique_ptr<Integrator> integrator);
-std::unique_ptr<Filter> make_ukf(ModelPtr model, const FilterSettings& settings,
-                                 std::unique_ptr<Integrator> integrator);
-// Defined in optimal.cpp.
-std::unique_ptr<Filter> make_optimal_filter(ModelPtr model, const FilterSettings& settings,
-                                            std::unique_ptr<Integrator> integrator);
-
-const char* filter_kind_name(FilterKind kind) {
-  switch (kind) {
-    case FilterKind::kEkf: return "ekf";
-    case FilterKind::kUkf: return "ukf";
-    case FilterKind::kOptimal: return "optimal";
-  }
-  return "unknown";
-}
-
-Result<FilterKind> parse_filter_kind(std::string_view name) {
-  if (name == "ekf") return FilterKind::kEkf;
-  if (name == "ukf") return FilterKind::kUkf;
-  if (name == "optimal") return FilterKind::kOptimal;
-  return invalid_argument("unknown filter \"" + std::string(name) + "\" (expected ekf, ukf or optimal)");
-}
 
 const char* hold_order_name(HoldOrder hold) { return hold == HoldOrder::kZero ? "zoh" : "foh"; }
 
@@ -88,51 +65,28 @@ Status check_covariance(const Eigen::MatrixXd& M, Eigen::Index n, const std::str
   return Status::ok();
 }
 
-namespace {
-
-Status validate_optimal(const FilterSettings& s, const Model& model) {
-  if (!model.has_mechanical_form()) {
-    return invalid_argument("model " + model.name() +
-                            " has no mechanical form (M a + h = H u): the optimal filter needs one");
+Status validate_noise_covariances(const FilterSettings& s, const Model& model) {
+  if (s.optimal.V.size() != 0 || s.optimal.W.size() != 0) {
+    return invalid_argument("the optimal filter's weights V and W do not apply to a filter with noise covariances Q and R");
   }
-  if (s.Q.size() != 0 || s.R.size() != 0) {
-    return invalid_argument("the optimal filter takes its weights from V and W, not from Q and R");
-  }
-  const int L = optimal_equation_count(model);
-  RICCATI_RETURN_IF_ERROR(check_covariance(s.optimal.V, L,
-                                           "optimal filter weights V (" + std::to_string(model.ndof()) +
-                                               " equations of motion, " + std::to_string(model.nu()) + " inputs, " +
-                                               std::to_string(model.ny()) + " outputs)"));
-  RICCATI_RETURN_IF_ERROR(check_covariance(s.optimal.W, model.nz(), "optimal filter weights W"));
-  Eigen::LLT<Eigen::MatrixXd> llt(s.optimal.W);
-  if (llt.info() != Eigen::Success) {
-    return invalid_argument("optimal filter weights W must be positive definite (W^-1 is the process noise)");
-  }
-  return Status::ok();
+  RICCATI_RETURN_IF_ERROR(check_covariance(s.Q, model.nz(), "process noise Q"));
+  return check_covariance(s.R, model.ny(), "measurement noise R");
 }
-
-}  // namespace
 
 Status validate(const FilterSettings& s, const Model& model) {
   RICCATI_RETURN_IF_ERROR(validate(s.integrator));
-  if (s.kind == FilterKind::kOptimal) return validate_optimal(s, model);
-  RICCATI_RETURN_IF_ERROR(check_covariance(s.Q, model.nz(), "process noise Q"));
-  RICCATI_RETURN_IF_ERROR(check_covariance(s.R, model.ny(), "measurement noise R"));
-  if (s.kind == FilterKind::kUkf) {
-    const double n = model.nz();
-    const bool scaled = s.ukf.weights == SigmaWeights::kScaled;
-    const double kappa = std::isnan(s.ukf.kappa) ? (scaled ? 0.0 : 3.0 - n) : s.ukf.kappa;
-    if (!std::isfinite(kappa)) return invalid_argument("UKF kappa must be finite");
-    if (scaled && !(s.ukf.alpha > 0.0 && s.ukf.alpha <= 1.0)) return invalid_argument("UKF alpha must be in (0, 1]");
-    if (scaled && !std::isfinite(s.ukf.beta)) return invalid_argument("UKF beta must be finite");
-    const double lambda = scaled ? s.ukf.alpha * s.ukf.alpha * (n + kappa) - n : kappa;
-    if (!(n + lambda > 0.0)) {
-      return invalid_argument("UKF spread n + lambda = " + std::to_string(n + lambda) +
-                              " must be positive (n = " + std::to_string(model.nz()) + "): raise kappa");
-    }
-  }
-  return Status::ok();
+  return filter_kind_info(s.kind).validate(s, model);
 }
+
+Result<Eigen::MatrixXd> covariance_from_confidence(const Eigen::MatrixXd& R, const std::string& what) {
+  const Eigen::Index n = R.rows();
+  if (R.cols() != n || !R.allFinite()) return invalid_argument(what + " must be a finite square matrix");
+  Eigen::LLT<Eigen::MatrixXd> llt(R);
+  if (llt.info() != Eigen::Success) return invalid_argument(what + " must be positive definite");
+  return Eigen::MatrixXd(llt.solve(Eigen::MatrixXd::Identity(n, n)));
+}
+
+const Eigen::VectorXd Filter::kNothing;
 
 Filter::Filter(ModelPtr model, FilterSettings settings)
     : model_(std::move(model)), settings_(std::move(settings)) {
@@ -142,7 +96,6 @@ Filter::Filter(ModelPtr model, FilterSettings settings)
   y_pred_ = Eigen::VectorXd::Zero(ny);
   innovation_ = Eigen::VectorXd::Zero(ny);
   S_ = Eigen::MatrixXd::Zero(ny, ny);
-  K_ = Eigen::MatrixXd::Zero(nz, ny);
   u_hold_ = Eigen::VectorXd::Zero(model_->nu());
 }
 
@@ -194,26 +147,6 @@ void Filter::hold_input(double t, double t0, double t1, const double* u0, const 
   for (Eigen::Index i = 0; i < nu; ++i) u_hold_[i] = u0[i] + a * (u1[i] - u0[i]);
 }
 
-Status Filter::gain_and_nis(const Eigen::MatrixXd& C) {
-  // K = C S^-1 is computed as K^T = S^-1 C^T (S symmetric): a solve, never an inverse.
-  if (settings_.inversion == GainInversion::kCholesky) {
-    Eigen::LLT<Eigen::MatrixXd> llt(S_);
-    if (llt.info() != Eigen::Success) {
-      return failed_precondition(
-          "innovation covariance S is not positive definite at t = " + std::to_string(t_) +
-          " (R has zero variances and the prediction is exact?): give R positive variances or use the "
-          "pseudo-inverse gain");
-    }
-    K_.transpose() = llt.solve(C.transpose());
-    nis_ = innovation_.dot(llt.solve(innovation_));
-  } else {
-    Eigen::CompleteOrthogonalDecomposition<Eigen::MatrixXd> cod(S_);
-    K_.transpose() = cod.solve(C.transpose());
-    nis_ = innovation_.dot(cod.solve(innovation_));
-  }
-  return Status::ok();
-}
-
 Status Filter::check_estimate(const char* where) const {
   // The message is built only on failure: this runs at every sample.
   auto diverged = [&](const std::string& what) {
@@ -235,12 +168,7 @@ Result<std::unique_ptr<Filter>> make_filter(ModelPtr model, const FilterSettings
   if (model == nullptr) return invalid_argument("no model given");
   RICCATI_RETURN_IF_ERROR(validate(settings, *model));
   RICCATI_ASSIGN_OR_RETURN(std::unique_ptr<Integrator> integrator, make_integrator(settings.integrator));
-  switch (settings.kind) {
-    case FilterKind::kEkf: return make_ekf(std::move(model), settings, std::move(integrator));
-    case FilterKind::kUkf: return make_ukf(std::move(model), settings, std::move(integrator));
-    case FilterKind::kOptimal: return make_optimal_filter(std::move(model), settings, std::move(integrator));
-  }
-  return invalid_argument("unknown filter kind");
+  return filter_kind_info(settings.kind).make(std::move(model), settings, std::move(integrator));
 }
 
 }  // namespace riccati

@@ -49,7 +49,7 @@ struct UkfSettings {
   double kappa = std::numeric_limits<double>::quiet_NaN();
 };
 
-// How the optimal filter integrates (OPTIMAL_FILTER.md, sec. 3).
+// How the optimal filter integrates (docs/optimal-filter.md, sec. 3).
 enum class OptimalForm {
   kContinuous,  // equations 8 and 10 with the integrator: the measurements act continuously
   kSplitStep,   // predict without the measurement terms, then a discrete update at each
@@ -81,8 +81,7 @@ struct FilterSettings {
   OptimalSettings optimal;
 };
 
-const char* filter_kind_name(FilterKind kind);
-Result<FilterKind> parse_filter_kind(std::string_view name);  // "ekf", "ukf", "optimal"
+// Names of the settings' other enums, as the API, the CLI and job files write them.
 const char* hold_order_name(HoldOrder hold);
 Result<HoldOrder> parse_hold_order(std::string_view name);    // "zoh", "foh"
 Result<GainInversion> parse_gain_inversion(std::string_view name);  // "cholesky", "pinv"
@@ -92,8 +91,12 @@ const char* optimal_form_name(OptimalForm form);
 // Number of equations L of the optimal filter for a mechanical model.
 int optimal_equation_count(const Model& model);
 
-// Checks sizes, symmetry, finiteness and semi-definiteness against a model.
+// Checks the settings against a model: the integrator's, then those of the
+// filter's kind (filter_kinds.hpp): sizes, symmetry, finiteness and
+// semi-definiteness of its noise or weights.
 Status validate(const FilterSettings& settings, const Model& model);
+// The EKF's and UKF's noise: Q (nz x nz) and R (ny x ny) covariances.
+Status validate_noise_covariances(const FilterSettings& settings, const Model& model);
 
 // A covariance-like matrix: n x n, finite, symmetric, no negative eigenvalue
 // beyond rounding. `what` names it in messages.
@@ -139,11 +142,11 @@ class Filter {
   const Eigen::VectorXd& innovation() const { return innovation_; }    // y - y_pred [ny]
   const Eigen::MatrixXd& innovation_covariance() const { return S_; }  // [ny x ny]
   double nis() const { return nis_; }  // normalised innovation squared, innovation' S^-1 innovation
-  // Optimal filter only (empty for the others), at the last update: the
-  // estimated inputs and accelerations p = [u; a] [nu + ndof] and the
-  // residuals zeta of the L equations.
-  const Eigen::VectorXd& estimated_inputs() const { return p_hat_; }
-  const Eigen::VectorXd& equation_residuals() const { return zeta_; }
+  // Of filters that estimate the inputs (the optimal filter; empty for the
+  // others), at the last update: the estimated inputs and accelerations
+  // p = [u; a] [nu + ndof] and the residuals zeta of the L equations.
+  virtual const Eigen::VectorXd& estimated_inputs() const { return kNothing; }
+  virtual const Eigen::VectorXd& equation_residuals() const { return kNothing; }
 
  protected:
   Filter(ModelPtr model, FilterSettings settings);
@@ -154,9 +157,6 @@ class Filter {
   // restore()'s part for carried_state(); false if `carried` does not fit.
   virtual bool restore_carried(const Eigen::VectorXd& carried) { return carried.size() == 0; }
 
-  // Solves K S = C for the gain K = C S^-1 ([nz x ny]) and the NIS, as the
-  // settings' inversion says. Shared by the EKF and the UKF.
-  Status gain_and_nis(const Eigen::MatrixXd& C);
   // A diverged filter: non-finite state or a covariance that lost positive
   // semi-definiteness. Returns kFailedPrecondition naming what went wrong.
   Status check_estimate(const char* where) const;
@@ -170,13 +170,19 @@ class Filter {
   Eigen::MatrixXd P_;
   Eigen::VectorXd y_pred_, innovation_;
   Eigen::MatrixXd S_;
-  Eigen::MatrixXd K_;  // gain of the last update [nz x ny]
   double nis_ = 0.0;
-  Eigen::VectorXd p_hat_, zeta_;
   Eigen::VectorXd u_hold_;  // scratch: the held input [nu]
+
+ private:
+  static const Eigen::VectorXd kNothing;
 };
 
 // Creates a filter of settings.kind for `model` (validated first).
 Result<std::unique_ptr<Filter>> make_filter(ModelPtr model, const FilterSettings& settings);
+
+// Covariance and inverse covariance: P = R^-1 for a symmetric positive
+// definite R (the optimal filter's initial confidence R0 gives P0), by a
+// Cholesky solve; kInvalidArgument naming `what` if R is not.
+Result<Eigen::MatrixXd> covariance_from_confidence(const Eigen::MatrixXd& R, const std::string& what);
 
 }  // namespace riccati

@@ -1,5 +1,7 @@
 // The optimal filter of van de Molengraft and van Kessel for mechanical
-// models (specification: OPTIMAL_FILTER.md, equations 8-10 and sec. 3).
+// models (specification: docs/optimal-filter.md, equations 8-10 and sec. 3;
+// the members are named after its symbols: x_hat_ is x^, Q_ is Q, K_ is
+// K = (D'VD)^-1, V_tilde_ is V~, G_ the split-step gain G, and so on).
 //
 // With n degrees of freedom, x = [s; v; theta] (N = nz), p = [u; a]
 // (P = nu + n) and the L = n + nu + ny equations
@@ -46,36 +48,36 @@ namespace {
 class OptimalFilter final : public Filter {
  public:
   OptimalFilter(ModelPtr model, const FilterSettings& settings, std::unique_ptr<Integrator> integrator)
-      : Filter(std::move(model), settings), integrator_(std::move(integrator)), rhs_(this) {
+      : Filter(std::move(model), settings), x_hat_(z_), Q_(P_), integrator_(std::move(integrator)), rhs_(this) {
     n_ = model_->ndof();
     const int nu = model_->nu(), ny = model_->ny(), N = model_->nz();
     const int L = optimal_equation_count(*model_), P = nu + n_, Lp = n_ + ny;
     V_ = settings_.optimal.V;
-    Winv_ = settings_.optimal.W.llt().solve(Eigen::MatrixXd::Identity(N, N));
-    Winv_ = 0.5 * (Winv_ + Winv_.transpose());
+    W_inv_ = settings_.optimal.W.llt().solve(Eigen::MatrixXd::Identity(N, N));
+    W_inv_ = 0.5 * (W_inv_ + W_inv_.transpose());
     continuous_ = settings_.optimal.form == OptimalForm::kContinuous;
-    c_.resize(Lp);
-    Fc_.resize(Lp, P);
-    c_jac_.resize(Lp, N);
-    Fc_jac_.resize(Lp * P, N);
+    f_.resize(Lp);
+    F_.resize(Lp, P);
+    df_dx_.resize(Lp, N);
+    dF_dx_.resize(Lp * P, N);
     D_ = Eigen::MatrixXd::Zero(L, P);
     D_.block(n_, 0, nu, nu).setIdentity();  // the measured inputs: u = I u
     r_.resize(L);
     C_ = Eigen::MatrixXd::Zero(L, N);  // the input rows stay zero
     VD_.resize(L, P);
     DVD_.resize(P, P);
-    dvd_ = Eigen::LLT<Eigen::MatrixXd>(P);
+    DVD_llt_ = Eigen::LLT<Eigen::MatrixXd>(P);
     DVr_.resize(P);
     KDVC_.resize(P, N);
-    K_pp_.resize(P, P);
+    K_.resize(P, P);
     KDV_.resize(P, L);
-    Vt_.resize(L, L);
+    V_tilde_.resize(L, L);
     Vzeta_.resize(L);
     CtVzeta_.resize(N);
-    Qs_.resize(N, N);
-    AQ_.resize(N, N);
+    Q_sym_.resize(N, N);
+    AtQ_.resize(N, N);
     CQ_.resize(L, N);
-    VtCQ_.resize(L, N);
+    V_tilde_CQ_.resize(L, N);
     p_hat_ = Eigen::VectorXd::Zero(P);
     zeta_ = Eigen::VectorXd::Zero(L);
     u0_.resize(nu);
@@ -84,24 +86,24 @@ class OptimalFilter final : public Filter {
     y_last_.resize(ny);
     y_next_.resize(ny);
     y_now_.resize(ny);
-    w_.resize(N + N * N);
+    x_hat_Q_.resize(N + N * N);
     identity_P_ = Eigen::MatrixXd::Identity(P, P);
     // Split-step update.
-    vt_ldlt_ = Eigen::LDLT<Eigen::MatrixXd>(L);
-    Lfactor_.resize(L, L);
+    V_tilde_ldlt_ = Eigen::LDLT<Eigen::MatrixXd>(L);
+    L_factor_.resize(L, L);
     U_.resize(L, L);
     Hm_.resize(L, N);
-    yv_.resize(L);
-    Syv_.resize(L);
-    Sm_.resize(L, L);
-    s_llt_ = Eigen::LLT<Eigen::MatrixXd>(L);
+    Ut_r_.resize(L);
+    S_inv_Ut_r_.resize(L);
+    S_update_.resize(L, L);
+    S_update_llt_ = Eigen::LLT<Eigen::MatrixXd>(L);
     HmQ_.resize(L, N);
-    GainT_.resize(L, N);
-    Gain_.resize(N, L);
-    IGH_.resize(N, N);
-    IGHP_.resize(N, N);
-    Pnew_.resize(N, N);
-    p_check_ = Eigen::LLT<Eigen::MatrixXd>(N);
+    Gt_.resize(L, N);
+    G_.resize(N, L);
+    I_GHm_.resize(N, N);
+    I_GHm_Q_.resize(N, N);
+    Q_new_.resize(N, N);
+    Q_llt_ = Eigen::LLT<Eigen::MatrixXd>(N);
   }
 
   // [has a measurement (0 or 1); the interval not yet followed by an
@@ -116,6 +118,9 @@ class OptimalFilter final : public Filter {
     return propagate(t1, u0, u1, nullptr);
   }
 
+  const Eigen::VectorXd& estimated_inputs() const override { return p_hat_; }
+  const Eigen::VectorXd& equation_residuals() const override { return zeta_; }
+
   Status step(double t1, const double* u0, const double* u1, const double* y1) override {
     RICCATI_RETURN_IF_ERROR(propagate(t1, u0, u1, settings_.optimal.interpolate_outputs ? y1 : nullptr));
     return update(y1, u1);
@@ -125,7 +130,7 @@ class OptimalFilter final : public Filter {
     const int ny = model_->ny();
     y_last_ = Eigen::Map<const Eigen::VectorXd>(y, ny);
     has_measurement_ = true;
-    const Status evaluated = equations(t_, z_.data(), u, y);
+    const Status evaluated = equations(t_, x_hat_.data(), u, y);
     if (!evaluated.is_ok()) return evaluated.with_context("optimal filter at t = " + std::to_string(t_));
     innovation_ = zeta_.tail(ny);
     y_pred_ = y_last_ - innovation_;
@@ -185,13 +190,13 @@ class OptimalFilter final : public Filter {
     u1_ = Eigen::Map<const Eigen::VectorXd>(u1, nu);
     interpolating_ = y1 != nullptr;
     if (interpolating_) y_next_ = Eigen::Map<const Eigen::VectorXd>(y1, ny);
-    Eigen::Map<Eigen::VectorXd>(w_.data(), N) = z_;
-    Eigen::Map<Eigen::MatrixXd>(w_.data() + N, N, N) = P_;
-    Status s = integrator_->integrate(rhs_, t_, t1, w_);
+    Eigen::Map<Eigen::VectorXd>(x_hat_Q_.data(), N) = x_hat_;
+    Eigen::Map<Eigen::MatrixXd>(x_hat_Q_.data() + N, N, N) = Q_;
+    Status s = integrator_->integrate(rhs_, t_, t1, x_hat_Q_);
     if (!s.is_ok()) return s.with_context("optimal filter prediction from t = " + std::to_string(t_));
-    z_ = Eigen::Map<const Eigen::VectorXd>(w_.data(), N);
-    const Eigen::Map<const Eigen::MatrixXd> Q(w_.data() + N, N, N);
-    P_ = 0.5 * (Q + Q.transpose());
+    x_hat_ = Eigen::Map<const Eigen::VectorXd>(x_hat_Q_.data(), N);
+    const Eigen::Map<const Eigen::MatrixXd> Q(x_hat_Q_.data() + N, N, N);
+    Q_ = 0.5 * (Q + Q.transpose());
     interval_ = t1 - t_;
     t_ = t1;
     return check("prediction");
@@ -203,40 +208,40 @@ class OptimalFilter final : public Filter {
     const int nu = model_->nu(), ny = model_->ny(), nx = model_->nx();
     const int P = nu + n_, Lp = n_ + ny;
     RICCATI_RETURN_IF_ERROR(
-        model_->mechanical(t, x, x + nx, c_.data(), Fc_.data(), c_jac_.data(), Fc_jac_.data()));
+        model_->mechanical(t, x, x + nx, f_.data(), F_.data(), df_dx_.data(), dF_dx_.data()));
     // Rows: n equations of motion, nu measured inputs, ny measured outputs.
-    D_.topRows(n_) = Fc_.topRows(n_);
-    D_.bottomRows(ny) = Fc_.bottomRows(ny);
-    r_.head(n_) = -c_.head(n_);
+    D_.topRows(n_) = F_.topRows(n_);
+    D_.bottomRows(ny) = F_.bottomRows(ny);
+    r_.head(n_) = -f_.head(n_);
     r_.segment(n_, nu) = Eigen::Map<const Eigen::VectorXd>(u, nu);
-    r_.tail(ny) = Eigen::Map<const Eigen::VectorXd>(y, ny) - c_.tail(ny);
+    r_.tail(ny) = Eigen::Map<const Eigen::VectorXd>(y, ny) - f_.tail(ny);
     VD_.noalias() = V_.lazyProduct(D_);
     DVD_.noalias() = D_.transpose().lazyProduct(VD_);
-    dvd_.compute(DVD_);
-    if (dvd_.info() != Eigen::Success) {
+    DVD_llt_.compute(DVD_);
+    if (DVD_llt_.info() != Eigen::Success) {
       return failed_precondition(
           "D'VD is singular: the inputs and accelerations are not determined by the weighted equations (give "
           "the measured inputs, or outputs that see the accelerations, a positive weight in V)");
     }
     DVr_.noalias() = VD_.transpose() * r_;
-    p_hat_ = dvd_.solve(DVr_);
+    p_hat_ = DVD_llt_.solve(DVr_);
     zeta_ = r_;
     zeta_.noalias() -= D_ * p_hat_;
     // C = d(f + F p)/dx with p held at p^; the input rows are constant.
     auto C_motion = C_.topRows(n_);
     auto C_output = C_.bottomRows(ny);
-    C_motion = c_jac_.topRows(n_);
-    C_output = c_jac_.bottomRows(ny);
+    C_motion = df_dx_.topRows(n_);
+    C_output = df_dx_.bottomRows(ny);
     for (int j = 0; j < P; ++j) {
-      const auto dF = Fc_jac_.middleRows(j * Lp, Lp);
+      const auto dF = dF_dx_.middleRows(j * Lp, Lp);
       C_motion += p_hat_[j] * dF.topRows(n_);
       C_output += p_hat_[j] * dF.bottomRows(ny);
     }
-    KDV_ = dvd_.solve(VD_.transpose());
+    KDV_ = DVD_llt_.solve(VD_.transpose());
     KDVC_.noalias() = KDV_.lazyProduct(C_);
-    K_pp_ = dvd_.solve(identity_P_);
-    Vt_ = V_;
-    Vt_.noalias() -= VD_.lazyProduct(KDV_);
+    K_ = DVD_llt_.solve(identity_P_);
+    V_tilde_ = V_;
+    V_tilde_.noalias() -= VD_.lazyProduct(KDV_);
     return Status::ok();
   }
 
@@ -259,7 +264,7 @@ class OptimalFilter final : public Filter {
                                                       std::to_string(t) + " inside the step"));
     }
     RICCATI_RETURN_IF_ERROR(equations(t, w, u_now_.data(), y_now_.data()));
-    Qs_ = 0.5 * (Q + Q.transpose());  // Q is symmetric but for rounding inside a step
+    Q_sym_ = 0.5 * (Q + Q.transpose());  // Q is symmetric but for rounding inside a step
     Eigen::Map<Eigen::VectorXd> xdot(wdot, N);
     Eigen::Map<Eigen::MatrixXd> Qdot(wdot + N, N, N);
     // A x^ + B p^ = [v; a^; 0]
@@ -268,18 +273,18 @@ class OptimalFilter final : public Filter {
     xdot.tail(nth).setZero();
     // A~ Q: the rows of s take the rows of v of Q; the rows of v take
     // -(K D'V C)_a Q; the rows of theta are zero.
-    AQ_.topRows(n_) = Qs_.middleRows(n_, n_);
-    AQ_.middleRows(n_, n_).noalias() = -KDVC_.bottomRows(n_).lazyProduct(Qs_);
-    AQ_.bottomRows(nth).setZero();
-    Qdot = AQ_ + AQ_.transpose() + Winv_;
-    Qdot.block(n_, n_, n_, n_) += K_pp_.bottomRightCorner(n_, n_);  // B K B'
+    AtQ_.topRows(n_) = Q_sym_.middleRows(n_, n_);
+    AtQ_.middleRows(n_, n_).noalias() = -KDVC_.bottomRows(n_).lazyProduct(Q_sym_);
+    AtQ_.bottomRows(nth).setZero();
+    Qdot = AtQ_ + AtQ_.transpose() + W_inv_;
+    Qdot.block(n_, n_, n_, n_) += K_.bottomRightCorner(n_, n_);  // B K B'
     if (continuous_) {
       Vzeta_.noalias() = V_ * zeta_;
       CtVzeta_.noalias() = C_.transpose() * Vzeta_;
-      xdot.noalias() += Qs_ * CtVzeta_;
-      CQ_.noalias() = C_.lazyProduct(Qs_);
-      VtCQ_.noalias() = Vt_.lazyProduct(CQ_);
-      Qdot.noalias() -= CQ_.transpose().lazyProduct(VtCQ_);
+      xdot.noalias() += Q_sym_ * CtVzeta_;
+      CQ_.noalias() = C_.lazyProduct(Q_sym_);
+      V_tilde_CQ_.noalias() = V_tilde_.lazyProduct(CQ_);
+      Qdot.noalias() -= CQ_.transpose().lazyProduct(V_tilde_CQ_);
     }
     return Status::ok();
   }
@@ -289,31 +294,31 @@ class OptimalFilter final : public Filter {
   Status split_step_update(double dt) {
     // V~ = U U' from its LDL' factorisation with pivoting (V~ is only
     // semi-definite: its rank is L - (nu + n)).
-    vt_ldlt_.compute(Vt_);
-    Lfactor_ = vt_ldlt_.matrixL();
-    Lfactor_ = Lfactor_ * vt_ldlt_.vectorD().cwiseMax(0.0).cwiseSqrt().asDiagonal();
-    U_.noalias() = vt_ldlt_.transpositionsP().transpose() * Lfactor_;
+    V_tilde_ldlt_.compute(V_tilde_);
+    L_factor_ = V_tilde_ldlt_.matrixL();
+    L_factor_ = L_factor_ * V_tilde_ldlt_.vectorD().cwiseMax(0.0).cwiseSqrt().asDiagonal();
+    U_.noalias() = V_tilde_ldlt_.transpositionsP().transpose() * L_factor_;
     Hm_.noalias() = U_.transpose().lazyProduct(C_);
-    yv_.noalias() = U_.transpose() * r_;
-    HmQ_.noalias() = Hm_.lazyProduct(P_);
-    Sm_.noalias() = HmQ_.lazyProduct(Hm_.transpose());
-    Sm_.diagonal().array() += 1.0 / dt;
-    s_llt_.compute(Sm_);
-    if (s_llt_.info() != Eigen::Success) {
+    Ut_r_.noalias() = U_.transpose() * r_;
+    HmQ_.noalias() = Hm_.lazyProduct(Q_);
+    S_update_.noalias() = HmQ_.lazyProduct(Hm_.transpose());
+    S_update_.diagonal().array() += 1.0 / dt;
+    S_update_llt_.compute(S_update_);
+    if (S_update_llt_.info() != Eigen::Success) {
       return failed_precondition("filter diverged: the update's S is not positive definite at t = " +
                                  std::to_string(t_));
     }
-    GainT_ = s_llt_.solve(HmQ_);  // G' = S^-1 Hm Q, Q symmetric
-    Gain_ = GainT_.transpose();
-    Syv_ = s_llt_.solve(yv_);
-    nis_ = yv_.dot(Syv_);
-    z_.noalias() += Gain_ * yv_;
-    IGH_.setIdentity();
-    IGH_.noalias() -= Gain_.lazyProduct(Hm_);
-    IGHP_.noalias() = IGH_.lazyProduct(P_);
-    Pnew_.noalias() = IGHP_.lazyProduct(IGH_.transpose());
-    Pnew_.noalias() += (1.0 / dt) * Gain_.lazyProduct(Gain_.transpose());
-    P_ = 0.5 * (Pnew_ + Pnew_.transpose());
+    Gt_ = S_update_llt_.solve(HmQ_);  // G' = S^-1 Hm Q, Q symmetric
+    G_ = Gt_.transpose();
+    S_inv_Ut_r_ = S_update_llt_.solve(Ut_r_);
+    nis_ = Ut_r_.dot(S_inv_Ut_r_);
+    x_hat_.noalias() += G_ * Ut_r_;
+    I_GHm_.setIdentity();
+    I_GHm_.noalias() -= G_.lazyProduct(Hm_);
+    I_GHm_Q_.noalias() = I_GHm_.lazyProduct(Q_);
+    Q_new_.noalias() = I_GHm_Q_.lazyProduct(I_GHm_.transpose());
+    Q_new_.noalias() += (1.0 / dt) * G_.lazyProduct(G_.transpose());
+    Q_ = 0.5 * (Q_new_ + Q_new_.transpose());
     return check("update");
   }
 
@@ -321,8 +326,8 @@ class OptimalFilter final : public Filter {
   Status check(const char* where) {
     Status s = check_estimate(where);
     if (s.is_ok()) {
-      p_check_.compute(P_);
-      if (p_check_.info() == Eigen::Success) return Status::ok();
+      Q_llt_.compute(Q_);
+      if (Q_llt_.info() == Eigen::Success) return Status::ok();
       s = failed_precondition(std::string("filter diverged: Q lost positive definiteness after the ") + where +
                               " at t = " + std::to_string(t_));
     }
@@ -335,11 +340,16 @@ class OptimalFilter final : public Filter {
   static constexpr const char* kDivergenceHint =
       ": the step is too large for the weights V (use more substeps or the split-step form)";
 
+  // The specification's x^ and Q are the Filter's estimate and covariance.
+  Eigen::VectorXd& x_hat_;
+  Eigen::MatrixXd& Q_;
+  Eigen::VectorXd p_hat_;  // p^ = [u^; a^]: the estimated inputs and accelerations (eq 9)
+  Eigen::VectorXd zeta_;   // the residuals of the L equations at p^ (eq 9)
   std::unique_ptr<Integrator> integrator_;
   Rhs rhs_;
   int n_ = 0;  // degrees of freedom
   bool continuous_ = true;
-  Eigen::MatrixXd V_, Winv_;
+  Eigen::MatrixXd V_, W_inv_;
   // The interval being integrated (valid during propagate()).
   double t0_ = 0.0, t1_ = 0.0;
   bool interpolating_ = false;
@@ -347,16 +357,37 @@ class OptimalFilter final : public Filter {
   bool has_measurement_ = false;  // y_last_ holds the measurement at time()
   double interval_ = 0.0;         // length of the prediction not yet followed by an update
   // Work space, sized once.
-  std::vector<double> w_;  // [x^; vec Q]
-  Eigen::VectorXd c_, r_, DVr_, Vzeta_, CtVzeta_, yv_, Syv_;
-  Eigen::MatrixXd Fc_, c_jac_, Fc_jac_, D_, C_, VD_, DVD_, KDV_, KDVC_, K_pp_, Vt_, identity_P_;
-  Eigen::MatrixXd Qs_, AQ_, CQ_, VtCQ_;
-  Eigen::MatrixXd Lfactor_, U_, Hm_, Sm_, HmQ_, GainT_, Gain_, IGH_, IGHP_, Pnew_;
-  Eigen::LLT<Eigen::MatrixXd> dvd_, s_llt_, p_check_;
-  Eigen::LDLT<Eigen::MatrixXd> vt_ldlt_;
+  std::vector<double> x_hat_Q_;  // [x^; vec Q]
+  Eigen::VectorXd f_, r_, DVr_, Vzeta_, CtVzeta_, Ut_r_, S_inv_Ut_r_;
+  Eigen::MatrixXd F_, df_dx_, dF_dx_, D_, C_, VD_, DVD_, KDV_, KDVC_, K_, V_tilde_, identity_P_;
+  Eigen::MatrixXd Q_sym_, AtQ_, CQ_, V_tilde_CQ_;
+  Eigen::MatrixXd L_factor_, U_, Hm_, S_update_, HmQ_, Gt_, G_, I_GHm_, I_GHm_Q_, Q_new_;
+  Eigen::LLT<Eigen::MatrixXd> DVD_llt_, S_update_llt_, Q_llt_;
+  Eigen::LDLT<Eigen::MatrixXd> V_tilde_ldlt_;
 };
 
 }  // namespace
+
+Status validate_optimal_filter(const FilterSettings& s, const Model& model) {
+  if (!model.has_mechanical_form()) {
+    return invalid_argument("model " + model.name() +
+                            " has no mechanical form (M a + h = H u): the optimal filter needs one");
+  }
+  if (s.Q.size() != 0 || s.R.size() != 0) {
+    return invalid_argument("the optimal filter takes its weights from V and W, not from Q and R");
+  }
+  const int L = optimal_equation_count(model);
+  RICCATI_RETURN_IF_ERROR(check_covariance(s.optimal.V, L,
+                                           "optimal filter weights V (" + std::to_string(model.ndof()) +
+                                               " equations of motion, " + std::to_string(model.nu()) + " inputs, " +
+                                               std::to_string(model.ny()) + " outputs)"));
+  RICCATI_RETURN_IF_ERROR(check_covariance(s.optimal.W, model.nz(), "optimal filter weights W"));
+  Eigen::LLT<Eigen::MatrixXd> llt(s.optimal.W);
+  if (llt.info() != Eigen::Success) {
+    return invalid_argument("optimal filter weights W must be positive definite (W^-1 is the process noise)");
+  }
+  return Status::ok();
+}
 
 std::unique_ptr<Filter> make_optimal_filter(ModelPtr model, const FilterSettings& settings,
                                             std::unique_ptr<Integrator> integrator) {

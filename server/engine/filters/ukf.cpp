@@ -25,7 +25,7 @@
 #include <limits>
 #include <string>
 
-#include "engine/filters/filter.hpp"
+#include "engine/filters/kalman_filter.hpp"
 
 namespace riccati {
 
@@ -80,17 +80,24 @@ bool psd_square_root(const Eigen::MatrixXd& P, Eigen::MatrixXd& work, Eigen::Vec
   return true;
 }
 
-class Ukf final : public Filter {
+// lambda of the sigma points' spread sqrt(n + lambda) for n augmented states,
+// from the settings' weights and kappa (NaN: the usual default).
+double sigma_lambda(const UkfSettings& ukf, double n) {
+  const bool scaled = ukf.weights == SigmaWeights::kScaled;
+  const double kappa = std::isnan(ukf.kappa) ? (scaled ? 0.0 : 3.0 - n) : ukf.kappa;
+  return scaled ? ukf.alpha * ukf.alpha * (n + kappa) - n : kappa;
+}
+
+class Ukf final : public KalmanFilter {
  public:
   Ukf(ModelPtr model, const FilterSettings& settings, std::unique_ptr<Integrator> integrator)
-      : Filter(std::move(model), settings), integrator_(std::move(integrator)), rhs_(this) {
+      : KalmanFilter(std::move(model), settings), integrator_(std::move(integrator)), rhs_(this) {
     const int nz = model_->nz(), ny = model_->ny();
     npts_ = 2 * nz + 1;
     const double n = nz;
     const bool scaled = settings_.ukf.weights == SigmaWeights::kScaled;
-    const double kappa = std::isnan(settings_.ukf.kappa) ? (scaled ? 0.0 : 3.0 - n) : settings_.ukf.kappa;
     const double alpha = settings_.ukf.alpha;
-    const double lambda = scaled ? alpha * alpha * (n + kappa) - n : kappa;
+    const double lambda = sigma_lambda(settings_.ukf, n);
     spread_ = std::sqrt(n + lambda);
     wm_ = Eigen::VectorXd::Constant(npts_, 0.5 / (n + lambda));
     wm_[0] = lambda / (n + lambda);
@@ -212,6 +219,21 @@ class Ukf final : public Filter {
 };
 
 }  // namespace
+
+Status validate_ukf(const FilterSettings& s, const Model& model) {
+  RICCATI_RETURN_IF_ERROR(validate_noise_covariances(s, model));
+  const bool scaled = s.ukf.weights == SigmaWeights::kScaled;
+  if (!std::isnan(s.ukf.kappa) && !std::isfinite(s.ukf.kappa)) return invalid_argument("UKF kappa must be finite");
+  if (scaled && !(s.ukf.alpha > 0.0 && s.ukf.alpha <= 1.0)) return invalid_argument("UKF alpha must be in (0, 1]");
+  if (scaled && !std::isfinite(s.ukf.beta)) return invalid_argument("UKF beta must be finite");
+  const double n = model.nz();
+  const double lambda = sigma_lambda(s.ukf, n);
+  if (!(n + lambda > 0.0)) {
+    return invalid_argument("UKF spread n + lambda = " + std::to_string(n + lambda) +
+                            " must be positive (n = " + std::to_string(model.nz()) + "): raise kappa");
+  }
+  return Status::ok();
+}
 
 std::unique_ptr<Filter> make_ukf(ModelPtr model, const FilterSettings& settings,
                                  std::unique_ptr<Integrator> integrator) {

@@ -9,13 +9,12 @@
 #include "engine/estimation/identification.hpp"
 #include "engine/estimation/validation.hpp"
 #include "service/convert.hpp"
+#include "service/ids.hpp"
+#include "service/jobs/job_convert.hpp"
 
 namespace riccati::service {
 
 namespace {
-
-constexpr const char* kIdentification = "identification";
-constexpr const char* kValidation = "validation";
 
 Result<ModelPtr> find_model(const ModelRegistry& models, const std::string& name) {
   ModelPtr m = models.find(name);
@@ -90,7 +89,7 @@ Result<JobRecord> JobManager::submit_identification(const std::string& tenant, c
   JobRecord job;
   job.id = new_id("job");
   job.tenant = tenant;
-  job.kind = kIdentification;
+  job.kind = JobKind::kIdentification;
   job.passes = settings.passes;
   job.samples = dataset.samples;
   job.spec = spec.SerializeAsString();
@@ -99,20 +98,20 @@ Result<JobRecord> JobManager::submit_identification(const std::string& tenant, c
 
 Result<JobRecord> JobManager::submit_validation(const std::string& tenant, const v1::ValidationSpec& spec) {
   RICCATI_ASSIGN_OR_RETURN(const ModelPtr model, find_model(models_, spec.model()));
-  RICCATI_ASSIGN_OR_RETURN(const ValidationSettings settings, from_proto(spec, *model));
+  RICCATI_ASSIGN_OR_RETURN(const ValidationSettings settings, from_proto(spec));
   RICCATI_ASSIGN_OR_RETURN(const DatasetRecord dataset, store_.get_dataset(tenant, spec.dataset_id()));
   if (spec.has_theta()) {
     RICCATI_RETURN_IF_ERROR(from_values(spec.theta().values(), model->ntheta(), "theta").status());
   } else if (spec.has_identification_job_id()) {
     RICCATI_ASSIGN_OR_RETURN(const JobRecord source, get(tenant, spec.identification_job_id()));
-    if (source.kind != kIdentification) {
+    if (source.kind != JobKind::kIdentification) {
       return invalid_argument("job " + source.id + " is not an identification");
     }
   }
   JobRecord job;
   job.id = new_id("job");
   job.tenant = tenant;
-  job.kind = kValidation;
+  job.kind = JobKind::kValidation;
   job.samples = dataset.samples;
   job.spec = spec.SerializeAsString();
   return enqueue(std::move(job));
@@ -142,7 +141,7 @@ Result<JobRecord> JobManager::enqueue(JobRecord job) {
     ++submitted_;
   }
   work_ready_.notify_one();
-  spdlog::info("job queued id={} kind={} tenant={}", job.id, job.kind, job.tenant);
+  spdlog::info("job queued id={} kind={} tenant={}", job.id, job_kind_name(job.kind), job.tenant);
   return job;
 }
 
@@ -332,7 +331,7 @@ void JobManager::run(JobRecord job) {
     if (stopping_) live.stop.request_stop();
   }
   changed_.notify_all();
-  spdlog::info("job started id={} kind={} instance={}", id, job.kind, instance_);
+  spdlog::info("job started id={} kind={} instance={}", id, job_kind_name(job.kind), instance_);
 
   Result<std::string> result = execute(job, stop);
   LiveJob outcome;
@@ -398,9 +397,12 @@ void JobManager::finish(JobRecord job, const Result<std::string>& result,
 }
 
 Result<std::string> JobManager::execute(const JobRecord& job, std::stop_token stop) {
-  if (job.kind == kIdentification) return execute_identification(job, stop);
-  if (job.kind == kValidation) return execute_validation(job, stop);
-  return internal_error("job " + job.id + " has unknown kind \"" + job.kind + "\"");
+  switch (job.kind) {
+    case JobKind::kIdentification: return execute_identification(job, stop);
+    case JobKind::kValidation: return execute_validation(job, stop);
+    case JobKind::kUnknown: break;  // never claimed (Store::claim_job)
+  }
+  return internal_error("job " + job.id + " is of a kind this riccatid does not know");
 }
 
 namespace {
@@ -456,7 +458,7 @@ Result<std::string> JobManager::execute_identification(const JobRecord& job, std
       r.passes = p.passes;
       r.sample = p.sample;
       r.samples = p.samples;
-      r.theta.assign(p.theta->data() + model->nx(), p.theta->data() + p.theta->size());
+      r.theta.assign(p.state->data() + model->nx(), p.state->data() + p.state->size());
     });
     if (pass_done && changed) renew(*changed);
   };
@@ -490,7 +492,7 @@ Result<std::string> JobManager::execute_validation(const JobRecord& job, std::st
   v1::ValidationSpec spec;
   if (!spec.ParseFromString(job.spec)) return internal_error("job " + job.id + ": stored spec is unreadable");
   RICCATI_ASSIGN_OR_RETURN(const ModelPtr model, find_model(models_, spec.model()));
-  RICCATI_ASSIGN_OR_RETURN(ValidationSettings settings, from_proto(spec, *model));
+  RICCATI_ASSIGN_OR_RETURN(ValidationSettings settings, from_proto(spec));
   if (spec.has_identification_job_id()) {
     RICCATI_ASSIGN_OR_RETURN(const std::string encoded, store_.get_result(job.tenant, spec.identification_job_id()));
     v1::JobResult source;

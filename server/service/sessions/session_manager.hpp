@@ -1,13 +1,10 @@
-// Filter sessions: a filter that a rig streams measurements into.
+// SessionManager: the filter sessions (session.hpp) of this instance.
 //
 // A session is created with a model, filter settings and an initial
 // estimate; its filter starts at the first measurement it receives. One
 // stream at a time may be attached; a client that disconnects can attach a
 // new stream until the session has been idle for longer than the idle
-// timeout, when it expires. A measurement with the wrong sizes, non-finite
-// values or a time not after the previous one is refused on its own (the
-// session goes on); a filter that diverges closes the session to further
-// measurements and reports why.
+// timeout, when it expires.
 //
 // With a store (the daemon), a session survives its instance: its snapshot
 // (the request, the filter's state, the counters) is stored at creation,
@@ -37,84 +34,13 @@
 #include <thread>
 #include <vector>
 
-#include "engine/filters/filter.hpp"
-#include "engine/estimation/identification.hpp"
 #include "engine/models/plugin_loader.hpp"
 #include "riccati/internal/session_snapshot.pb.h"
 #include "riccati/v1/sessions.pb.h"
+#include "service/sessions/session.hpp"
 #include "store/store.hpp"
 
 namespace riccati::service {
-
-class Session {
- public:
-  Session(std::string id, std::string tenant, v1::CreateSessionRequest request, std::int64_t created_ms,
-          ModelPtr model, std::unique_ptr<Filter> filter, InitialState initial_state, Eigen::VectorXd x0,
-          Eigen::VectorXd theta0, Eigen::MatrixXd P0);
-
-  const std::string& id() const { return id_; }
-  const std::string& tenant() const { return tenant_; }
-
-  // Attaches a stream; FAILED_PRECONDITION if one is attached already or the
-  // session diverged.
-  Status attach();
-  void detach();
-
-  // Processes one measurement into `out` (an estimate or an error for it).
-  // Returns non-ok only when the filter diverged, or another instance
-  // resumed the session: the stream must end with that status.
-  Status process(const v1::Measurement& m, bool full_covariance, v1::MeasurementResult* out);
-
-  v1::SessionInfo info() const;
-  bool idle_since(std::chrono::steady_clock::time_point t) const;
-
-  // The session as a snapshot (SessionSnapshot, encoded), stored by `instance`.
-  std::string snapshot(const std::string& instance) const;
-  // Hands a snapshot to `sink` unless the session was closed: under the
-  // session's lock, so that none is handed over after close(). Returns
-  // whether it did.
-  bool save(const std::string& instance, const std::function<void(std::string)>& sink);
-  // Measurements came since the last snapshot and `interval` has passed
-  // since it, or the filter diverged.
-  bool snapshot_due(std::chrono::steady_clock::time_point now, std::chrono::milliseconds interval) const;
-  // Puts back the state of a snapshot of this session.
-  Status restore(const internal::SessionSnapshot& snapshot);
-  // No more snapshots: the session was closed or expired here.
-  void close();
-  // Another instance holds the session now: no more snapshots, and a stream
-  // attached here ends with `why`.
-  void lose(const Status& why);
-
- private:
-  Status check(const v1::Measurement& m) const;
-  Status step(const v1::Measurement& m);
-  std::string encode(const std::string& instance) const;  // mu_ held
-
-  const std::string id_;
-  const std::string tenant_;
-  const v1::CreateSessionRequest request_;  // as given: what a snapshot rebuilds the session from
-  const ModelPtr model_;
-  const InitialState initial_state_;
-  const Eigen::VectorXd x0_, theta0_;
-  const Eigen::MatrixXd P0_;
-  const std::int64_t created_ms_;
-
-  mutable std::mutex mu_;
-  std::unique_ptr<Filter> filter_;
-  bool started_ = false;
-  bool streaming_ = false;
-  bool closed_ = false;
-  Status diverged_;
-  Status lost_;                 // another instance resumed it
-  std::uint64_t received_ = 0;  // every measurement, accepted or not
-  std::uint64_t accepted_ = 0;
-  std::uint64_t received_at_snapshot_ = 0;
-  std::chrono::steady_clock::time_point last_snapshot_;
-  Eigen::VectorXd u_last_;
-  Eigen::VectorXd u_, y_;  // scratch for the current measurement
-  std::int64_t last_active_ms_;
-  std::chrono::steady_clock::time_point last_active_;
-};
 
 // How this instance keeps its sessions in a store shared with others.
 struct SessionStoreOptions {

@@ -1,0 +1,135 @@
+#include "service/jobs/job_convert.hpp"
+
+#include <algorithm>
+
+#include "service/convert.hpp"
+#include "service/run_settings.hpp"
+
+namespace riccati::service {
+
+Result<IdentificationSettings> from_proto(const v1::IdentificationSpec& spec, const Model& model) {
+  IdentificationSettings out;
+  RICCATI_ASSIGN_OR_RETURN(out.filter, from_proto(spec.filter(), model));
+  RICCATI_ASSIGN_OR_RETURN(out.initial, initial_estimate_from_proto(spec.initial_state(), spec.theta0(), spec.p0(),
+                                                                    spec.filter(), model));
+  out.passes = spec.passes() == 0 ? 1 : static_cast<int>(std::min<uint32_t>(spec.passes(), 1u << 30));
+  out.first_sample = static_cast<Eigen::Index>(spec.first_sample());
+  out.end_sample = spec.end_sample() == 0 ? -1 : static_cast<Eigen::Index>(spec.end_sample());
+  RICCATI_RETURN_IF_ERROR(validate(out, model));
+  return out;
+}
+
+Result<ValidationSettings> from_proto(const v1::ValidationSpec& spec) {
+  ValidationSettings out;
+  RICCATI_ASSIGN_OR_RETURN(out.simulation.integrator, from_proto(spec.integrator()));
+  RICCATI_ASSIGN_OR_RETURN(out.simulation.hold, from_proto(spec.hold()));
+  initial_state_from_proto(spec.initial_state(), &out.initial_state, &out.x0);
+  return out;
+}
+
+v1::IdentificationResult to_proto(const IdentificationResult& r) {
+  v1::IdentificationResult out;
+  for (const auto& n : r.param_names) out.add_param_names(n);
+  for (const PassResult& p : r.passes) {
+    v1::PassResult* pass = out.add_passes();
+    *pass->mutable_theta_trace() = to_matrix(p.theta_trace);
+    copy_values(p.theta_final, pass->mutable_theta_final());
+    copy_values(p.theta_mean, pass->mutable_theta_mean());
+    copy_values(p.theta_std, pass->mutable_theta_std());
+    copy_values(p.innovation_rms, pass->mutable_innovation_rms());
+    pass->set_nis_mean(p.nis_mean);
+  }
+  copy_values(r.theta, out.mutable_theta());
+  copy_values(r.theta_mean, out.mutable_theta_mean());
+  copy_values(r.theta_std, out.mutable_theta_std());
+  *out.mutable_covariance() = to_matrix(r.covariance);
+  copy_values(r.t, out.mutable_t());
+  *out.mutable_x_trace() = to_matrix(r.x_trace);
+  *out.mutable_y_model() = to_matrix(r.y_model);
+  *out.mutable_innovations() = to_matrix(r.innovations);
+  return out;
+}
+
+Result<IdentificationResult> from_proto(const v1::IdentificationResult& r) {
+  IdentificationResult out;
+  out.param_names.assign(r.param_names().begin(), r.param_names().end());
+  const auto n = static_cast<Eigen::Index>(out.param_names.size());
+  for (int i = 0; i < r.passes_size(); ++i) {
+    const v1::PassResult& p = r.passes(i);
+    const std::string where = "passes[" + std::to_string(i) + "]";
+    PassResult pass;
+    RICCATI_ASSIGN_OR_RETURN(pass.theta_trace, from_matrix(p.theta_trace(), where + ".theta_trace"));
+    RICCATI_ASSIGN_OR_RETURN(pass.theta_final, from_values(p.theta_final(), n, where + ".theta_final"));
+    RICCATI_ASSIGN_OR_RETURN(pass.theta_mean, from_values(p.theta_mean(), n, where + ".theta_mean"));
+    RICCATI_ASSIGN_OR_RETURN(pass.theta_std, from_values(p.theta_std(), n, where + ".theta_std"));
+    RICCATI_ASSIGN_OR_RETURN(pass.innovation_rms,
+                             from_values(p.innovation_rms(), p.innovation_rms_size(), where + ".innovation_rms"));
+    pass.nis_mean = p.nis_mean();
+    out.passes.push_back(std::move(pass));
+  }
+  RICCATI_ASSIGN_OR_RETURN(out.theta, from_values(r.theta(), n, "theta"));
+  RICCATI_ASSIGN_OR_RETURN(out.theta_mean, from_values(r.theta_mean(), n, "theta_mean"));
+  RICCATI_ASSIGN_OR_RETURN(out.theta_std, from_values(r.theta_std(), n, "theta_std"));
+  RICCATI_ASSIGN_OR_RETURN(out.covariance, from_matrix(r.covariance(), "covariance"));
+  RICCATI_ASSIGN_OR_RETURN(out.t, from_values(r.t(), r.t_size(), "t"));
+  RICCATI_ASSIGN_OR_RETURN(out.x_trace, from_matrix(r.x_trace(), "x_trace"));
+  RICCATI_ASSIGN_OR_RETURN(out.y_model, from_matrix(r.y_model(), "y_model"));
+  RICCATI_ASSIGN_OR_RETURN(out.innovations, from_matrix(r.innovations(), "innovations"));
+  return out;
+}
+
+v1::ValidationResult to_proto(const ValidationResult& r, const Eigen::VectorXd& theta) {
+  v1::ValidationResult out;
+  copy_values(theta, out.mutable_theta());
+  copy_values(r.t, out.mutable_t());
+  *out.mutable_y_measured() = to_matrix(r.y_measured);
+  *out.mutable_y_simulated() = to_matrix(r.y_simulated);
+  for (const OutputFit& f : r.fits) {
+    v1::OutputFit* fit = out.add_fits();
+    fit->set_name(f.name);
+    fit->set_rmse(f.rmse);
+    fit->set_fit_percent(f.fit_percent);
+    fit->set_vaf_percent(f.vaf_percent);
+    fit->set_rrse(f.rrse);
+  }
+  return out;
+}
+
+v1::JobState to_proto(JobState state) {
+  switch (state) {
+    case JobState::kQueued: return v1::JOB_STATE_QUEUED;
+    case JobState::kRunning: return v1::JOB_STATE_RUNNING;
+    case JobState::kSucceeded: return v1::JOB_STATE_SUCCEEDED;
+    case JobState::kFailed: return v1::JOB_STATE_FAILED;
+    case JobState::kCancelled: return v1::JOB_STATE_CANCELLED;
+  }
+  return v1::JOB_STATE_UNSPECIFIED;
+}
+
+
+v1::Job to_proto(const JobRecord& job) {
+  v1::Job out;
+  out.set_id(job.id);
+  out.set_state(to_proto(job.state));
+  switch (job.kind) {
+    case JobKind::kIdentification: out.mutable_identification()->ParseFromString(job.spec); break;
+    case JobKind::kValidation: out.mutable_validation()->ParseFromString(job.spec); break;
+    case JobKind::kUnknown: break;  // a newer riccatid's: its spec is not ours to read
+  }
+  v1::JobProgress* p = out.mutable_progress();
+  p->set_pass(static_cast<uint32_t>(job.pass));
+  p->set_passes(static_cast<uint32_t>(job.passes));
+  p->set_sample(static_cast<uint64_t>(job.sample));
+  p->set_samples(static_cast<uint64_t>(job.samples));
+  for (double v : job.theta) p->add_theta(v);
+  if (job.error_code != 0) {
+    out.mutable_error()->set_code(job.error_code);
+    out.mutable_error()->set_message(job.error_message);
+  }
+  set_timestamp(job.created_ms, out.mutable_created());
+  if (job.started_ms != 0) set_timestamp(job.started_ms, out.mutable_started());
+  if (job.finished_ms != 0) set_timestamp(job.finished_ms, out.mutable_finished());
+  return out;
+}
+
+}  // namespace riccati::service

@@ -1,0 +1,31 @@
+// DatasetService: uploads, reads and deletes the tenant's datasets through the
+// DatasetManager.
+#pragma once
+
+#include <grpcpp/grpcpp.h>
+
+#include "riccati/v1/datasets.grpc.pb.h"
+#include "service/auth.hpp"
+#include "service/datasets/dataset_manager.hpp"
+
+namespace riccati::service {
+
+class DatasetServiceImpl final : public v1::DatasetService::Service {
+ public:
+  DatasetServiceImpl(const Authenticator& auth, DatasetManager& datasets) : auth_(auth), datasets_(datasets) {}
+  grpc::Status UploadDataset(grpc::ServerContext*, grpc::ServerReader<v1::UploadDatasetRequest>*,
+                             v1::DatasetInfo*) override;
+  grpc::Status GetDataset(grpc::ServerContext*, const v1::GetDatasetRequest*, v1::DatasetInfo*) override;
+  grpc::Status ListDatasets(grpc::ServerContext*, const v1::ListDatasetsRequest*, v1::ListDatasetsResponse*) override;
+  grpc::Status DeleteDataset(grpc::ServerContext*, const v1::DeleteDatasetRequest*,
+                             v1::DeleteDatasetResponse*) override;
+  grpc::Status GetDatasetData(grpc::ServerContext*, const v1::GetDatasetRequest*, v1::DatasetData*) override;
+
+ private:
+  const Authenticator& auth_;
+  DatasetManager& datasets_;
+};
+
+v1::DatasetInfo to_proto(const DatasetRecord& record);
+
+}  // namespace riccati::service

@@ -1,0 +1,87 @@
+#include "service/rpc/model_service.hpp"
+
+#include "engine/estimation/validation.hpp"
+#include "service/convert.hpp"
+#include "service/run_settings.hpp"
+
+namespace riccati::service {
+namespace {
+
+// What a SimulateRequest asks for, checked against the model.
+struct Simulation {
+  Eigen::VectorXd t, x0, theta;
+  Eigen::MatrixXd u;
+  SimulationSettings settings;
+};
+
+Result<Simulation> simulation_from_proto(const v1::SimulateRequest& request, const Model& model) {
+  Simulation out;
+  const Eigen::Index n = request.t_size();
+  if (n < 2) return invalid_argument("t needs at least two sample times");
+  RICCATI_ASSIGN_OR_RETURN(out.t, from_values(request.t(), n, "t"));
+  for (Eigen::Index k = 1; k < n; ++k) {
+    if (!(out.t[k] > out.t[k - 1])) return invalid_argument("t is not strictly increasing at index " + std::to_string(k));
+  }
+  RICCATI_ASSIGN_OR_RETURN(out.u, from_matrix(request.u(), "u"));
+  if (out.u.rows() != model.nu() || out.u.cols() != n) {
+    return invalid_argument("u must be " + std::to_string(model.nu()) + " x " + std::to_string(n));
+  }
+  out.theta = model.theta_default();
+  if (request.theta_size() != 0) {
+    RICCATI_ASSIGN_OR_RETURN(out.theta, from_values(request.theta(), model.ntheta(), "theta"));
+  }
+  RICCATI_ASSIGN_OR_RETURN(out.x0, from_values(request.x0(), model.nx(), "x0"));
+  RICCATI_ASSIGN_OR_RETURN(out.settings.hold, from_proto(request.hold()));
+  RICCATI_ASSIGN_OR_RETURN(out.settings.integrator, from_proto(request.integrator()));
+  return out;
+}
+
+}  // namespace
+
+v1::ModelInfo to_proto(const Model& model) {
+  v1::ModelInfo info;
+  info.set_name(model.name());
+  info.set_version(model.version());
+  info.set_description(model.description());
+  for (const auto& n : model.state_names()) info.add_state_names(n);
+  for (const auto& n : model.param_names()) info.add_param_names(n);
+  for (const auto& n : model.input_names()) info.add_input_names(n);
+  for (const auto& n : model.output_names()) info.add_output_names(n);
+  copy_values(model.theta_default(), info.mutable_theta_default());
+  copy_values(model.theta_lower(), info.mutable_theta_lower());
+  copy_values(model.theta_upper(), info.mutable_theta_upper());
+  info.set_exact_f_jacobian(model.has_f_jacobian());
+  info.set_exact_g_jacobian(model.has_g_jacobian());
+  info.set_ndof(static_cast<uint32_t>(model.ndof()));
+  return info;
+}
+
+grpc::Status ModelServiceImpl::ListModels(grpc::ServerContext*, const v1::ListModelsRequest*,
+                                          v1::ListModelsResponse* response) {
+  for (const auto& m : models_.models()) *response->add_models() = to_proto(*m);
+  return grpc::Status::OK;
+}
+
+grpc::Status ModelServiceImpl::GetModel(grpc::ServerContext*, const v1::GetModelRequest* request,
+                                        v1::ModelInfo* response) {
+  const ModelPtr m = models_.find(request->name());
+  if (m == nullptr) return to_grpc(not_found("no model \"" + request->name() + "\" is loaded"));
+  *response = to_proto(*m);
+  return grpc::Status::OK;
+}
+
+grpc::Status ModelServiceImpl::Simulate(grpc::ServerContext*, const v1::SimulateRequest* request,
+                                        v1::SimulateResponse* response) {
+  const ModelPtr m = models_.find(request->model());
+  if (m == nullptr) return to_grpc(not_found("no model \"" + request->model() + "\" is loaded"));
+  const Result<Simulation> s = simulation_from_proto(*request, *m);
+  if (!s.is_ok()) return to_grpc(s.status());
+  Eigen::MatrixXd x;
+  const Result<Eigen::MatrixXd> y = simulate(*m, s->t, s->u, s->x0, s->theta, s->settings, &x);
+  if (!y.is_ok()) return to_grpc(y.status());
+  *response->mutable_y() = to_matrix(y.value());
+  *response->mutable_x() = to_matrix(x);
+  return grpc::Status::OK;
+}
+
+}  // namespace riccati::service

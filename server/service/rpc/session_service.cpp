@@ -1,0 +1,183 @@
+#include "service/rpc/session_service.hpp"
+
+#include <spdlog/spdlog.h>
+
+#include <optional>
+
+#include "service/convert.hpp"
+
+namespace riccati::service {
+
+grpc::Status SessionServiceImpl::CreateSession(grpc::ServerContext* context, const v1::CreateSessionRequest* request,
+                                               v1::SessionInfo* response) {
+  auto session = sessions_.create(auth_.tenant(*context), *request);
+  if (!session.is_ok()) return to_grpc(session.status());
+  *response = session.value()->info();
+  return grpc::Status::OK;
+}
+
+grpc::Status SessionServiceImpl::GetSession(grpc::ServerContext* context, const v1::GetSessionRequest* request,
+                                            v1::SessionInfo* response) {
+  auto session = sessions_.get(auth_.tenant(*context), request->id());
+  if (!session.is_ok()) return to_grpc(session.status());
+  *response = session.value()->info();
+  return grpc::Status::OK;
+}
+
+grpc::Status SessionServiceImpl::ListSessions(grpc::ServerContext* context, const v1::ListSessionsRequest*,
+                                              v1::ListSessionsResponse* response) {
+  Result<std::vector<v1::SessionInfo>> listed = sessions_.list(auth_.tenant(*context));
+  if (!listed.is_ok()) return to_grpc(listed.status());
+  for (v1::SessionInfo& info : listed.value()) *response->add_sessions() = std::move(info);
+  return grpc::Status::OK;
+}
+
+grpc::Status SessionServiceImpl::CloseSession(grpc::ServerContext* context, const v1::CloseSessionRequest* request,
+                                              v1::CloseSessionResponse*) {
+  return to_grpc(sessions_.close(auth_.tenant(*context), request->id()));
+}
+
+class SessionServiceImpl::StreamReactor final : public grpc::ServerBidiReactor<v1::StreamRequest, v1::StreamResponse> {
+ public:
+  StreamReactor(SessionServiceImpl& service, grpc::CallbackServerContext* context)
+      : service_(service), tenant_(service.auth_.tenant(*context)) {
+    {
+      std::lock_guard lock(service_.streams_mu_);
+      if (!service_.draining_) service_.streams_.insert(this);
+      registered_ = !service_.draining_;
+    }
+    spdlog::debug("stream opened registered={}", registered_);
+    if (!registered_) {
+      finish({grpc::StatusCode::UNAVAILABLE,
+              "riccatid is shutting down; open the stream again on another instance, or on this one after it "
+              "restarts"});
+      return;
+    }
+    StartRead(&request_);
+  }
+
+  void OnReadDone(bool ok) override {
+    if (!ok) return finish(grpc::Status::OK);  // the client is done sending (or gone)
+    if (session_ == nullptr) return open();
+    if (!request_.has_batch()) return finish(to_grpc(invalid_argument("after StreamOpen, only measurement batches")));
+    const auto& measurements = request_.batch().measurements();
+    if (measurements.size() > service_.limits_.max_batch) {
+      return finish(to_grpc(limit_reached("max_batch", service_.limits_.max_batch,
+                                          "a message holds " + std::to_string(measurements.size()) + " measurements")));
+    }
+    response_.Clear();
+    for (const auto& m : measurements) {
+      const auto began = std::chrono::steady_clock::now();
+      v1::MeasurementResult* result = response_.add_results();
+      diverged_ = session_->process(m, full_covariance_, result);
+      service_.metrics_.measurement(result->has_estimate(), std::chrono::steady_clock::now() - began);
+      if (!diverged_.is_ok()) break;
+    }
+    service_.sessions_.after_batch(*session_);  // hands a snapshot to the writer when one is due
+    std::lock_guard lock(mu_);
+    if (finished_) return;  // drained meanwhile: the status is on its way
+    writing_ = true;
+    StartWrite(&response_);
+  }
+
+  void OnWriteDone(bool ok) override {
+    std::optional<grpc::Status> pending;
+    {
+      std::lock_guard lock(mu_);
+      writing_ = false;
+      pending.swap(pending_finish_);
+    }
+    if (pending) return finish(*pending);
+    if (!ok) return finish(grpc::Status::OK);  // the client went away
+    if (!diverged_.is_ok()) return finish(to_grpc(diverged_));
+    StartRead(&request_);
+  }
+
+  void OnCancel() override { finish({grpc::StatusCode::CANCELLED, "stream cancelled"}); }
+
+  void OnDone() override {
+    spdlog::debug("stream done session={}", session_ != nullptr ? session_->id() : "");
+    if (registered_) {
+      std::lock_guard lock(service_.streams_mu_);
+      service_.streams_.erase(this);
+      service_.streams_done_.notify_all();
+    }
+    delete this;
+  }
+
+  void drain() {
+    finish({grpc::StatusCode::UNAVAILABLE,
+            "riccatid is shutting down; the session is stored: open the stream again, on this or another instance "
+            "(GetSession gives its time t: send the measurements after t)"});
+  }
+
+ private:
+  void open() {
+    if (!request_.has_open()) return finish(to_grpc(invalid_argument("the first message of a stream must be StreamOpen")));
+    full_covariance_ = request_.open().full_covariance();
+    auto found = service_.sessions_.get(tenant_, request_.open().session_id());
+    if (!found.is_ok()) return finish(to_grpc(found.status()));
+    const Status attached = found.value()->attach();
+    if (!attached.is_ok()) return finish(to_grpc(attached));
+    {
+      std::lock_guard lock(mu_);
+      if (finished_) {  // drained meanwhile
+        found.value()->detach();
+        return;
+      }
+      session_ = found.value();
+    }
+    StartRead(&request_);
+  }
+
+  // Finishes once; while a write is in flight, when it completes.
+  void finish(const grpc::Status& status) {
+    std::lock_guard lock(mu_);
+    if (finished_) return;
+    if (writing_) {
+      if (!pending_finish_) pending_finish_ = status;
+      return;
+    }
+    finished_ = true;
+    // Detached (and its snapshot handed to the writer) before the client
+    // hears the status, so that a client that reconnects at once finds the
+    // session free.
+    if (session_ != nullptr) {
+      session_->detach();
+      service_.sessions_.save(*session_);
+    }
+    Finish(status);
+  }
+
+  SessionServiceImpl& service_;
+  const std::string tenant_;
+  bool registered_ = false;
+  std::shared_ptr<Session> session_;
+  bool full_covariance_ = false;
+  v1::StreamRequest request_;
+  v1::StreamResponse response_;
+  Status diverged_;
+  std::mutex mu_;  // finish() may come from drain() on another thread
+  bool writing_ = false;
+  bool finished_ = false;
+  std::optional<grpc::Status> pending_finish_;
+};
+
+grpc::ServerBidiReactor<v1::StreamRequest, v1::StreamResponse>* SessionServiceImpl::Stream(
+    grpc::CallbackServerContext* context) {
+  return new StreamReactor(*this, context);
+}
+
+void SessionServiceImpl::drain(std::chrono::steady_clock::time_point deadline) {
+  std::unique_lock lock(streams_mu_);
+  draining_ = true;
+  // Finish() never runs OnDone on this thread (gRPC completes it on its
+  // own), so holding streams_mu_ here cannot deadlock with OnDone.
+  for (StreamReactor* stream : streams_) stream->drain();
+  streams_done_.wait_until(lock, deadline, [&] { return streams_.empty(); });
+  spdlog::info("streams drained open={}", streams_.size());
+}
+
+SessionServiceImpl::~SessionServiceImpl() = default;
+
+}  // namespace riccati::service
