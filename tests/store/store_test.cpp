@@ -333,6 +333,23 @@ TEST_P(StoreTest, TheJobQueueHandsOutEachJobOnceOldestFirst) {
   EXPECT_FALSE(store->claim_job("c", 60000).value().has_value()) << "every job is held under a live lease";
 }
 
+TEST_P(StoreTest, AJobOfAKindThisRiccatidDoesNotKnowIsListedButNeverClaimed) {
+  // A newer riccatid sharing the store may queue kinds of jobs this one
+  // cannot run: they show as unknown and wait for an instance that can.
+  auto store = open();
+  JobRecord newer = job("job-newer", "t", 1);
+  newer.kind = JobKind::kUnknown;  // stored under a name this build does not know
+  ASSERT_TRUE(store->put_job(newer).is_ok());
+  ASSERT_TRUE(store->put_job(job("job-known", "t", 2)).is_ok());
+  EXPECT_EQ(store->get_job("t", "job-newer").value().kind, JobKind::kUnknown);
+  EXPECT_EQ(store->list_jobs("t").value().size(), 2u);
+  const auto claimed = store->claim_job("a", 60000).value();
+  ASSERT_TRUE(claimed.has_value());
+  EXPECT_EQ(claimed->id, "job-known") << "the older job is of an unknown kind and must be skipped";
+  EXPECT_FALSE(store->claim_job("a", 60000).value().has_value());
+  EXPECT_EQ(store->get_job("t", "job-newer").value().state, JobState::kQueued);
+}
+
 TEST_P(StoreTest, ConcurrentClaimsNeverShareAJob) {
   auto store = open();
   constexpr int kJobs = 40;

@@ -100,6 +100,8 @@ class Ekf final : public KalmanFilter {
     G_.resize(ny, nz);
     PGt_.resize(nz, ny);
     IKG_.resize(nz, nz);
+    IKGP_.resize(nz, nz);
+    KR_.resize(nz, ny);
     Pnew_.resize(nz, nz);
   }
 
@@ -144,8 +146,10 @@ class Ekf final : public KalmanFilter {
     if (settings_.joseph) {
       IKG_.setIdentity();
       IKG_.noalias() -= K_ * G_;
-      Pnew_.noalias() = IKG_ * P_ * IKG_.transpose();
-      Pnew_.noalias() += K_ * settings_.R * K_.transpose();
+      IKGP_.noalias() = IKG_ * P_;
+      Pnew_.noalias() = IKGP_ * IKG_.transpose();
+      KR_.noalias() = K_ * settings_.R;
+      Pnew_.noalias() += KR_ * K_.transpose();
       P_ = 0.5 * (Pnew_ + Pnew_.transpose());
     } else {
       Pnew_ = P_;
@@ -189,7 +193,7 @@ class Ekf final : public KalmanFilter {
   const double* u1_ = nullptr;
   // Work space, sized once.
   std::vector<double> y_;
-  Eigen::MatrixXd jac_f_, A_, G_, PGt_, IKG_, Pnew_;
+  Eigen::MatrixXd jac_f_, A_, G_, PGt_, IKG_, IKGP_, KR_, Pnew_;
   Eigen::MatrixXd Pthth0_, Pthth_;  // parameter covariance at the start of the interval, and at time t
 };
 

@@ -1,5 +1,7 @@
 #include "engine/filters/kalman_filter.hpp"
 
+#include <algorithm>
+#include <limits>
 #include <string>
 
 namespace riccati {
@@ -10,7 +12,15 @@ KalmanFilter::KalmanFilter(ModelPtr model, FilterSettings settings) : Filter(std
   KT_.resize(ny, nz);
   S_innovation_.resize(ny);
   S_llt_ = Eigen::LLT<Eigen::MatrixXd>(ny);
-  S_cod_ = Eigen::CompleteOrthogonalDecomposition<Eigen::MatrixXd>(ny, ny);
+  VtCt_.resize(ny, nz);
+  Vte_.resize(ny);
+  inverse_eigenvalues_.resize(ny);
+  V_.resize(ny, ny);
+  S_tridiagonal_ = Eigen::Tridiagonalization<Eigen::MatrixXd>(ny);
+  T_eigen_ = Eigen::SelfAdjointEigenSolver<Eigen::MatrixXd>(ny);
+  T_diagonal_.resize(ny);
+  T_subdiagonal_.resize(std::max<Eigen::Index>(ny - 1, 0));
+  householder_workspace_.resize(ny);
 }
 
 Status KalmanFilter::gain_and_nis(const Eigen::MatrixXd& C) {
@@ -28,9 +38,25 @@ Status KalmanFilter::gain_and_nis(const Eigen::MatrixXd& C) {
     S_llt_.solveInPlace(KT_);
     S_llt_.solveInPlace(S_innovation_);
   } else {
-    S_cod_.compute(S_);
-    KT_ = S_cod_.solve(C.transpose());
-    S_innovation_ = S_cod_.solve(innovation_);
+    // Minimum-norm solution: S^+ = V D^+ V^T, eigenvalues below n eps max|d|
+    // taken as zero (the rank threshold of Eigen's COD and of MATLAB's pinv).
+    S_tridiagonal_.compute(S_);
+    T_diagonal_ = S_tridiagonal_.diagonal();
+    T_subdiagonal_ = S_tridiagonal_.subDiagonal();
+    T_eigen_.computeFromTridiagonal(T_diagonal_, T_subdiagonal_, Eigen::ComputeEigenvectors);
+    V_ = T_eigen_.eigenvectors();
+    S_tridiagonal_.matrixQ().applyThisOnTheLeft(V_, householder_workspace_);
+    const auto& d = T_eigen_.eigenvalues();
+    const Eigen::MatrixXd& V = V_;
+    const double threshold = static_cast<double>(d.size()) * std::numeric_limits<double>::epsilon() *
+                             d.cwiseAbs().maxCoeff();
+    for (Eigen::Index i = 0; i < d.size(); ++i) inverse_eigenvalues_[i] = d[i] > threshold ? 1.0 / d[i] : 0.0;
+    VtCt_.noalias() = V.transpose() * KT_;
+    VtCt_.array().colwise() *= inverse_eigenvalues_.array();
+    KT_.noalias() = V * VtCt_;
+    Vte_.noalias() = V.transpose() * S_innovation_;
+    Vte_.array() *= inverse_eigenvalues_.array();
+    S_innovation_.noalias() = V * Vte_;
   }
   K_ = KT_.transpose();
   nis_ = innovation_.dot(S_innovation_);

@@ -5,7 +5,7 @@
 #pragma once
 
 #include <Eigen/Cholesky>
-#include <Eigen/QR>
+#include <Eigen/Eigenvalues>
 
 #include "engine/filters/filter.hpp"
 
@@ -22,11 +22,16 @@ class KalmanFilter : public Filter {
   Eigen::MatrixXd K_;  // gain of the last update [nz x ny]
 
  private:
-  // Work space: K^T, S^-1 innovation and the factorisations of S.
-  Eigen::MatrixXd KT_;
-  Eigen::VectorXd S_innovation_;
+  // Work space: K^T, S^-1 innovation and the factorisations of S (the
+  // pseudo-inverse from S's eigen decomposition, S being symmetric).
+  Eigen::MatrixXd KT_, VtCt_, V_;
+  Eigen::VectorXd S_innovation_, Vte_, inverse_eigenvalues_;
   Eigen::LLT<Eigen::MatrixXd> S_llt_;
-  Eigen::CompleteOrthogonalDecomposition<Eigen::MatrixXd> S_cod_;
+  // S = Q T Q^T (tridiagonal T), T = Z D Z^T, so S = V D V^T with V = Q Z: Eigen's
+  // SelfAdjointEigenSolver in its steps, to pass the workspace it would allocate.
+  Eigen::Tridiagonalization<Eigen::MatrixXd> S_tridiagonal_;
+  Eigen::SelfAdjointEigenSolver<Eigen::MatrixXd> T_eigen_;
+  Eigen::VectorXd T_diagonal_, T_subdiagonal_, householder_workspace_;
 };
 
 }  // namespace riccati

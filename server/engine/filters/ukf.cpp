@@ -108,6 +108,8 @@ class Ukf final : public KalmanFilter {
     Ypts_.resize(npts_, ny);
     dX_.resize(npts_, nz);
     dY_.resize(npts_, ny);
+    wdX_.resize(npts_, nz);
+    wdY_.resize(npts_, ny);
     sqrtP_.resize(nz, nz);
     work_.resize(nz, nz);
     perm_.resize(nz);
@@ -146,9 +148,11 @@ class Ukf final : public KalmanFilter {
     y_pred_.noalias() = Ypts_.transpose() * wm_;
     dY_ = Ypts_.rowwise() - y_pred_.transpose();
     dX_ = X_.rowwise() - z_.transpose();
-    S_.noalias() = dY_.transpose() * wc_.asDiagonal() * dY_;
+    // The weighted deviations once, so that each product is one (no temporary).
+    wdY_.noalias() = wc_.asDiagonal() * dY_;
+    S_.noalias() = dY_.transpose() * wdY_;
     S_ += settings_.R;
-    C_.noalias() = dX_.transpose() * wc_.asDiagonal() * dY_;
+    C_.noalias() = dX_.transpose() * wdY_;
     for (int i = 0; i < ny; ++i) innovation_[i] = y[i] - y_pred_[i];
     RICCATI_RETURN_IF_ERROR(gain_and_nis(C_));
     z_.noalias() += K_ * innovation_;
@@ -199,7 +203,8 @@ class Ukf final : public KalmanFilter {
   void weighted_mean_and_covariance() {
     z_.noalias() = X_.transpose() * wm_;
     dX_ = X_.rowwise() - z_.transpose();
-    P_.noalias() = dX_.transpose() * wc_.asDiagonal() * dX_;
+    wdX_.noalias() = wc_.asDiagonal() * dX_;
+    P_.noalias() = dX_.transpose() * wdX_;
   }
 
   std::unique_ptr<Integrator> integrator_;
@@ -213,6 +218,7 @@ class Ukf final : public KalmanFilter {
   const double* u1_ = nullptr;
   // Sigma points [npts x nz] and outputs [npts x ny]: one column per variable.
   Eigen::MatrixXd X_, Ypts_, dX_, dY_;
+  Eigen::MatrixXd wdX_, wdY_;  // the deviations times the covariance weights Wc
   Eigen::MatrixXd sqrtP_, C_, Pnew_;
   Eigen::MatrixXd work_;
   Eigen::VectorXi perm_;
