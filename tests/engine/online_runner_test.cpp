@@ -109,7 +109,7 @@ TEST_P(RunnerPerKind, TheFirstPassOfAnIdentificationIsTheRunOverTheSamples) {
 }
 
 INSTANTIATE_TEST_SUITE_P(EkfAndUkf, RunnerPerKind, ::testing::Values(FilterKind::kEkf, FilterKind::kUkf),
-                         [](const auto& info) { return std::string(filter_kind_name(info.param)); });
+                         [](const auto& param) { return std::string(filter_kind_name(param.param)); });
 
 TEST(OnlineRunner, ADivergenceSticksUntilARestart) {
   const TwoTank& f = two_tank();

@@ -126,6 +126,12 @@ ModelPtr ModelRegistry::find(std::string_view name) const {
   return nullptr;
 }
 
+Result<ModelPtr> ModelRegistry::get(std::string_view name) const {
+  ModelPtr model = find(name);
+  if (model == nullptr) return not_found("no model \"" + std::string(name) + "\" is loaded");
+  return model;
+}
+
 std::string default_models_dir() {
   std::error_code ec;
   const fs::path exe = fs::read_symlink("/proc/self/exe", ec);

@@ -34,6 +34,8 @@ class ModelRegistry {
   static Result<ModelRegistry> load_directory(const std::string& dir);
 
   ModelPtr find(std::string_view name) const;
+  // The model of that name; NOT_FOUND ("no model \"x\" is loaded") if none.
+  Result<ModelPtr> get(std::string_view name) const;
   const std::vector<ModelPtr>& models() const { return models_; }
   const std::vector<RefusedPlugin>& refused() const { return refused_; }
   // SHA-256 of the file a loaded model came from (64 hex digits).

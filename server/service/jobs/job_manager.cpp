@@ -11,16 +11,11 @@
 #include "service/convert.hpp"
 #include "service/ids.hpp"
 #include "service/jobs/job_convert.hpp"
+#include "service/jobs/job_execution.hpp"
 
 namespace riccati::service {
 
 namespace {
-
-Result<ModelPtr> find_model(const ModelRegistry& models, const std::string& name) {
-  ModelPtr m = models.find(name);
-  if (m == nullptr) return not_found("no model \"" + name + "\" is loaded");
-  return m;
-}
 
 // <hostname>-<random>: unique among the instances sharing a store.
 std::string default_instance_id() {
@@ -80,7 +75,7 @@ void JobManager::shutdown() {
 }
 
 Result<JobRecord> JobManager::submit_identification(const std::string& tenant, const v1::IdentificationSpec& spec) {
-  RICCATI_ASSIGN_OR_RETURN(const ModelPtr model, find_model(models_, spec.model()));
+  RICCATI_ASSIGN_OR_RETURN(const ModelPtr model, models_.get(spec.model()));
   if (spec.passes() > limits_.max_passes) {
     return limit_reached("max_passes", limits_.max_passes, "the job asks for " + std::to_string(spec.passes()) + " passes");
   }
@@ -97,7 +92,7 @@ Result<JobRecord> JobManager::submit_identification(const std::string& tenant, c
 }
 
 Result<JobRecord> JobManager::submit_validation(const std::string& tenant, const v1::ValidationSpec& spec) {
-  RICCATI_ASSIGN_OR_RETURN(const ModelPtr model, find_model(models_, spec.model()));
+  RICCATI_ASSIGN_OR_RETURN(const ModelPtr model, models_.get(spec.model()));
   RICCATI_ASSIGN_OR_RETURN(const ValidationSettings settings, from_proto(spec));
   RICCATI_ASSIGN_OR_RETURN(const DatasetRecord dataset, store_.get_dataset(tenant, spec.dataset_id()));
   if (spec.has_theta()) {
@@ -397,56 +392,9 @@ void JobManager::finish(JobRecord job, const Result<std::string>& result,
 }
 
 Result<std::string> JobManager::execute(const JobRecord& job, std::stop_token stop) {
-  switch (job.kind) {
-    case JobKind::kIdentification: return execute_identification(job, stop);
-    case JobKind::kValidation: return execute_validation(job, stop);
-    case JobKind::kUnknown: break;  // never claimed (Store::claim_job)
-  }
-  return internal_error("job " + job.id + " is of a kind this riccatid does not know");
-}
-
-namespace {
-
-// A checkpoint record: one pass and the covariance at its end, as an
-// IdentificationResult with a single pass.
-std::string encode_pass(const PassResult& pass, const Eigen::MatrixXd& covariance) {
-  IdentificationResult one;
-  one.passes.push_back(pass);
-  one.theta = pass.theta_final;
-  one.theta_mean = pass.theta_mean;
-  one.theta_std = pass.theta_std;
-  one.covariance = covariance;
-  v1::IdentificationResult encoded = to_proto(one);
-  encoded.clear_param_names();
-  return encoded.SerializeAsString();
-}
-
-Status decode_passes(const std::vector<std::string>& records, IdentificationCheckpoint* out) {
-  for (std::size_t i = 0; i < records.size(); ++i) {
-    v1::IdentificationResult encoded;
-    if (!encoded.ParseFromString(records[i]) || encoded.passes_size() != 1) {
-      return internal_error("pass record " + std::to_string(i + 1) + " is unreadable");
-    }
-    // from_proto checks sizes against param_names; records leave them out.
-    for (int k = 0; k < encoded.theta_size(); ++k) encoded.add_param_names("theta" + std::to_string(k));
-    RICCATI_ASSIGN_OR_RETURN(IdentificationResult one, from_proto(encoded));
-    out->passes.push_back(std::move(one.passes.front()));
-    out->covariance = std::move(one.covariance);
-  }
-  return Status::ok();
-}
-
-}  // namespace
-
-Result<std::string> JobManager::execute_identification(const JobRecord& job, std::stop_token stop) {
-  v1::IdentificationSpec spec;
-  if (!spec.ParseFromString(job.spec)) return internal_error("job " + job.id + ": stored spec is unreadable");
-  RICCATI_ASSIGN_OR_RETURN(const ModelPtr model, find_model(models_, spec.model()));
-  RICCATI_ASSIGN_OR_RETURN(const IdentificationSettings settings, from_proto(spec, *model));
-  RICCATI_ASSIGN_OR_RETURN(const Dataset data, store_.load_dataset(job.tenant, spec.dataset_id()));
-
   auto last_publish = std::chrono::steady_clock::now();
-  auto progress = [&](const IdentificationProgress& p) {
+  JobExecution run{store_, models_, stop, {}};
+  run.progress = [&](const JobProgress& p) {
     const auto now = std::chrono::steady_clock::now();
     const bool pass_done = p.sample == p.samples;
     if (!pass_done && now - last_publish < kProgressInterval) return;
@@ -458,61 +406,11 @@ Result<std::string> JobManager::execute_identification(const JobRecord& job, std
       r.passes = p.passes;
       r.sample = p.sample;
       r.samples = p.samples;
-      r.theta.assign(p.state->data() + model->nx(), p.state->data() + p.state->size());
+      r.theta.assign(p.theta.begin(), p.theta.end());
     });
     if (pass_done && changed) renew(*changed);
   };
-  IdentificationHooks hooks;
-  hooks.progress = progress;
-  hooks.stop = stop;
-  // After each pass, what resumes the job if the daemon dies (kill -9,
-  // power loss) before the next one ends.
-  hooks.pass_done = [&](int pass, const PassResult& result, const Eigen::MatrixXd& covariance) {
-    return store_.put_job_pass(job.tenant, job.id, pass, encode_pass(result, covariance));
-  };
-  RICCATI_ASSIGN_OR_RETURN(const std::vector<std::string> records, store_.list_job_passes(job.tenant, job.id));
-  IdentificationCheckpoint resume;
-  if (!records.empty()) {
-    Status decoded = decode_passes(records, &resume);
-    if (decoded.is_ok()) {
-      hooks.resume = &resume;
-      spdlog::info("job resumes id={} after_pass={}", job.id, resume.passes.size());
-    } else {
-      spdlog::warn("job checkpoint unusable, running from the start id={} error=\"{}\"", job.id, decoded.message());
-    }
-  }
-  RICCATI_ASSIGN_OR_RETURN(const IdentificationResult r, identify(model, data, settings, hooks));
-  v1::JobResult result;
-  result.set_job_id(job.id);
-  *result.mutable_identification() = to_proto(r);
-  return result.SerializeAsString();
-}
-
-Result<std::string> JobManager::execute_validation(const JobRecord& job, std::stop_token stop) {
-  v1::ValidationSpec spec;
-  if (!spec.ParseFromString(job.spec)) return internal_error("job " + job.id + ": stored spec is unreadable");
-  RICCATI_ASSIGN_OR_RETURN(const ModelPtr model, find_model(models_, spec.model()));
-  RICCATI_ASSIGN_OR_RETURN(ValidationSettings settings, from_proto(spec));
-  if (spec.has_identification_job_id()) {
-    RICCATI_ASSIGN_OR_RETURN(const std::string encoded, store_.get_result(job.tenant, spec.identification_job_id()));
-    v1::JobResult source;
-    if (!source.ParseFromString(encoded) || !source.has_identification()) {
-      return failed_precondition("job " + spec.identification_job_id() + " has no identification result");
-    }
-    RICCATI_ASSIGN_OR_RETURN(settings.theta,
-                             from_values(source.identification().theta_mean(), model->ntheta(), "theta"));
-  } else if (spec.has_theta()) {
-    RICCATI_ASSIGN_OR_RETURN(settings.theta, from_values(spec.theta().values(), model->ntheta(), "theta"));
-  } else {
-    settings.theta = model->theta_default();
-  }
-  RICCATI_ASSIGN_OR_RETURN(const Dataset data, store_.load_dataset(job.tenant, spec.dataset_id()));
-  if (stop.stop_requested()) return cancelled("validation cancelled");
-  RICCATI_ASSIGN_OR_RETURN(const ValidationResult r, validate_model(*model, data, settings));
-  v1::JobResult result;
-  result.set_job_id(job.id);
-  *result.mutable_validation() = to_proto(r, settings.theta);
-  return result.SerializeAsString();
+  return execute_job(job, run);
 }
 
 }  // namespace riccati::service

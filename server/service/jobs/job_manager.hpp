@@ -120,9 +120,8 @@ class JobManager {
   // a client asked for that through another instance.
   void renew(const JobRecord& job);
   // The result (encoded JobResult), or why the job failed.
+  // Runs the job (job_execution.hpp), publishing its progress to watchers.
   Result<std::string> execute(const JobRecord& job, std::stop_token stop);
-  Result<std::string> execute_identification(const JobRecord& job, std::stop_token stop);
-  Result<std::string> execute_validation(const JobRecord& job, std::stop_token stop);
   // Applies `change` to a running job's record, bumps its version and wakes
   // watchers; returns the changed record (nullopt: not running here).
   template <typename Change>

@@ -64,20 +64,20 @@ grpc::Status ModelServiceImpl::ListModels(grpc::ServerContext*, const v1::ListMo
 
 grpc::Status ModelServiceImpl::GetModel(grpc::ServerContext*, const v1::GetModelRequest* request,
                                         v1::ModelInfo* response) {
-  const ModelPtr m = models_.find(request->name());
-  if (m == nullptr) return to_grpc(not_found("no model \"" + request->name() + "\" is loaded"));
-  *response = to_proto(*m);
+  const Result<ModelPtr> m = models_.get(request->name());
+  if (!m.is_ok()) return to_grpc(m.status());
+  *response = to_proto(*m.value());
   return grpc::Status::OK;
 }
 
 grpc::Status ModelServiceImpl::Simulate(grpc::ServerContext*, const v1::SimulateRequest* request,
                                         v1::SimulateResponse* response) {
-  const ModelPtr m = models_.find(request->model());
-  if (m == nullptr) return to_grpc(not_found("no model \"" + request->model() + "\" is loaded"));
-  const Result<Simulation> s = simulation_from_proto(*request, *m);
+  const Result<ModelPtr> m = models_.get(request->model());
+  if (!m.is_ok()) return to_grpc(m.status());
+  const Result<Simulation> s = simulation_from_proto(*request, *m.value());
   if (!s.is_ok()) return to_grpc(s.status());
   Eigen::MatrixXd x;
-  const Result<Eigen::MatrixXd> y = simulate(*m, s->t, s->u, s->x0, s->theta, s->settings, &x);
+  const Result<Eigen::MatrixXd> y = simulate(*m.value(), s->t, s->u, s->x0, s->theta, s->settings, &x);
   if (!y.is_ok()) return to_grpc(y.status());
   *response->mutable_y() = to_matrix(y.value());
   *response->mutable_x() = to_matrix(x);

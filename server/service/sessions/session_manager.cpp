@@ -100,8 +100,7 @@ void SessionManager::shutdown() {
 Result<std::shared_ptr<Session>> SessionManager::build(std::string id, const std::string& tenant,
                                                        const v1::CreateSessionRequest& request,
                                                        std::int64_t created_ms) {
-  ModelPtr model = models_.find(request.model());
-  if (model == nullptr) return not_found("no model \"" + request.model() + "\" is loaded");
+  RICCATI_ASSIGN_OR_RETURN(const ModelPtr model, models_.get(request.model()));
   RICCATI_ASSIGN_OR_RETURN(const FilterSettings settings, from_proto(request.filter(), *model));
   RICCATI_ASSIGN_OR_RETURN(InitialEstimate initial,
                            initial_estimate_from_proto(request.initial_state(), request.theta0(), request.p0(),
