@@ -9,10 +9,13 @@
 
 #include "commands.hpp"
 #include "connection.hpp"
+#include "enum_choices.hpp"
 #include "settings.hpp"
 
 namespace riccati::cli {
 namespace {
+
+using google::protobuf::EnumDescriptor;
 
 v1::ModelInfo two_tank() {
   v1::ModelInfo m;
@@ -142,6 +145,39 @@ TEST(JobFile, ErrorsNameTheKey) {
   no_r.p0 = matrix_from_list({1});
   EXPECT_FALSE(to_identification_spec(no_r, two_tank(), "ds", &spec, &error));
   EXPECT_NE(error.find("R (measurement noise variances of h1, h2) is required"), std::string::npos) << error;
+}
+
+// The names users write today, derived from the proto's values.
+TEST(EnumChoices, DerivedFromTheValueNamesOrTheirShortName) {
+  using Names = std::vector<std::string>;
+  EXPECT_EQ(choice_names(*v1::FilterKind_descriptor()), (Names{"ekf", "ukf", "optimal"}));
+  EXPECT_EQ(choice_names(*v1::HoldOrder_descriptor()), (Names{"zoh", "foh"}));
+  EXPECT_EQ(choice_names(*v1::IntegratorKind_descriptor()),
+            (Names{"rk4", "rk3", "cvode-bdf", "cvode-adams", "arkode-erk"}));
+  EXPECT_EQ(choice_names(*v1::GainInversion_descriptor()), (Names{"cholesky", "pinv"}));
+  EXPECT_EQ(choice_names(*v1::SigmaWeights_descriptor()), (Names{"julier", "scaled"}));
+  EXPECT_EQ(choice_names(*v1::OptimalForm_descriptor()), (Names{"continuous", "split-step"}));
+}
+
+TEST(EnumChoices, NamesReadBackAsTheirValues) {
+  const std::vector<std::pair<const EnumDescriptor*, int>> values = {
+      {v1::HoldOrder_descriptor(), v1::HOLD_ORDER_ZERO},
+      {v1::GainInversion_descriptor(), v1::GAIN_INVERSION_PSEUDO_INVERSE},
+      {v1::IntegratorKind_descriptor(), v1::INTEGRATOR_KIND_CVODE_BDF},
+      {v1::OptimalForm_descriptor(), v1::OPTIMAL_FORM_SPLIT_STEP},
+  };
+  std::vector<std::string> names;
+  for (const auto& [type, number] : values) {
+    const std::string name = choice_name(*type->FindValueByNumber(number));
+    names.push_back(name);
+    std::string error;
+    EXPECT_EQ(parse_choice(*type, name, &error), number) << name << ": " << error;
+  }
+  EXPECT_EQ(names, (std::vector<std::string>{"zoh", "pinv", "cvode-bdf", "split-step"}));
+  std::string error;
+  EXPECT_EQ(parse_choice(*v1::HoldOrder_descriptor(), "unspecified", &error), std::nullopt);  // no choice
+  EXPECT_EQ(parse_choice(*v1::HoldOrder_descriptor(), "ZERO", &error), std::nullopt);
+  EXPECT_EQ(error, "\"ZERO\" is unknown (zoh, foh)");
 }
 
 TEST(Lists, ParseNumbersStrictly) {
