@@ -472,25 +472,17 @@ int identify(Client& c, const RunSettings& settings, bool wait) {
     std::fprintf(stderr, "riccati: identify needs --model and --data (or model: and data: in --config)\n");
     return kExitUsage;
   }
-  grpc::Status s;
-  const v1::ModelInfo* info = cached_model(c, *settings.model, &s);
-  if (info == nullptr) return c.fail("model " + *settings.model, s);
   std::string dataset;
   if (const int rc = dataset_for(c, *settings.data, settings.inputs, settings.outputs, "t", &dataset); rc != kExitOk) {
     return rc;
   }
-  v1::IdentificationSpec spec;
-  std::string error;
-  if (!to_identification_spec(settings, *info, dataset, &spec, &error)) {
-    std::fprintf(stderr, "riccati: %s\n", error.c_str());
-    return kExitUsage;
-  }
+  const v1::IdentificationSpec spec = to_identification_spec(settings, dataset);
   v1::Job job;
   {
     auto ctx = c.context();
-    s = c.jobs->SubmitIdentification(ctx.get(), spec, &job);
+    const grpc::Status s = c.jobs->SubmitIdentification(ctx.get(), spec, &job);
+    if (!s.ok()) return c.fail("submitting the identification", s);
   }
-  if (!s.ok()) return c.fail("submitting the identification", s);
   if (!wait) {
     std::printf("%s\n", c.json ? to_json(job).c_str() : job.id().c_str());
     return kExitOk;
@@ -498,8 +490,6 @@ int identify(Client& c, const RunSettings& settings, bool wait) {
   std::fprintf(stderr, "job %s\n", job.id().c_str());
   v1::Job last;
   if (const int rc = watch_until_done(c, job.id(), &last); rc != kExitOk) return rc;
-  std::vector<double> initial(spec.theta0().begin(), spec.theta0().end());
-  if (initial.empty()) initial.assign(info->theta_default().begin(), info->theta_default().end());
   return result(c, job.id(), c.json ? "json" : "table", "", settings.truth.value_or(std::vector<double>{}));
 }
 
@@ -635,30 +625,21 @@ int result(Client& c, const std::string& id, const std::string& format_name, con
 }
 
 int validate(Client& c, const ValidateOptions& o) {
+  const RunSettings& s = o.settings;
   std::string dataset;
-  if (const int rc = dataset_for(c, o.data, o.inputs, o.outputs, o.time, &dataset); rc != kExitOk) return rc;
-  v1::ValidationSpec spec;
-  spec.set_model(o.model);
-  spec.set_dataset_id(dataset);
+  if (const int rc = dataset_for(c, s.data.value_or(""), s.inputs, s.outputs, "t", &dataset); rc != kExitOk) return rc;
+  v1::ValidationSpec spec = to_validation_spec(s, dataset);
   std::string error;
   std::vector<double> theta;
-  RunSettings integrator;
-  integrator.integrator = o.integrator;
-  integrator.substeps = o.substeps;
-  v1::HoldOrder hold;
-  if (!resolve_parameters(c, o.params, &spec, &theta, &error) ||
-      !to_initial_state(o.x0, spec.mutable_initial_state(), &error) ||
-      !to_integrator(integrator, spec.mutable_integrator(), &error) ||
-      !to_hold(o.hold.empty() ? std::nullopt : std::optional<std::string>(o.hold), &hold, &error)) {
+  if (!resolve_parameters(c, o.params, &spec, &theta, &error)) {
     std::fprintf(stderr, "riccati: %s\n", error.c_str());
     return kExitUsage;
   }
-  spec.set_hold(hold);
   v1::Job job;
   {
     auto ctx = c.context();
-    const grpc::Status s = c.jobs->SubmitValidation(ctx.get(), spec, &job);
-    if (!s.ok()) return c.fail("submitting the validation", s);
+    const grpc::Status status = c.jobs->SubmitValidation(ctx.get(), spec, &job);
+    if (!status.ok()) return c.fail("submitting the validation", status);
   }
   v1::Job last;
   if (const int rc = watch_until_done(c, job.id(), &last); rc != kExitOk) return rc;
@@ -691,11 +672,7 @@ int stream(Client& c, const StreamOptions& o) {
                  o.time.c_str());
     return kExitUsage;
   }
-  v1::CreateSessionRequest create;
-  if (!to_session_request(s, *info, &create, &error)) {
-    std::fprintf(stderr, "riccati: %s\n", error.c_str());
-    return kExitUsage;
-  }
+  const v1::CreateSessionRequest create = to_session_request(s);
   v1::SessionInfo session;
   {
     auto ctx = c.context();
@@ -838,11 +815,12 @@ int simulate(Client& c, const SimulateOptions& o) {
     std::fprintf(stderr, "riccati: %s\n", error.c_str());
     return kExitUsage;
   }
+  const std::string model = o.settings.model.value_or("");
   grpc::Status status;
-  const v1::ModelInfo* info = cached_model(c, o.model, &status);
-  if (info == nullptr) return c.fail("model " + o.model, status);
+  const v1::ModelInfo* info = cached_model(c, model, &status);
+  if (info == nullptr) return c.fail("model " + model, status);
   v1::SimulateRequest request;
-  request.set_model(o.model);
+  request.set_model(model);
   std::vector<double> theta;
   if (!o.params.empty() && !resolve_parameters(c, o.params, nullptr, &theta, &error)) {
     std::fprintf(stderr, "riccati: %s\n", error.c_str());
@@ -872,16 +850,8 @@ int simulate(Client& c, const SimulateOptions& o) {
     request.add_t(row[t_col]);
     for (int col : cols) request.mutable_u()->add_values(row[col]);
   }
-  RunSettings integrator;
-  integrator.integrator = o.integrator;
-  integrator.substeps = o.substeps;
-  v1::HoldOrder hold;
-  if (!to_integrator(integrator, request.mutable_integrator(), &error) ||
-      !to_hold(o.hold.empty() ? std::nullopt : std::optional<std::string>(o.hold), &hold, &error)) {
-    std::fprintf(stderr, "riccati: %s\n", error.c_str());
-    return kExitUsage;
-  }
-  request.set_hold(hold);
+  if (o.settings.hold) request.set_hold(static_cast<v1::HoldOrder>(*o.settings.hold));
+  if (auto integrator = to_integrator(o.settings)) *request.mutable_integrator() = *integrator;
   v1::SimulateResponse response;
   auto ctx = c.context();
   status = c.models->Simulate(ctx.get(), request, &response);

@@ -87,10 +87,10 @@ int job_cancel(Client& c, const std::string& id);
 int result(Client& c, const std::string& id, const std::string& format, const std::string& output,
            const std::vector<double>& truth);
 
+// `riccati validate`: model, data, x0, hold and integrator in `settings`.
 struct ValidateOptions {
-  std::string model, params, data, x0 = "first", hold, integrator = "rk4", time = "t";
-  std::vector<std::string> inputs, outputs;
-  int substeps = 10;
+  RunSettings settings;
+  std::string params;
 };
 int validate(Client& c, const ValidateOptions& o);
 
@@ -105,11 +105,11 @@ struct StreamOptions {
 };
 int stream(Client& c, const StreamOptions& o);
 
+// `riccati simulate`: model, hold and integrator in `settings`.
 struct SimulateOptions {
-  std::string model, params, inputs_file, time = "t", output, x0;
+  RunSettings settings;
+  std::string params, inputs_file, time = "t", output, x0;
   std::vector<std::string> input_columns;
-  std::string hold, integrator = "rk4";
-  int substeps = 10;
 };
 int simulate(Client& c, const SimulateOptions& o);
 
