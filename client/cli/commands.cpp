@@ -1,5 +1,6 @@
 #include "commands.hpp"
 
+#include "csv/csv.hpp"
 #include "live_view.hpp"
 
 #include <google/protobuf/util/json_util.h>
@@ -8,7 +9,6 @@
 
 #include <algorithm>
 #include <atomic>
-#include <charconv>
 #include <chrono>
 #include <cmath>
 #include <cstdio>
@@ -208,61 +208,6 @@ std::unique_ptr<grpc::ClientContext> Client::stream_context() const {
 int Client::fail(const std::string& what, const grpc::Status& status) const {
   std::fprintf(stderr, "riccati: %s: %s\n", what.c_str(), status.error_message().c_str());
   return exit_code_for(status.error_code());
-}
-
-int CsvTable::column(const std::string& name) const {
-  for (std::size_t i = 0; i < columns.size(); ++i) {
-    if (columns[i] == name) return static_cast<int>(i);
-  }
-  return -1;
-}
-
-bool read_csv(const std::string& path, CsvTable* out, std::string* error) {
-  std::ifstream in(path);
-  if (!in) {
-    *error = "cannot open " + path;
-    return false;
-  }
-  std::string line;
-  auto split = [](const std::string& l) {
-    std::vector<std::string> cells;
-    std::stringstream ss(l);
-    std::string cell;
-    while (std::getline(ss, cell, ',')) {
-      cell.erase(0, cell.find_first_not_of(" \"\r"));
-      cell.erase(cell.find_last_not_of(" \"\r") + 1);
-      cells.push_back(cell);
-    }
-    return cells;
-  };
-  if (!std::getline(in, line)) {
-    *error = path + " is empty";
-    return false;
-  }
-  if (line.rfind("\xEF\xBB\xBF", 0) == 0) line.erase(0, 3);
-  out->columns = split(line);
-  int number = 1;
-  while (std::getline(in, line)) {
-    ++number;
-    if (line.find_first_not_of(" \r") == std::string::npos) continue;
-    const auto cells = split(line);
-    if (cells.size() != out->columns.size()) {
-      *error = path + " line " + std::to_string(number) + ": expected " + std::to_string(out->columns.size()) +
-               " values, found " + std::to_string(cells.size());
-      return false;
-    }
-    std::vector<double> row(cells.size());
-    for (std::size_t i = 0; i < cells.size(); ++i) {
-      auto [p, ec] = std::from_chars(cells[i].data(), cells[i].data() + cells[i].size(), row[i]);
-      if (ec != std::errc() || p != cells[i].data() + cells[i].size()) {
-        *error = path + " line " + std::to_string(number) + ", column \"" + out->columns[i] + "\": \"" + cells[i] +
-                 "\" is not a number";
-        return false;
-      }
-    }
-    out->rows.push_back(std::move(row));
-  }
-  return true;
 }
 
 std::string parameter_table(const v1::IdentificationResult& r, const std::vector<double>& initial,
@@ -652,26 +597,18 @@ int stream(Client& c, const StreamOptions& o) {
     std::fprintf(stderr, "riccati: stream needs --model\n");
     return kExitUsage;
   }
-  CsvTable table;
-  std::string error;
-  if (!read_csv(o.file, &table, &error)) {
-    std::fprintf(stderr, "riccati: %s (stream reads CSV files)\n", error.c_str());
+  // Each row: t, then the inputs, then the outputs.
+  std::vector<std::string> columns{o.time};
+  columns.insert(columns.end(), s.inputs.begin(), s.inputs.end());
+  columns.insert(columns.end(), s.outputs.begin(), s.outputs.end());
+  csv::Table table;
+  if (auto error = csv::read_file(o.file, columns, &table)) {
+    std::fprintf(stderr, "riccati: %s (stream reads CSV files)\n", error->c_str());
     return kExitUsage;
   }
   grpc::Status status;
   const v1::ModelInfo* info = cached_model(c, *s.model, &status);
   if (info == nullptr) return c.fail("model " + *s.model, status);
-  std::vector<int> in_cols, out_cols;
-  const int t_col = table.column(o.time);
-  for (const auto& n : s.inputs) in_cols.push_back(table.column(n));
-  for (const auto& n : s.outputs) out_cols.push_back(table.column(n));
-  const bool missing = t_col < 0 || std::count(in_cols.begin(), in_cols.end(), -1) > 0 ||
-                       std::count(out_cols.begin(), out_cols.end(), -1) > 0;
-  if (missing) {
-    std::fprintf(stderr, "riccati: %s lacks a column among time %s, --inputs and --outputs\n", o.file.c_str(),
-                 o.time.c_str());
-    return kExitUsage;
-  }
   const v1::CreateSessionRequest create = to_session_request(s);
   v1::SessionInfo session;
   {
@@ -766,18 +703,19 @@ int stream(Client& c, const StreamOptions& o) {
   const int batch = std::max(1, o.batch);
   auto next = start;
   const auto period = o.rate > 0 ? std::chrono::duration<double>(batch / o.rate) : std::chrono::duration<double>(0);
-  for (std::size_t k = 0; k < table.rows.size(); k += static_cast<std::size_t>(batch)) {
+  for (std::size_t k = 0; k < table.rows(); k += static_cast<std::size_t>(batch)) {
     if (o.rate > 0) {
       std::this_thread::sleep_until(next);
       next += std::chrono::duration_cast<Clock::duration>(period);
     }
     v1::StreamRequest request;
-    for (std::size_t j = k; j < std::min(table.rows.size(), k + static_cast<std::size_t>(batch)); ++j) {
-      const auto& row = table.rows[j];
+    for (std::size_t j = k; j < std::min(table.rows(), k + static_cast<std::size_t>(batch)); ++j) {
+      const std::span<const double> row = table.row(j);
+      const auto inputs_end = row.begin() + 1 + static_cast<std::ptrdiff_t>(s.inputs.size());
       auto* m = request.mutable_batch()->add_measurements();
-      m->set_t(row[t_col]);
-      for (int col : in_cols) m->add_u(row[col]);
-      for (int col : out_cols) m->add_y(row[col]);
+      m->set_t(row[0]);
+      m->mutable_u()->Add(row.begin() + 1, inputs_end);
+      m->mutable_y()->Add(inputs_end, row.end());
     }
     {
       std::lock_guard lock(mu);
@@ -809,65 +747,66 @@ int stream(Client& c, const StreamOptions& o) {
 }
 
 int simulate(Client& c, const SimulateOptions& o) {
-  CsvTable table;
-  std::string error;
-  if (!read_csv(o.inputs_file, &table, &error)) {
-    std::fprintf(stderr, "riccati: %s\n", error.c_str());
+  const RunSettings& s = o.settings;
+  const std::string model = s.model.value_or("");
+  grpc::Status status;
+  const v1::ModelInfo* found = cached_model(c, model, &status);
+  if (found == nullptr) return c.fail("model " + model, status);
+  const v1::ModelInfo& info = *found;  // the default input columns, x0's size and the outputs' names
+  const std::vector<std::string> inputs =
+      o.input_columns.empty() ? std::vector<std::string>(info.input_names().begin(), info.input_names().end())
+                              : o.input_columns;
+  std::vector<std::string> columns{o.time};
+  columns.insert(columns.end(), inputs.begin(), inputs.end());
+  csv::Table table;  // each row: t, then the inputs
+  if (auto problem = csv::read_file(o.inputs_file, columns, &table)) {
+    std::fprintf(stderr, "riccati: %s\n", problem->c_str());
     return kExitUsage;
   }
-  const std::string model = o.settings.model.value_or("");
-  grpc::Status status;
-  const v1::ModelInfo* info = cached_model(c, model, &status);
-  if (info == nullptr) return c.fail("model " + model, status);
+
   v1::SimulateRequest request;
   request.set_model(model);
+  std::string error;
   std::vector<double> theta;
   if (!o.params.empty() && !resolve_parameters(c, o.params, nullptr, &theta, &error)) {
     std::fprintf(stderr, "riccati: %s\n", error.c_str());
     return kExitUsage;
   }
-  for (double v : theta) request.add_theta(v);
+  request.mutable_theta()->Add(theta.begin(), theta.end());
   std::vector<double> x0;
   if (!o.x0.empty() && !parse_list(o.x0, &x0, &error)) {
     std::fprintf(stderr, "riccati: --x0: %s\n", error.c_str());
     return kExitUsage;
   }
-  if (x0.empty()) x0.assign(static_cast<std::size_t>(info->state_names_size()), 0.0);
-  for (double v : x0) request.add_x0(v);
-  const int t_col = table.column(o.time);
-  std::vector<int> cols;
-  const auto& names = o.input_columns.empty()
-                          ? std::vector<std::string>(info->input_names().begin(), info->input_names().end())
-                          : o.input_columns;
-  for (const auto& n : names) cols.push_back(table.column(n));
-  if (t_col < 0 || std::count(cols.begin(), cols.end(), -1) > 0) {
-    std::fprintf(stderr, "riccati: %s lacks the time column or an input column\n", o.inputs_file.c_str());
-    return kExitUsage;
+  if (x0.empty()) x0.assign(static_cast<std::size_t>(info.state_names_size()), 0.0);
+  request.mutable_x0()->Add(x0.begin(), x0.end());
+  request.mutable_u()->set_rows(static_cast<uint32_t>(inputs.size()));
+  request.mutable_u()->set_cols(static_cast<uint32_t>(table.rows()));
+  for (std::size_t k = 0; k < table.rows(); ++k) {
+    request.add_t(table.row(k)[0]);
+    request.mutable_u()->mutable_values()->Add(table.row(k).begin() + 1, table.row(k).end());  // column-major
   }
-  request.mutable_u()->set_rows(static_cast<uint32_t>(cols.size()));
-  request.mutable_u()->set_cols(static_cast<uint32_t>(table.rows.size()));
-  for (const auto& row : table.rows) {
-    request.add_t(row[t_col]);
-    for (int col : cols) request.mutable_u()->add_values(row[col]);
-  }
-  if (o.settings.hold) request.set_hold(static_cast<v1::HoldOrder>(*o.settings.hold));
-  if (auto integrator = to_integrator(o.settings)) *request.mutable_integrator() = *integrator;
+  if (s.hold) request.set_hold(static_cast<v1::HoldOrder>(*s.hold));
+  if (auto integrator = to_integrator(s)) *request.mutable_integrator() = *integrator;
+
   v1::SimulateResponse response;
-  auto ctx = c.context();
-  status = c.models->Simulate(ctx.get(), request, &response);
-  if (!status.ok()) return c.fail("simulation", status);
+  {
+    auto ctx = c.context();
+    status = c.models->Simulate(ctx.get(), request, &response);
+    if (!status.ok()) return c.fail("simulation", status);
+  }
   std::FILE* out = o.output.empty() ? stdout : std::fopen(o.output.c_str(), "w");
   if (out == nullptr) {
     std::fprintf(stderr, "riccati: cannot write %s\n", o.output.c_str());
     return kExitUsage;
   }
   std::fprintf(out, "t");
-  for (const auto& n : names) std::fprintf(out, ",%s", n.c_str());
-  for (const auto& n : info->output_names()) std::fprintf(out, ",%s", n.c_str());
+  for (const auto& n : inputs) std::fprintf(out, ",%s", n.c_str());
+  for (const auto& n : info.output_names()) std::fprintf(out, ",%s", n.c_str());
   std::fprintf(out, "\n");
-  for (std::size_t k = 0; k < table.rows.size(); ++k) {
-    std::fprintf(out, "%.17g", table.rows[k][t_col]);
-    for (int col : cols) std::fprintf(out, ",%.17g", table.rows[k][col]);
+  for (std::size_t k = 0; k < table.rows(); ++k) {
+    std::fprintf(out, "%.17g", table.row(k)[0]);
+    for (double v : table.row(k).subspan(1)) std::fprintf(out, ",%.17g", v);
     for (uint32_t i = 0; i < response.y().rows(); ++i) {
       std::fprintf(out, ",%.17g", element(response.y(), i, static_cast<uint32_t>(k)));
     }

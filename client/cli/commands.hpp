@@ -52,14 +52,6 @@ struct Client {
   std::string token_;
 };
 
-// A table of numbers read from a local CSV file (header row).
-struct CsvTable {
-  std::vector<std::string> columns;
-  std::vector<std::vector<double>> rows;
-  int column(const std::string& name) const;
-};
-bool read_csv(const std::string& path, CsvTable* out, std::string* error);
-
 // grpc.health.v1.Health/Check of `service` (empty: the daemon as a whole).
 // Prints the serving status: SERVING exits 0; NOT_SERVING or UNKNOWN exit 1
 // (the operation failed); a service the daemon does not know prints

@@ -177,7 +177,9 @@ std::optional<std::string> parse(std::string_view text, std::span<const std::str
 std::optional<std::string> read_file(const std::string& path, std::span<const std::string> select, Table* out) {
   errno = 0;
   std::ifstream in(path, std::ios::binary);
-  if (!in) return "cannot open " + in_quotes(path) + ": " + std::generic_category().message(errno != 0 ? errno : ENOENT);
+  if (!in) {
+    return "cannot open " + in_quotes(path) + ": " + std::generic_category().message(errno != 0 ? errno : ENOENT);
+  }
   const std::string text{std::istreambuf_iterator<char>(in), std::istreambuf_iterator<char>()};
   if (in.bad()) return "cannot read " + in_quotes(path);
   return parse(text, select, path, out);
