@@ -3,7 +3,7 @@
 #include <cstdio>
 #include <cstdlib>
 
-#include "commands.hpp"
+#include "commands/commands.hpp"
 
 namespace {
 

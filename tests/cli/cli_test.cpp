@@ -13,9 +13,10 @@
 #include <sstream>
 #include <unistd.h>
 
-#include "commands.hpp"
+#include "commands/commands.hpp"
 #include "connection.hpp"
 #include "enum_choices.hpp"
+#include "output.hpp"
 #include "settings.hpp"
 
 namespace riccati::cli {

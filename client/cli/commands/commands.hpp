@@ -1,56 +1,16 @@
 // The `riccati` commands: each talks to riccatid through the API and prints
-// a table (or JSON with --json). Every command returns a process exit code.
+// a table (or JSON with --json), and returns a process exit code. One file
+// per area: health.cpp, models.cpp, data.cpp, jobs.cpp (jobs and results),
+// identify.cpp, validate.cpp, stream.cpp, simulate.cpp.
 #pragma once
 
-#include <grpcpp/grpcpp.h>
-
-#include <memory>
 #include <string>
 #include <vector>
 
-#include "grpc/health/v1/health.grpc.pb.h"
-#include "riccati/v1/datasets.grpc.pb.h"
-#include "riccati/v1/jobs.grpc.pb.h"
-#include "riccati/v1/models.grpc.pb.h"
-#include "riccati/v1/sessions.grpc.pb.h"
-#include "connection.hpp"
+#include "client.hpp"
 #include "settings.hpp"
 
 namespace riccati::cli {
-
-// Exit codes scripts can rely on.
-enum ExitCode : int {
-  kExitOk = 0,
-  kExitFailed = 1,       // the operation failed: a job failed or was cancelled, input was refused
-  kExitUsage = 2,        // bad flags, an unreadable local file
-  kExitUnreachable = 3,  // riccatid could not be reached (UNAVAILABLE, DEADLINE_EXCEEDED)
-  kExitNotFound = 4,     // no such model, dataset, job or session
-};
-
-int exit_code_for(grpc::StatusCode code);
-
-struct Client {
-  Client(const Connection& connection, double timeout_s, bool json);
-
-  std::shared_ptr<grpc::Channel> channel;
-  std::unique_ptr<v1::ModelService::Stub> models;
-  std::unique_ptr<v1::DatasetService::Stub> datasets;
-  std::unique_ptr<v1::JobService::Stub> jobs;
-  std::unique_ptr<v1::SessionService::Stub> sessions;
-  std::unique_ptr<grpc::health::v1::Health::Stub> health;
-  double timeout_s;
-  bool json;
-
-  // A context with the token and the unary deadline.
-  std::unique_ptr<grpc::ClientContext> context() const;
-  // A context with the token and no deadline: uploads, watches, streams.
-  std::unique_ptr<grpc::ClientContext> stream_context() const;
-  // Prints "riccati: <what>: <message>" and returns the exit code for it.
-  int fail(const std::string& what, const grpc::Status& status) const;
-
- private:
-  std::string token_;
-};
 
 // grpc.health.v1.Health/Check of `service` (empty: the daemon as a whole).
 // Prints the serving status: SERVING exits 0; NOT_SERVING or UNKNOWN exit 1
@@ -70,12 +30,20 @@ int data_upload(Client& c, const UploadOptions& o, std::string* dataset_id = nul
 int data_list(Client& c);
 int data_show(Client& c, const std::string& id);
 int data_delete(Client& c, const std::string& id);
+// Whether `path` is a file here (rather than the id of something riccatid keeps).
+bool is_local_file(const std::string& path);
+// The dataset `data` names: uploaded first when it is a local file.
+int dataset_for(Client& c, const std::string& data, const std::vector<std::string>& inputs,
+                const std::vector<std::string>& outputs, std::string* id);
 
 int identify(Client& c, const RunSettings& s, bool wait);
 int jobs_list(Client& c);
 int job_show(Client& c, const std::string& id);
 int job_watch(Client& c, const std::string& id);
 int job_cancel(Client& c, const std::string& id);
+// Follows a job to its end (a progress bar on a terminal); `last` is the job
+// as it ended.
+int watch_until_done(Client& c, const std::string& id, v1::Job* last);
 int result(Client& c, const std::string& id, const std::string& format, const std::string& output,
            const std::vector<double>& truth);
 
@@ -85,6 +53,11 @@ struct ValidateOptions {
   std::string params;
 };
 int validate(Client& c, const ValidateOptions& o);
+// Parameters from a finished identification job id, a YAML file with
+// `theta: [...]` or a list of numbers. A job id goes into `spec` as it is
+// when there is one; otherwise the job's result is fetched.
+bool resolve_parameters(Client& c, const std::string& params, v1::ValidationSpec* spec, std::vector<double>* theta,
+                        std::string* error);
 
 struct StreamOptions {
   RunSettings settings;
@@ -104,10 +77,5 @@ struct SimulateOptions {
   std::vector<std::string> input_columns;
 };
 int simulate(Client& c, const SimulateOptions& o);
-
-// Formatting, shared by the commands (and tested on its own).
-std::string parameter_table(const v1::IdentificationResult& r, const std::vector<double>& initial,
-                            const std::vector<double>& truth);
-std::string fit_table(const v1::ValidationResult& r);
 
 }  // namespace riccati::cli
