@@ -3,125 +3,19 @@
 #include <cstdio>
 #include <cstdlib>
 
-#include "commands.hpp"
+#include "commands/commands.hpp"
 
 namespace {
 
 using namespace riccati::cli;
 
-// Flags for every run setting, collected into a RunSettings (only the flags
-// given, so that they override a job file and nothing else).
-struct RunFlags {
-  std::string model, data, filter, hold, integrator, inversion, weights, x0, theta0, truth, p0, q, r;
-  std::string v, w, r0, form;
-  bool hold_outputs = false;
-  std::vector<std::string> inputs, outputs;
-  int passes = 0, substeps = 0;
-  double rtol = 0, atol = 0, alpha = 0, beta = 0, kappa = 0;
-  bool no_joseph = false;
-  long long first_sample = 0, end_sample = 0;
-  std::map<std::string, CLI::Option*> given;
-
-  void add(CLI::App* cmd, bool identification) {
-    given["model"] = cmd->add_option("--model,-m", model, "Model name");
-    given["inputs"] = cmd->add_option("--inputs", inputs, "Input columns, in the model's order")->delimiter(',');
-    given["outputs"] = cmd->add_option("--outputs", outputs, "Output columns, in the model's order")->delimiter(',');
-    given["filter"] = cmd->add_option("--filter", filter, "ekf, ukf or optimal");
-    given["x0"] = cmd->add_option("--x0", x0, "Initial state: first (first measurement) or a list");
-    given["theta0"] = cmd->add_option("--theta0", theta0, "Initial parameters (default: the model's)");
-    given["p0"] = cmd->add_option("--p0", p0, "Initial variances of [x; theta] (one value: all)");
-    given["q"] = cmd->add_option("--q", q, "Process noise intensities of [x; theta] (one value: all)");
-    given["r"] = cmd->add_option("--r", r, "Measurement noise variances (one value: all)");
-    given["hold"] = cmd->add_option("--hold", hold, "Input hold: zoh or foh");
-    given["integrator"] = cmd->add_option("--integrator", integrator, "rk4, rk3, cvode-bdf, cvode-adams, arkode-erk");
-    given["substeps"] = cmd->add_option("--substeps", substeps, "Fixed-step integrators: steps per sample");
-    given["rtol"] = cmd->add_option("--rtol", rtol, "Adaptive integrators: relative tolerance");
-    given["atol"] = cmd->add_option("--atol", atol, "Adaptive integrators: absolute tolerance");
-    given["inversion"] = cmd->add_option("--inversion", inversion, "Gain solve: cholesky or pinv");
-    given["no_joseph"] = cmd->add_flag("--no-joseph", no_joseph, "EKF: short covariance update");
-    given["weights"] = cmd->add_option("--weights", weights, "UKF weights: julier or scaled");
-    given["alpha"] = cmd->add_option("--alpha", alpha, "UKF scaled weights: alpha");
-    given["beta"] = cmd->add_option("--beta", beta, "UKF scaled weights: beta");
-    given["kappa"] = cmd->add_option("--kappa", kappa, "UKF kappa");
-    given["v"] = cmd->add_option("--v", v, "Optimal filter: weights of the equations of motion, inputs, outputs");
-    given["w"] = cmd->add_option("--w", w, "Optimal filter: weights of the states and parameters");
-    given["r0"] = cmd->add_option("--r0", r0, "Optimal filter: confidence in x0 and theta0 (instead of --p0)");
-    given["form"] = cmd->add_option("--form", form, "Optimal filter: continuous or split-step");
-    given["hold_outputs"] =
-        cmd->add_flag("--hold-outputs", hold_outputs, "Optimal filter: hold outputs over a step (strict real time)");
-    if (identification) {
-      given["data"] = cmd->add_option("--data,-d", data, "Dataset id, or a local CSV/MAT file to upload");
-      given["passes"] = cmd->add_option("--passes", passes, "Passes over the data");
-      given["first_sample"] = cmd->add_option("--first-sample", first_sample, "Trial: first sample (0-based)");
-      given["end_sample"] = cmd->add_option("--end-sample", end_sample, "Trial: end sample (0: to the end)");
-      given["truth"] = cmd->add_option("--truth", truth, "True parameters, to print the error");
-    }
-  }
-
-  bool has(const std::string& key) const {
-    auto it = given.find(key);
-    return it != given.end() && it->second->count() > 0;
-  }
-
-  // The flags given, as settings; false with a message on a bad list.
-  bool collect(RunSettings* s, std::string* error) const {
-    auto list = [&](const std::string& key, const std::string& text, std::optional<std::vector<double>>* out) {
-      if (!has(key)) return true;
-      std::vector<double> values;
-      if (!parse_list(text, &values, error)) {
-        *error = "--" + key + ": " + *error;
-        return false;
-      }
-      *out = values;
-      return true;
-    };
-    auto matrix = [&](const std::string& key, const std::string& text, std::optional<MatrixSetting>* out) {
-      std::optional<std::vector<double>> values;
-      if (!list(key, text, &values)) return false;
-      if (values) *out = matrix_from_list(*values);
-      return true;
-    };
-    if (has("model")) s->model = model;
-    if (has("data")) s->data = data;
-    if (has("inputs")) s->inputs = inputs;
-    if (has("outputs")) s->outputs = outputs;
-    if (has("filter")) s->filter = filter;
-    if (has("x0")) s->x0 = x0;
-    if (has("hold")) s->hold = hold;
-    if (has("integrator")) s->integrator = integrator;
-    if (has("substeps")) s->substeps = substeps;
-    if (has("rtol")) s->rtol = rtol;
-    if (has("atol")) s->atol = atol;
-    if (has("inversion")) s->inversion = inversion;
-    if (has("no_joseph")) s->joseph = false;
-    if (has("weights")) s->weights = weights;
-    if (has("alpha")) s->alpha = alpha;
-    if (has("beta")) s->beta = beta;
-    if (has("kappa")) s->kappa = kappa;
-    if (has("passes")) s->passes = passes;
-    if (has("first_sample")) s->first_sample = first_sample;
-    if (has("end_sample")) s->end_sample = end_sample;
-    if (has("form")) s->form = form;
-    if (has("hold_outputs")) s->hold_outputs = true;
-    return list("theta0", theta0, &s->theta0) && list("truth", truth, &s->truth) && matrix("p0", p0, &s->p0) &&
-           matrix("q", q, &s->q) && matrix("r", r, &s->r) && matrix("v", v, &s->v) && matrix("w", w, &s->w) &&
-           matrix("r0", r0, &s->r0);
-  }
-};
-
 // A job file (if any) with the flags over it.
 bool settings_from(const std::string& config, const RunFlags& flags, RunSettings* out) {
   std::string error;
-  if (!config.empty() && !load_job_file(config, out, &error)) {
+  if ((!config.empty() && !load_job_file(config, out, &error)) || !flags.apply(out, &error)) {
     std::fprintf(stderr, "riccati: %s\n", error.c_str());
     return false;
   }
-  RunSettings given;
-  if (!flags.collect(&given, &error)) {
-    std::fprintf(stderr, "riccati: %s\n", error.c_str());
-    return false;
-  }
-  overlay(given, out);
   return true;
 }
 
@@ -179,12 +73,11 @@ int main(int argc, char** argv) {
   data_delete_cmd->add_option("id", data_id)->required();
 
   std::string config;
-  RunFlags id_flags;
   bool no_wait = false;
   auto* identify_cmd = app.add_subcommand("identify", "Multi-pass identification (waits and prints the parameters)");
   identify_cmd->add_option("--config", config, "YAML job file (flags override it)");
   identify_cmd->add_flag("--no-wait", no_wait, "Print the job id and return at once");
-  id_flags.add(identify_cmd, true);
+  const RunFlags id_flags(identify_cmd, Command::kIdentify);
 
   auto* jobs = app.add_subcommand("jobs", "List jobs");
   auto* job = app.add_subcommand("job", "One job: show, watch, cancel");
@@ -206,20 +99,13 @@ int main(int argc, char** argv) {
 
   ValidateOptions val;
   auto* validate_cmd = app.add_subcommand("validate", "Simulate a model against measured data: the fit table");
-  validate_cmd->add_option("--model,-m", val.model, "Model name")->required();
+  RunFlags val_flags(validate_cmd, Command::kValidate);
+  val_flags.require("model");
+  val_flags.require("data");
   validate_cmd->add_option("--params", val.params, "Identification job id, YAML file (theta: [...]) or list")
       ->required();
-  validate_cmd->add_option("--data,-d", val.data, "Dataset id, or a local file to upload")->required();
-  validate_cmd->add_option("--inputs", val.inputs, "Input columns (for a local file)")->delimiter(',');
-  validate_cmd->add_option("--outputs", val.outputs, "Output columns (for a local file)")->delimiter(',');
-  validate_cmd->add_option("--x0", val.x0, "Initial state: first or a list")->capture_default_str();
-  validate_cmd->add_option("--hold", val.hold, "Input hold: zoh or foh");
-  validate_cmd->add_option("--integrator", val.integrator, "Integrator")->capture_default_str();
-  validate_cmd->add_option("--substeps", val.substeps, "Fixed-step integrators: steps per sample")
-      ->capture_default_str();
 
   StreamOptions st;
-  RunFlags st_flags;
   std::string st_config;
   auto* stream_cmd = app.add_subcommand("stream", "Replay a recorded CSV file into a filter session, as a rig would");
   stream_cmd->add_option("--data,-d", st.file, "CSV file to replay")->required();
@@ -235,20 +121,18 @@ int main(int argc, char** argv) {
                          "elsewhere), always, never")
       ->check(CLI::IsMember({"auto", "always", "never"}))
       ->capture_default_str();
-  st_flags.add(stream_cmd, false);
+  const RunFlags st_flags(stream_cmd, Command::kStream);
 
   SimulateOptions sim;
   auto* simulate_cmd = app.add_subcommand("simulate", "Model outputs for given inputs (CSV out)");
-  simulate_cmd->add_option("--model,-m", sim.model, "Model name")->required();
+  RunFlags sim_flags(simulate_cmd, Command::kSimulate);
+  sim_flags.require("model");
   simulate_cmd->add_option("--params", sim.params, "Job id, YAML file or list (default: the model's)");
   simulate_cmd->add_option("--inputs", sim.inputs_file, "CSV file with a time column and the inputs")->required();
   simulate_cmd->add_option("--input-columns", sim.input_columns, "Input columns (default: the model's names)")
       ->delimiter(',');
   simulate_cmd->add_option("--time", sim.time, "Time column")->capture_default_str();
   simulate_cmd->add_option("--x0", sim.x0, "Initial state (default: zeros)");
-  simulate_cmd->add_option("--hold", sim.hold, "Input hold: zoh or foh");
-  simulate_cmd->add_option("--integrator", sim.integrator, "Integrator")->capture_default_str();
-  simulate_cmd->add_option("--substeps", sim.substeps, "Steps per sample")->capture_default_str();
   simulate_cmd->add_option("--output,-o", sim.output, "Write to this file");
 
   try {
@@ -288,11 +172,17 @@ int main(int argc, char** argv) {
     }
     return result(client, job_id, format, output, truth);
   }
-  if (*validate_cmd) return validate(client, val);
+  if (*validate_cmd) {
+    if (!settings_from("", val_flags, &val.settings)) return kExitUsage;
+    return validate(client, val);
+  }
   if (*stream_cmd) {
     if (!settings_from(st_config, st_flags, &st.settings)) return kExitUsage;
     return stream(client, st);
   }
-  if (*simulate_cmd) return simulate(client, sim);
+  if (*simulate_cmd) {
+    if (!settings_from("", sim_flags, &sim.settings)) return kExitUsage;
+    return simulate(client, sim);
+  }
   return kExitUsage;
 }

@@ -2,148 +2,367 @@
 
 #include <yaml-cpp/yaml.h>
 
+#include <algorithm>
 #include <charconv>
-#include <cstdio>
+#include <limits>
 #include <sstream>
+#include <type_traits>
+#include <variant>
+
+#include "enum_choices.hpp"
 
 namespace riccati::cli {
 
 namespace {
 
-bool parse_number(const std::string& text, double* out) {
-  const char* begin = text.data();
-  const char* end = begin + text.size();
-  while (begin < end && *begin == ' ') ++begin;
-  while (end > begin && end[-1] == ' ') --end;
-  if (begin < end && *begin == '+') ++begin;
-  auto [ptr, ec] = std::from_chars(begin, end, *out);
-  return ec == std::errc() && ptr == end && begin != end;
-}
+using google::protobuf::EnumDescriptor;
 
 template <typename T>
-bool read_scalar(const YAML::Node& node, const std::string& key, std::optional<T>* out, std::string* error) {
-  try {
-    *out = node.as<T>();
-    return true;
-  } catch (const YAML::Exception&) {
-    *error = "key \"" + key + "\" (line " + std::to_string(node.Mark().line + 1) + "): expected a " +
-             (std::is_same_v<T, std::string> ? "string" : (std::is_same_v<T, bool> ? "true or false" : "number"));
+using Member = std::optional<T> RunSettings::*;
+using Names = std::vector<std::string> RunSettings::*;
+
+// Where a setting goes in RunSettings; its type says how the value is read.
+// (int: an enum's number, with the enum's descriptor in the setting.)
+using Target = std::variant<Member<std::string>, Member<int>, Member<double>, Member<std::uint64_t>, Member<bool>,
+                            Member<std::vector<double>>, Member<v1::Covariance>, Member<v1::InitialState>, Names>;
+
+struct Setting {
+  std::string key;                   // in the job file; "integrator.kind" is kind: under integrator:
+  std::vector<std::string> aliases;  // other spellings of the key ("integrator": the kind alone)
+  std::string flag;                  // CLI11's names of the flag
+  unsigned commands = 0;             // the commands whose flags include it (a bit per Command)
+  std::string help;
+  Target target;
+  const EnumDescriptor* choices = nullptr;  // enum settings: the API enum
+  bool flag_value = true;                   // bool settings: what the flag sets
+};
+
+constexpr unsigned bit(Command c) { return static_cast<unsigned>(c); }
+constexpr unsigned kIdentify = bit(Command::kIdentify);
+constexpr unsigned kFilter = kIdentify | bit(Command::kStream);    // runs of a filter
+constexpr unsigned kColumns = kFilter | bit(Command::kValidate);   // runs on measured data
+constexpr unsigned kSimulation = kColumns | bit(Command::kSimulate);  // runs that integrate the model
+
+// Every setting, once. The job-file reader and the flags are made from it.
+const std::vector<Setting>& settings() {
+  static const std::vector<Setting> table = {
+      {.key = "model", .flag = "--model,-m", .commands = kSimulation, .help = "Model name",
+       .target = &RunSettings::model},
+      {.key = "data", .flag = "--data,-d", .commands = kIdentify | bit(Command::kValidate),
+       .help = "Dataset id, or a local CSV/MAT file to upload", .target = &RunSettings::data},
+      {.key = "inputs", .flag = "--inputs", .commands = kColumns, .help = "Input columns, in the model's order",
+       .target = &RunSettings::inputs},
+      {.key = "outputs", .flag = "--outputs", .commands = kColumns, .help = "Output columns, in the model's order",
+       .target = &RunSettings::outputs},
+      {.key = "filter", .flag = "--filter", .commands = kFilter, .help = "Filter kind", .target = &RunSettings::filter,
+       .choices = v1::FilterKind_descriptor()},
+      {.key = "passes", .flag = "--passes", .commands = kIdentify, .help = "Passes over the data",
+       .target = &RunSettings::passes},
+      {.key = "x0", .flag = "--x0", .commands = kColumns,
+       .help = "Initial state: first (the first measurement, the default) or a list", .target = &RunSettings::x0},
+      {.key = "theta0", .flag = "--theta0", .commands = kFilter, .help = "Initial parameters (default: the model's)",
+       .target = &RunSettings::theta0},
+      {.key = "P0", .aliases = {"p0"}, .flag = "--p0", .commands = kFilter,
+       .help = "Initial variances of [x; theta] (one value: all)", .target = &RunSettings::p0},
+      {.key = "Q", .aliases = {"q"}, .flag = "--q", .commands = kFilter,
+       .help = "Process noise intensities of [x; theta] (one value: all)", .target = &RunSettings::q},
+      {.key = "R", .aliases = {"r"}, .flag = "--r", .commands = kFilter,
+       .help = "Measurement noise variances (one value: all)", .target = &RunSettings::r},
+      {.key = "hold", .flag = "--hold", .commands = kSimulation, .help = "Input hold", .target = &RunSettings::hold,
+       .choices = v1::HoldOrder_descriptor()},
+      {.key = "integrator.kind", .aliases = {"integrator"}, .flag = "--integrator", .commands = kSimulation,
+       .help = "Integrator", .target = &RunSettings::integrator, .choices = v1::IntegratorKind_descriptor()},
+      {.key = "integrator.substeps", .flag = "--substeps", .commands = kSimulation,
+       .help = "Fixed-step integrators: steps per sample", .target = &RunSettings::substeps},
+      {.key = "integrator.rtol", .flag = "--rtol", .commands = kSimulation,
+       .help = "Adaptive integrators: relative tolerance", .target = &RunSettings::rtol},
+      {.key = "integrator.atol", .flag = "--atol", .commands = kSimulation,
+       .help = "Adaptive integrators: absolute tolerance", .target = &RunSettings::atol},
+      {.key = "inversion", .flag = "--inversion", .commands = kFilter, .help = "Gain solve",
+       .target = &RunSettings::inversion, .choices = v1::GainInversion_descriptor()},
+      {.key = "joseph", .flag = "--no-joseph", .commands = kFilter, .help = "EKF: short covariance update",
+       .target = &RunSettings::joseph, .flag_value = false},
+      {.key = "ukf.weights", .flag = "--weights", .commands = kFilter, .help = "UKF weights",
+       .target = &RunSettings::weights, .choices = v1::SigmaWeights_descriptor()},
+      {.key = "ukf.alpha", .flag = "--alpha", .commands = kFilter, .help = "UKF scaled weights: alpha",
+       .target = &RunSettings::alpha},
+      {.key = "ukf.beta", .flag = "--beta", .commands = kFilter, .help = "UKF scaled weights: beta",
+       .target = &RunSettings::beta},
+      {.key = "ukf.kappa", .flag = "--kappa", .commands = kFilter, .help = "UKF kappa", .target = &RunSettings::kappa},
+      {.key = "optimal.V", .aliases = {"optimal.v"}, .flag = "--v", .commands = kFilter,
+       .help = "Optimal filter: weights of the equations of motion, inputs, outputs", .target = &RunSettings::v},
+      {.key = "optimal.W", .aliases = {"optimal.w"}, .flag = "--w", .commands = kFilter,
+       .help = "Optimal filter: weights of the states and parameters", .target = &RunSettings::w},
+      {.key = "optimal.R0", .aliases = {"optimal.r0"}, .flag = "--r0", .commands = kFilter,
+       .help = "Optimal filter: confidence in x0 and theta0 (instead of --p0)", .target = &RunSettings::r0},
+      {.key = "optimal.form", .flag = "--form", .commands = kFilter, .help = "Optimal filter: form",
+       .target = &RunSettings::form, .choices = v1::OptimalForm_descriptor()},
+      {.key = "optimal.hold_outputs", .flag = "--hold-outputs", .commands = kFilter,
+       .help = "Optimal filter: hold outputs over a step (strict real time)", .target = &RunSettings::hold_outputs},
+      {.key = "first_sample", .flag = "--first-sample", .commands = kIdentify, .help = "Trial: first sample (0-based)",
+       .target = &RunSettings::first_sample},
+      {.key = "end_sample", .flag = "--end-sample", .commands = kIdentify, .help = "Trial: end sample (0: to the end)",
+       .target = &RunSettings::end_sample},
+      {.key = "truth", .flag = "--truth", .commands = kIdentify, .help = "True parameters, to print the error",
+       .target = &RunSettings::truth},
+  };
+  return table;
+}
+
+const Setting* find_setting(std::string_view key) {
+  for (const Setting& setting : settings()) {
+    if (setting.key == key) return &setting;
+    for (const std::string& alias : setting.aliases) {
+      if (alias == key) return &setting;
+    }
+  }
+  return nullptr;
+}
+
+// The keys grouped under `group` in a job file ("kind, substeps, rtol, atol"); empty: it is no group.
+std::string group_keys(std::string_view group) {
+  std::string keys;
+  for (const Setting& setting : settings()) {
+    const std::string_view key = setting.key;
+    if (key.size() > group.size() && key.starts_with(group) && key[group.size()] == '.') {
+      keys += (keys.empty() ? "" : ", ") + std::string(key.substr(group.size() + 1));
+    }
+  }
+  return keys;
+}
+
+// How --help shows the value a flag takes.
+const char* type_name(const Target& target) {
+  if (std::holds_alternative<Member<double>>(target)) return "FLOAT";
+  if (std::holds_alternative<Member<std::uint64_t>>(target)) return "UINT";
+  return "TEXT";
+}
+
+std::string help_of(const Setting& setting) {
+  if (setting.choices == nullptr) return setting.help;
+  return setting.help + " (" + choices_text(*setting.choices) + ")";
+}
+
+// ------------------------------------------------------------ values
+
+std::string_view trim(std::string_view text) {
+  while (!text.empty() && text.front() == ' ') text.remove_prefix(1);
+  while (!text.empty() && text.back() == ' ') text.remove_suffix(1);
+  return text;
+}
+
+std::string in_quotes(std::string_view text) { return "\"" + std::string(text) + "\""; }
+
+template <typename T>
+bool parse_number(std::string_view text, T* out) {
+  text = trim(text);
+  if (text.starts_with('+')) text.remove_prefix(1);
+  const char* end = text.data() + text.size();
+  const auto [ptr, ec] = std::from_chars(text.data(), end, *out);
+  return ec == std::errc() && ptr == end && !text.empty();
+}
+
+// A value as written (a job file's, or a flag's as one would be), read into
+// its type; false with what is wrong.
+
+bool read(const YAML::Node& node, std::string* out, std::string* error) {
+  if (!node.IsScalar()) {
+    *error = "expected a string";
     return false;
   }
-}
-
-bool read_numbers(const YAML::Node& node, const std::string& key, std::vector<double>* out, std::string* error) {
-  out->clear();
-  try {
-    if (node.IsScalar()) {
-      out->push_back(node.as<double>());
-      return true;
-    }
-    if (node.IsSequence()) {
-      for (const auto& v : node) out->push_back(v.as<double>());
-      return true;
-    }
-  } catch (const YAML::Exception&) {
-  }
-  *error = "key \"" + key + "\" (line " + std::to_string(node.Mark().line + 1) + "): expected a number or a list of numbers";
-  return false;
-}
-
-bool read_matrix(const YAML::Node& node, const std::string& key, std::optional<MatrixSetting>* out,
-                 std::string* error) {
-  MatrixSetting m;
-  if (node.IsSequence() && node.size() > 0 && node[0].IsSequence()) {
-    m.full = true;
-    for (const auto& row : node) {
-      std::vector<double> values;
-      if (!read_numbers(row, key, &values, error)) return false;
-      m.rows.push_back(std::move(values));
-    }
-  } else {
-    std::vector<double> values;
-    if (!read_numbers(node, key, &values, error)) return false;
-    m.rows.push_back(std::move(values));
-  }
-  *out = std::move(m);
+  *out = node.Scalar();
   return true;
 }
 
-bool read_names(const YAML::Node& node, const std::string& key, std::vector<std::string>* out, std::string* error) {
-  out->clear();
+bool read(const YAML::Node& node, double* out, std::string* error) {
+  if (!node.IsScalar()) {
+    *error = "expected a number";
+    return false;
+  }
+  if (!parse_number(node.Scalar(), out)) {
+    *error = in_quotes(node.Scalar()) + " is not a number";
+    return false;
+  }
+  return true;
+}
+
+bool read(const YAML::Node& node, std::uint64_t* out, std::string* error) {
+  if (!node.IsScalar()) {
+    *error = "expected a whole number (0 or more)";
+    return false;
+  }
+  if (!parse_number(node.Scalar(), out)) {
+    *error = in_quotes(node.Scalar()) + " is not a whole number (0 or more)";
+    return false;
+  }
+  return true;
+}
+
+bool read(const YAML::Node& node, bool* out, std::string* error) {
   try {
-    if (node.IsScalar()) {
-      out->push_back(node.as<std::string>());
-      return true;
-    }
-    for (const auto& v : node) out->push_back(v.as<std::string>());
+    *out = node.as<bool>();
     return true;
   } catch (const YAML::Exception&) {
-    *error = "key \"" + key + "\": expected a list of names";
+    *error = "expected true or false";
     return false;
   }
 }
 
-std::string join(const google::protobuf::RepeatedPtrField<std::string>& names) {
-  std::string out;
-  for (const auto& n : names) out += (out.empty() ? "" : ", ") + n;
-  return out;
+bool read_choice(const YAML::Node& node, const EnumDescriptor& type, int* out, std::string* error) {
+  if (!node.IsScalar()) {
+    *error = "expected one of " + choices_text(type);
+    return false;
+  }
+  const std::optional<int> value = parse_choice(type, node.Scalar(), error);
+  if (value) *out = *value;
+  return value.has_value();
 }
 
-// n x n from the setting: one value on the whole diagonal, a diagonal, or full.
-bool to_covariance(const MatrixSetting& m, int n, const std::string& what, v1::Covariance* out, std::string* error) {
-  if (m.full) {
+// One number or a list of them.
+bool read(const YAML::Node& node, std::vector<double>* out, std::string* error) {
+  out->clear();
+  if (node.IsScalar()) {
+    out->emplace_back();
+    return read(node, &out->back(), error);
+  }
+  if (!node.IsSequence()) {
+    *error = "expected a number or a list of numbers";
+    return false;
+  }
+  for (const YAML::Node& item : node) {
+    out->emplace_back();
+    if (!read(item, &out->back(), error)) return false;
+  }
+  return true;
+}
+
+// One value (the whole diagonal), a list (the diagonal) or rows (the full
+// matrix). Whether the size fits the model is riccatid's to say.
+bool read(const YAML::Node& node, v1::Covariance* out, std::string* error) {
+  if (node.IsSequence() && node.size() > 0 && node[0].IsSequence()) {
     v1::Matrix* full = out->mutable_full();
-    full->set_rows(n);
-    full->set_cols(n);
-    if (static_cast<int>(m.rows.size()) != n) {
-      *error = what + ": a full matrix needs " + std::to_string(n) + " rows, got " + std::to_string(m.rows.size());
-      return false;
-    }
-    full->mutable_values()->Resize(n * n, 0.0);
-    for (int i = 0; i < n; ++i) {
-      if (static_cast<int>(m.rows[i].size()) != n) {
-        *error = what + ": row " + std::to_string(i + 1) + " needs " + std::to_string(n) + " values";
+    std::vector<std::vector<double>> rows(node.size());
+    for (std::size_t i = 0; i < rows.size(); ++i) {
+      if (!read(node[i], &rows[i], error)) return false;
+      if (rows[i].size() != rows[0].size()) {
+        *error = "row " + std::to_string(i + 1) + " has " + std::to_string(rows[i].size()) + " value" +
+                 (rows[i].size() == 1 ? "" : "s") + ", row 1 has " + std::to_string(rows[0].size());
         return false;
       }
-      for (int j = 0; j < n; ++j) full->set_values(i + j * n, m.rows[i][j]);
+    }
+    full->set_rows(static_cast<uint32_t>(rows.size()));
+    full->set_cols(static_cast<uint32_t>(rows[0].size()));
+    for (std::size_t j = 0; j < rows[0].size(); ++j) {  // column-major
+      for (const std::vector<double>& row : rows) full->add_values(row[j]);
     }
     return true;
   }
-  const std::vector<double>& d = m.rows.empty() ? std::vector<double>{} : m.rows[0];
-  if (d.size() == 1) {
-    for (int i = 0; i < n; ++i) out->mutable_diagonal()->add_values(d[0]);
+  std::vector<double> values;
+  if (!read(node, &values, error)) return false;
+  if (values.size() == 1) {
+    out->set_scalar(values[0]);
+  } else {
+    out->mutable_diagonal()->mutable_values()->Add(values.begin(), values.end());
+  }
+  return true;
+}
+
+// "first" (the toolbox's x0 = Y(t0)) or the values.
+bool read(const YAML::Node& node, v1::InitialState* out, std::string* error) {
+  if (node.IsScalar() && node.Scalar() == "first") {
+    out->set_first_measurement(true);
     return true;
   }
-  if (static_cast<int>(d.size()) != n) {
-    *error = what + " needs " + std::to_string(n) + " values (or one for all), got " + std::to_string(d.size());
+  std::vector<double> values;
+  if (!read(node, &values, error)) {
+    *error += " (give first or a list of numbers)";
     return false;
   }
-  for (double v : d) out->mutable_diagonal()->add_values(v);
+  out->mutable_x0()->Add(values.begin(), values.end());
+  return true;
+}
+
+bool read(const YAML::Node& node, std::vector<std::string>* out, std::string* error) {
+  out->clear();
+  if (node.IsScalar()) {
+    out->push_back(node.Scalar());
+    return true;
+  }
+  if (node.IsSequence()) {
+    for (const YAML::Node& item : node) {
+      out->emplace_back();
+      if (!read(item, &out->back(), error)) return false;
+    }
+    return true;
+  }
+  *error = "expected a list of names";
+  return false;
+}
+
+bool read_value(const Setting& setting, const YAML::Node& node, RunSettings* s, std::string* error) {
+  return std::visit(
+      [&](auto member) {
+        auto& to = s->*member;
+        if constexpr (std::is_same_v<decltype(member), Names>) {
+          return read(node, &to, error);
+        } else {
+          using Value = typename std::remove_reference_t<decltype(to)>::value_type;
+          Value value{};
+          bool ok = false;
+          if constexpr (std::is_same_v<Value, int>) {
+            ok = read_choice(node, *setting.choices, &value, error);
+          } else {
+            ok = read(node, &value, error);
+          }
+          if (ok) to = std::move(value);
+          return ok;
+        }
+      },
+      setting.target);
+}
+
+// A flag's text as a job file would have it: commas make a list, for the
+// settings that take one.
+YAML::Node written(const Setting& setting, const std::string& text) {
+  const bool takes_list = std::holds_alternative<Member<std::vector<double>>>(setting.target) ||
+                          std::holds_alternative<Member<v1::Covariance>>(setting.target) ||
+                          std::holds_alternative<Member<v1::InitialState>>(setting.target);
+  if (!takes_list || text.find(',') == std::string::npos) return YAML::Node(text);
+  YAML::Node list(YAML::NodeType::Sequence);
+  std::stringstream items(text);
+  for (std::string item; std::getline(items, item, ',');) list.push_back(item);
+  return list;
+}
+
+// One key of a job file (under `group`, if any): a setting, or a group of them.
+bool read_entry(const std::string& group, const YAML::Node& key_node, const YAML::Node& value, RunSettings* s,
+                std::string* error) {
+  const std::string key = (group.empty() ? "" : group + ".") + key_node.Scalar();
+  const std::string where = in_quotes(key) + " (line " + std::to_string(key_node.Mark().line + 1) + ")";
+  const Setting* setting = find_setting(key);
+  const std::string grouped = group.empty() ? group_keys(key) : "";
+  if (!grouped.empty() && (value.IsMap() || setting == nullptr)) {
+    if (!value.IsMap()) {
+      *error = "key " + where + ": expected a map (" + grouped + ")";
+      return false;
+    }
+    for (const auto& entry : value) {
+      if (!read_entry(key, entry.first, entry.second, s, error)) return false;
+    }
+    return true;
+  }
+  if (setting == nullptr) {
+    *error = "unknown key " + where + (group.empty() ? "" : " (expected " + group_keys(group) + ")");
+    return false;
+  }
+  if (!read_value(*setting, value, s, error)) {
+    *error = "key " + where + ": " + *error;
+    return false;
+  }
   return true;
 }
 
 }  // namespace
-
-bool parse_list(const std::string& text, std::vector<double>* out, std::string* error) {
-  out->clear();
-  std::stringstream ss(text);
-  std::string item;
-  while (std::getline(ss, item, ',')) {
-    double v = 0.0;
-    if (!parse_number(item, &v)) {
-      *error = "\"" + item + "\" is not a number";
-      return false;
-    }
-    out->push_back(v);
-  }
-  if (out->empty()) {
-    *error = "an empty list";
-    return false;
-  }
-  return true;
-}
-
-MatrixSetting matrix_from_list(const std::vector<double>& values) { return MatrixSetting{{values}, false}; }
 
 bool load_job_file(const std::string& path, RunSettings* s, std::string* error) {
   YAML::Node root;
@@ -158,122 +377,7 @@ bool load_job_file(const std::string& path, RunSettings* s, std::string* error) 
     return false;
   }
   for (const auto& entry : root) {
-    const std::string key = entry.first.as<std::string>();
-    const YAML::Node& v = entry.second;
-    bool ok = true;
-    if (key == "model") {
-      ok = read_scalar(v, key, &s->model, error);
-    } else if (key == "data") {
-      ok = read_scalar(v, key, &s->data, error);
-    } else if (key == "inputs") {
-      ok = read_names(v, key, &s->inputs, error);
-    } else if (key == "outputs") {
-      ok = read_names(v, key, &s->outputs, error);
-    } else if (key == "filter") {
-      ok = read_scalar(v, key, &s->filter, error);
-    } else if (key == "passes") {
-      ok = read_scalar(v, key, &s->passes, error);
-    } else if (key == "x0") {
-      if (v.IsSequence()) {
-        std::vector<double> values;
-        ok = read_numbers(v, key, &values, error);
-        // Kept as the flag's text, at full precision.
-        std::string joined;
-        for (double x : values) {
-          char buf[32];
-          std::snprintf(buf, sizeof buf, "%.17g", x);
-          joined += (joined.empty() ? "" : ",") + std::string(buf);
-        }
-        s->x0 = joined;
-      } else {
-        ok = read_scalar(v, key, &s->x0, error);
-      }
-    } else if (key == "theta0" || key == "truth") {
-      std::vector<double> values;
-      ok = read_numbers(v, key, &values, error);
-      (key == "theta0" ? s->theta0 : s->truth) = values;
-    } else if (key == "P0" || key == "p0") {
-      ok = read_matrix(v, key, &s->p0, error);
-    } else if (key == "Q" || key == "q") {
-      ok = read_matrix(v, key, &s->q, error);
-    } else if (key == "R" || key == "r") {
-      ok = read_matrix(v, key, &s->r, error);
-    } else if (key == "hold") {
-      ok = read_scalar(v, key, &s->hold, error);
-    } else if (key == "integrator") {
-      if (v.IsScalar()) {
-        ok = read_scalar(v, key, &s->integrator, error);
-      } else {
-        for (const auto& sub : v) {
-          const std::string k = sub.first.as<std::string>();
-          if (k == "kind") {
-            ok = read_scalar(sub.second, "integrator.kind", &s->integrator, error);
-          } else if (k == "substeps") {
-            ok = read_scalar(sub.second, "integrator.substeps", &s->substeps, error);
-          } else if (k == "rtol") {
-            ok = read_scalar(sub.second, "integrator.rtol", &s->rtol, error);
-          } else if (k == "atol") {
-            ok = read_scalar(sub.second, "integrator.atol", &s->atol, error);
-          } else {
-            *error = "unknown key \"integrator." + k + "\" (expected kind, substeps, rtol, atol)";
-            ok = false;
-          }
-          if (!ok) break;
-        }
-      }
-    } else if (key == "inversion") {
-      ok = read_scalar(v, key, &s->inversion, error);
-    } else if (key == "joseph") {
-      ok = read_scalar(v, key, &s->joseph, error);
-    } else if (key == "ukf") {
-      for (const auto& sub : v) {
-        const std::string k = sub.first.as<std::string>();
-        if (k == "weights") {
-          ok = read_scalar(sub.second, "ukf.weights", &s->weights, error);
-        } else if (k == "alpha") {
-          ok = read_scalar(sub.second, "ukf.alpha", &s->alpha, error);
-        } else if (k == "beta") {
-          ok = read_scalar(sub.second, "ukf.beta", &s->beta, error);
-        } else if (k == "kappa") {
-          ok = read_scalar(sub.second, "ukf.kappa", &s->kappa, error);
-        } else {
-          *error = "unknown key \"ukf." + k + "\" (expected weights, alpha, beta, kappa)";
-          ok = false;
-        }
-        if (!ok) break;
-      }
-    } else if (key == "optimal") {
-      if (!v.IsMap()) {
-        *error = "key \"optimal\": expected a map (V, W, R0, form, hold_outputs)";
-        ok = false;
-      }
-      for (const auto& sub : v) {
-        if (!ok) break;
-        const std::string k = sub.first.as<std::string>();
-        if (k == "V" || k == "v") {
-          ok = read_matrix(sub.second, "optimal.V", &s->v, error);
-        } else if (k == "W" || k == "w") {
-          ok = read_matrix(sub.second, "optimal.W", &s->w, error);
-        } else if (k == "R0" || k == "r0") {
-          ok = read_matrix(sub.second, "optimal.R0", &s->r0, error);
-        } else if (k == "form") {
-          ok = read_scalar(sub.second, "optimal.form", &s->form, error);
-        } else if (k == "hold_outputs") {
-          ok = read_scalar(sub.second, "optimal.hold_outputs", &s->hold_outputs, error);
-        } else {
-          *error = "unknown key \"optimal." + k + "\" (expected V, W, R0, form, hold_outputs)";
-          ok = false;
-        }
-      }
-    } else if (key == "first_sample") {
-      ok = read_scalar(v, key, &s->first_sample, error);
-    } else if (key == "end_sample") {
-      ok = read_scalar(v, key, &s->end_sample, error);
-    } else {
-      *error = "unknown key \"" + key + "\" (line " + std::to_string(entry.first.Mark().line + 1) + ")";
-      ok = false;
-    }
-    if (!ok) {
+    if (!read_entry("", entry.first, entry.second, s, error)) {
       *error = path + ": " + *error;
       return false;
     }
@@ -281,78 +385,66 @@ bool load_job_file(const std::string& path, RunSettings* s, std::string* error) 
   return true;
 }
 
-void overlay(const RunSettings& f, RunSettings* b) {
-  auto take = [](const auto& from, auto& to) {
-    if (from) to = from;
-  };
-  take(f.model, b->model);
-  take(f.data, b->data);
-  take(f.filter, b->filter);
-  take(f.hold, b->hold);
-  take(f.integrator, b->integrator);
-  take(f.inversion, b->inversion);
-  take(f.weights, b->weights);
-  if (!f.inputs.empty()) b->inputs = f.inputs;
-  if (!f.outputs.empty()) b->outputs = f.outputs;
-  take(f.x0, b->x0);
-  take(f.theta0, b->theta0);
-  take(f.truth, b->truth);
-  take(f.p0, b->p0);
-  take(f.q, b->q);
-  take(f.r, b->r);
-  take(f.v, b->v);
-  take(f.w, b->w);
-  take(f.r0, b->r0);
-  take(f.form, b->form);
-  take(f.hold_outputs, b->hold_outputs);
-  take(f.passes, b->passes);
-  take(f.substeps, b->substeps);
-  take(f.rtol, b->rtol);
-  take(f.atol, b->atol);
-  take(f.alpha, b->alpha);
-  take(f.beta, b->beta);
-  take(f.kappa, b->kappa);
-  take(f.joseph, b->joseph);
-  take(f.first_sample, b->first_sample);
-  take(f.end_sample, b->end_sample);
+struct RunFlags::Flag {
+  const Setting* setting;
+  CLI::Option* option = nullptr;
+  std::string text;
+  std::vector<std::string> names;
+  bool on = false;
+};
+
+RunFlags::RunFlags(CLI::App* cmd, Command command) {
+  for (const Setting& setting : settings()) {
+    if ((setting.commands & bit(command)) == 0) continue;
+    Flag& flag = flags_.emplace_back(Flag{&setting});
+    if (std::holds_alternative<Member<bool>>(setting.target)) {
+      flag.option = cmd->add_flag(setting.flag, flag.on, help_of(setting));
+    } else if (std::holds_alternative<Names>(setting.target)) {
+      flag.option = cmd->add_option(setting.flag, flag.names, help_of(setting))->delimiter(',');
+    } else {
+      flag.option = cmd->add_option(setting.flag, flag.text, help_of(setting))->type_name(type_name(setting.target));
+    }
+  }
 }
 
-bool to_integrator(const RunSettings& s, v1::IntegratorSettings* out, std::string* error) {
-  const std::string kind = s.integrator.value_or("rk4");
-  if (kind == "rk4") {
-    out->set_kind(v1::INTEGRATOR_KIND_RK4);
-  } else if (kind == "rk3") {
-    out->set_kind(v1::INTEGRATOR_KIND_RK3);
-  } else if (kind == "cvode-bdf") {
-    out->set_kind(v1::INTEGRATOR_KIND_CVODE_BDF);
-  } else if (kind == "cvode-adams") {
-    out->set_kind(v1::INTEGRATOR_KIND_CVODE_ADAMS);
-  } else if (kind == "arkode-erk") {
-    out->set_kind(v1::INTEGRATOR_KIND_ARKODE_ERK);
-  } else {
-    *error = "integrator \"" + kind + "\" is unknown (rk4, rk3, cvode-bdf, cvode-adams, arkode-erk)";
-    return false;
-  }
-  if (s.substeps) {
-    if (*s.substeps < 1) {
-      *error = "substeps must be at least 1";
+RunFlags::~RunFlags() = default;
+
+bool RunFlags::apply(RunSettings* s, std::string* error) const {
+  for (const Flag& flag : flags_) {
+    if (flag.option->count() == 0) continue;
+    const Setting& setting = *flag.setting;
+    if (const auto* member = std::get_if<Member<bool>>(&setting.target)) {
+      s->**member = setting.flag_value;
+    } else if (const auto* names = std::get_if<Names>(&setting.target)) {
+      s->**names = flag.names;
+    } else if (!read_value(setting, written(setting, flag.text), s, error)) {
+      *error = flag.option->get_name() + ": " + *error;
       return false;
     }
-    out->set_substeps(static_cast<uint32_t>(*s.substeps));
   }
-  if (s.rtol) out->set_rtol(*s.rtol);
-  if (s.atol) out->set_atol(*s.atol);
   return true;
 }
 
-bool to_hold(const std::optional<std::string>& hold, v1::HoldOrder* out, std::string* error) {
-  const std::string h = hold.value_or("zoh");
-  if (h == "zoh") {
-    *out = v1::HOLD_ORDER_ZERO;
-  } else if (h == "foh") {
-    *out = v1::HOLD_ORDER_FIRST;
-  } else {
-    *error = "hold \"" + h + "\" is unknown (zoh or foh)";
+void RunFlags::require(std::string_view key) {
+  for (Flag& flag : flags_) {
+    if (flag.setting->key == key) flag.option->required();
+  }
+}
+
+bool parse_list(const std::string& text, std::vector<double>* out, std::string* error) {
+  out->clear();
+  std::stringstream ss(text);
+  std::string item;
+  while (std::getline(ss, item, ',')) {
+    double v = 0.0;
+    if (!parse_number(item, &v)) {
+      *error = in_quotes(item) + " is not a number";
+      return false;
+    }
+    out->push_back(v);
+  }
+  if (out->empty()) {
+    *error = "an empty list";
     return false;
   }
   return true;
@@ -360,161 +452,90 @@ bool to_hold(const std::optional<std::string>& hold, v1::HoldOrder* out, std::st
 
 namespace {
 
-// The optimal filter's weights V, W and R0, its form and output hold.
-bool to_optimal_settings(const RunSettings& s, const v1::ModelInfo& info, v1::OptimalSettings* out,
-                         std::string* error) {
-  const int nz = info.state_names_size() + info.param_names_size();
-  if (info.ndof() == 0) {
-    *error = "model " + info.name() + " has no mechanical form (M a + h = H u): the optimal filter needs one";
-    return false;
-  }
-  if (s.q || s.r) {
-    *error = "the optimal filter takes no Q and R: give its weights V and W";
-    return false;
-  }
-  const int L = static_cast<int>(info.ndof()) + info.input_names_size() + info.output_names_size();
-  const std::string rows = std::to_string(info.ndof()) + " equations of motion, then inputs " +
-                           join(info.input_names()) + ", then outputs " + join(info.output_names());
-  if (!s.v || !s.w) {
-    *error = "the optimal filter needs its weights V (" + std::to_string(L) + ": " + rows + ") and W (" +
-             std::to_string(nz) + ": states and parameters)";
-    return false;
-  }
-  if (!to_covariance(*s.v, L, "V (" + rows + ")", out->mutable_v(), error)) return false;
-  if (!to_covariance(*s.w, nz, "W (" + std::to_string(nz) + " = states + parameters)", out->mutable_w(), error)) {
-    return false;
-  }
-  if (s.r0 && !to_covariance(*s.r0, nz, "R0 (" + std::to_string(nz) + " = states + parameters)",
-                             out->mutable_r0(), error)) {
-    return false;
-  }
-  const std::string form = s.form.value_or("continuous");
-  if (form == "continuous") {
-    out->set_form(v1::OPTIMAL_FORM_CONTINUOUS);
-  } else if (form == "split-step") {
-    out->set_form(v1::OPTIMAL_FORM_SPLIT_STEP);
-  } else {
-    *error = "form \"" + form + "\" is unknown (continuous or split-step)";
-    return false;
-  }
-  out->set_hold_outputs(s.hold_outputs.value_or(false));
-  return true;
+// A count for a uint32 field: past its range is past riccatid's limits too,
+// and riccatid says so.
+uint32_t saturated(std::uint64_t count) {
+  return static_cast<uint32_t>(std::min<std::uint64_t>(count, std::numeric_limits<uint32_t>::max()));
 }
 
 }  // namespace
 
-bool to_filter_settings(const RunSettings& s, const v1::ModelInfo& info, v1::FilterSettings* out,
-                        std::string* error) {
-  const int nz = info.state_names_size() + info.param_names_size();
-  const int ny = info.output_names_size();
-  const std::string filter = s.filter.value_or("ekf");
-  if (filter == "ekf") {
-    out->set_kind(v1::FILTER_KIND_EKF);
-  } else if (filter == "ukf") {
-    out->set_kind(v1::FILTER_KIND_UKF);
-  } else if (filter == "optimal") {
-    out->set_kind(v1::FILTER_KIND_OPTIMAL);
-  } else {
-    *error = "filter \"" + filter + "\" is unknown (ekf, ukf or optimal)";
-    return false;
-  }
-  v1::HoldOrder hold;
-  if (!to_hold(s.hold, &hold, error)) return false;
-  out->set_hold(hold);
-  if (!to_integrator(s, out->mutable_integrator(), error)) return false;
-  if (filter == "optimal") return to_optimal_settings(s, info, out->mutable_optimal(), error);
-  if (s.v || s.w || s.r0 || s.form || s.hold_outputs) {
-    *error = "V, W, R0, form and hold_outputs are settings of the optimal filter (filter: optimal)";
-    return false;
-  }
-  if (s.q && !to_covariance(*s.q, nz, "Q (" + std::to_string(nz) + " = states + parameters)", out->mutable_q(), error)) {
-    return false;
-  }
-  if (!s.r) {
-    *error = "R (measurement noise variances of " + join(info.output_names()) + ") is required";
-    return false;
-  }
-  if (!to_covariance(*s.r, ny, "R (outputs " + join(info.output_names()) + ")", out->mutable_r(), error)) return false;
-  const std::string inversion = s.inversion.value_or("cholesky");
-  if (inversion == "cholesky") {
-    out->set_inversion(v1::GAIN_INVERSION_CHOLESKY);
-  } else if (inversion == "pinv") {
-    out->set_inversion(v1::GAIN_INVERSION_PSEUDO_INVERSE);
-  } else {
-    *error = "inversion \"" + inversion + "\" is unknown (cholesky or pinv)";
-    return false;
-  }
-  out->set_short_covariance_update(!s.joseph.value_or(true));
-  const std::string weights = s.weights.value_or("julier");
-  if (weights == "julier") {
-    out->mutable_ukf()->set_weights(v1::SIGMA_WEIGHTS_JULIER);
-  } else if (weights == "scaled") {
-    out->mutable_ukf()->set_weights(v1::SIGMA_WEIGHTS_SCALED);
-  } else {
-    *error = "UKF weights \"" + weights + "\" are unknown (julier or scaled)";
-    return false;
-  }
-  if (s.alpha) out->mutable_ukf()->set_alpha(*s.alpha);
-  if (s.beta) out->mutable_ukf()->set_beta(*s.beta);
-  if (s.kappa) out->mutable_ukf()->set_kappa(*s.kappa);
-  return true;
+std::optional<v1::IntegratorSettings> to_integrator(const RunSettings& s) {
+  if (!s.integrator && !s.substeps && !s.rtol && !s.atol) return std::nullopt;
+  v1::IntegratorSettings out;
+  if (s.integrator) out.set_kind(static_cast<v1::IntegratorKind>(*s.integrator));
+  if (s.substeps) out.set_substeps(saturated(*s.substeps));
+  if (s.rtol) out.set_rtol(*s.rtol);
+  if (s.atol) out.set_atol(*s.atol);
+  return out;
 }
 
-bool to_initial_state(const std::string& x0, v1::InitialState* out, std::string* error) {
-  if (x0 == "first") {
-    out->set_first_measurement(true);
-    return true;
-  }
-  std::vector<double> values;
-  if (!parse_list(x0, &values, error)) {
-    *error = "x0: " + *error + " (give \"first\" or a list of numbers)";
-    return false;
-  }
-  for (double v : values) out->add_x0(v);
-  return true;
+v1::FilterSettings to_filter_settings(const RunSettings& s) {
+  v1::FilterSettings out;
+  if (s.filter) out.set_kind(static_cast<v1::FilterKind>(*s.filter));
+  if (s.hold) out.set_hold(static_cast<v1::HoldOrder>(*s.hold));
+  if (auto integrator = to_integrator(s)) *out.mutable_integrator() = *integrator;
+  if (s.q) *out.mutable_q() = *s.q;
+  if (s.r) *out.mutable_r() = *s.r;
+  if (s.inversion) out.set_inversion(static_cast<v1::GainInversion>(*s.inversion));
+  if (s.joseph) out.set_short_covariance_update(!*s.joseph);
+  if (s.weights) out.mutable_ukf()->set_weights(static_cast<v1::SigmaWeights>(*s.weights));
+  if (s.alpha) out.mutable_ukf()->set_alpha(*s.alpha);
+  if (s.beta) out.mutable_ukf()->set_beta(*s.beta);
+  if (s.kappa) out.mutable_ukf()->set_kappa(*s.kappa);
+  if (s.v) *out.mutable_optimal()->mutable_v() = *s.v;
+  if (s.w) *out.mutable_optimal()->mutable_w() = *s.w;
+  if (s.r0) *out.mutable_optimal()->mutable_r0() = *s.r0;
+  if (s.form) out.mutable_optimal()->set_form(static_cast<v1::OptimalForm>(*s.form));
+  if (s.hold_outputs) out.mutable_optimal()->set_hold_outputs(*s.hold_outputs);
+  return out;
 }
 
 namespace {
 
-// What a job and a session share: filter, initial state, theta0 and P0.
+v1::InitialState initial_state(const RunSettings& s) {
+  if (s.x0) return *s.x0;
+  v1::InitialState first;
+  first.set_first_measurement(true);
+  return first;
+}
+
+// What a job and a session share: model, filter, initial state, theta0 and P0.
 template <typename Request>
-bool fill_run(const RunSettings& s, const v1::ModelInfo& info, Request* out, std::string* error) {
-  out->set_model(info.name());
-  if (!to_filter_settings(s, info, out->mutable_filter(), error)) return false;
-  if (!to_initial_state(s.x0.value_or("first"), out->mutable_initial_state(), error)) return false;
-  if (s.theta0) {
-    for (double v : *s.theta0) out->add_theta0(v);
-  }
-  const int nz = info.state_names_size() + info.param_names_size();
-  if (s.r0) {
-    if (s.p0) {
-      *error = "give P0 or R0 (its inverse, for the optimal filter), not both";
-      return false;
-    }
-    return true;  // the optimal filter's R0 is in its settings
-  }
-  if (!s.p0) {
-    *error = "P0 (initial variances of the " + std::to_string(nz) + " states and parameters) is required";
-    return false;
-  }
-  return to_covariance(*s.p0, nz, "P0", out->mutable_p0(), error);
+void fill_run(const RunSettings& s, Request* out) {
+  out->set_model(s.model.value_or(""));
+  *out->mutable_filter() = to_filter_settings(s);
+  *out->mutable_initial_state() = initial_state(s);
+  if (s.theta0) out->mutable_theta0()->Add(s.theta0->begin(), s.theta0->end());
+  if (s.p0) *out->mutable_p0() = *s.p0;
 }
 
 }  // namespace
 
-bool to_identification_spec(const RunSettings& s, const v1::ModelInfo& info, const std::string& dataset_id,
-                            v1::IdentificationSpec* out, std::string* error) {
-  if (!fill_run(s, info, out, error)) return false;
-  out->set_dataset_id(dataset_id);
-  out->set_passes(static_cast<uint32_t>(s.passes.value_or(1)));
-  if (s.first_sample) out->set_first_sample(static_cast<uint64_t>(*s.first_sample));
-  if (s.end_sample) out->set_end_sample(static_cast<uint64_t>(*s.end_sample));
-  return true;
+v1::IdentificationSpec to_identification_spec(const RunSettings& s, const std::string& dataset_id) {
+  v1::IdentificationSpec out;
+  fill_run(s, &out);
+  out.set_dataset_id(dataset_id);
+  if (s.passes) out.set_passes(saturated(*s.passes));
+  if (s.first_sample) out.set_first_sample(*s.first_sample);
+  if (s.end_sample) out.set_end_sample(*s.end_sample);
+  return out;
 }
 
-bool to_session_request(const RunSettings& s, const v1::ModelInfo& info, v1::CreateSessionRequest* out,
-                        std::string* error) {
-  return fill_run(s, info, out, error);
+v1::CreateSessionRequest to_session_request(const RunSettings& s) {
+  v1::CreateSessionRequest out;
+  fill_run(s, &out);
+  return out;
+}
+
+v1::ValidationSpec to_validation_spec(const RunSettings& s, const std::string& dataset_id) {
+  v1::ValidationSpec out;
+  out.set_model(s.model.value_or(""));
+  out.set_dataset_id(dataset_id);
+  *out.mutable_initial_state() = initial_state(s);
+  if (s.hold) out.set_hold(static_cast<v1::HoldOrder>(*s.hold));
+  if (auto integrator = to_integrator(s)) *out.mutable_integrator() = *integrator;
+  return out;
 }
 
 }  // namespace riccati::cli

@@ -123,6 +123,31 @@ TEST_F(CliTest, ExitCodesAndMessagesForBadInput) {
   EXPECT_EQ(WEXITSTATUS(std::system(command.c_str())), 3);
 }
 
+// Sizes, and which settings a filter takes, are riccatid's to check: the CLI
+// sends what it was given, and riccatid's refusal (1) names the setting.
+TEST_F(CliTest, RiccatidRefusesFilterSettingsNamingTheSetting) {
+  const std::string identify = "identify --model two_tank --data ds-none ";
+  const std::vector<std::pair<std::string, std::string>> refusals = {
+      {"--p0 1", "filter.r is required"},
+      {"--p0 1 --r 1e-3,1e-3,1e-3", "filter.r.diagonal needs 2 values, got 3"},
+      {"--r 1e-3", "p0 is required"},
+      {"--p0 1 --r 1e-3 --v 1e6", "filter.optimal applies to the optimal filter only"},
+      {"--filter optimal --r 1e-3 --v 1 --w 1 --p0 1", "filter.q and filter.r do not apply to the optimal filter"},
+      {"--filter optimal --v 1 --w 1 --p0 1", "model two_tank has no mechanical form"},
+  };
+  for (const auto& [flags, message] : refusals) {
+    const CliRun r = riccati(identify + flags);
+    EXPECT_EQ(r.exit_code, 1) << flags;
+    EXPECT_NE(last_stderr().find("submitting the identification: " + message), std::string::npos)
+        << flags << ": " << last_stderr();
+  }
+  const CliRun r = riccati("stream --model two_tank --data " + kData +
+                           "/two_tank_noisy.csv --inputs F1,F2 --outputs h1,h2 --p0 1 --r 1,2,3");
+  EXPECT_EQ(r.exit_code, 1);
+  EXPECT_NE(last_stderr().find("creating the session: filter.r.diagonal needs 2 values, got 3"), std::string::npos)
+      << last_stderr();
+}
+
 // A daemon with TLS and tokens, set up as an operator would: tokens hashed
 // with `riccatid --hash-token`, the CLI given the CA and a token file.
 class SecureCliTest : public CliTest {

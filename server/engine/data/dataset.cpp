@@ -21,6 +21,7 @@
 #include <utility>
 #include <vector>
 
+#include "csv/csv.hpp"
 #include "engine/data/mat_screen.hpp"
 
 namespace riccati {
@@ -40,105 +41,11 @@ std::string format_number(double value) {
 
 std::string in_quotes(std::string_view text) { return '"' + std::string(text) + '"'; }
 
-// A cell as the user wrote it, cut short so a runaway cell cannot flood the message.
-std::string cell_in_quotes(std::string_view cell) {
-  constexpr std::size_t kMaxShown = 40;
-  if (cell.size() > kMaxShown) return '"' + std::string(cell.substr(0, kMaxShown)) + "...\"";
-  return in_quotes(cell);
-}
-
 std::string plural(std::size_t count, const char* noun) {
   return std::to_string(count) + " " + noun + (count == 1 ? "" : "s");
 }
 
-// ---------------------------------------------------------------- CSV text
-
-constexpr std::string_view kUtf8Bom = "\xEF\xBB\xBF";
-
-bool is_blank_char(char c) { return c == ' ' || c == '\t'; }
-
-std::string_view trim(std::string_view text) {
-  while (!text.empty() && is_blank_char(text.front())) text.remove_prefix(1);
-  while (!text.empty() && is_blank_char(text.back())) text.remove_suffix(1);
-  return text;
-}
-
-bool is_blank(std::string_view line) { return trim(line).empty(); }
-
-// Yields the lines of a text without their "\n" or "\r\n", counting them from 1.
-class LineReader {
- public:
-  explicit LineReader(std::string_view text) : rest_(text) {}
-
-  bool next(std::string_view& line) {
-    if (rest_.empty()) return false;
-    const std::size_t end = rest_.find('\n');
-    line = rest_.substr(0, end);
-    rest_ = end == std::string_view::npos ? std::string_view{} : rest_.substr(end + 1);
-    if (!line.empty() && line.back() == '\r') line.remove_suffix(1);
-    ++number_;
-    return true;
-  }
-
-  // 1-based number of the line last returned by next().
-  std::size_t number() const { return number_; }
-
- private:
-  std::string_view rest_;
-  std::size_t number_ = 0;
-};
-
-// Yields the comma-separated cells of one line, trimmed of blanks.
-class CellReader {
- public:
-  explicit CellReader(std::string_view line) : rest_(line) {}
-
-  std::string_view next() {
-    const std::size_t end = rest_.find(',');
-    const std::string_view cell = rest_.substr(0, end);
-    rest_ = end == std::string_view::npos ? std::string_view{} : rest_.substr(end + 1);
-    return trim(cell);
-  }
-
- private:
-  std::string_view rest_;
-};
-
-std::size_t count_cells(std::string_view line) {
-  return static_cast<std::size_t>(std::count(line.begin(), line.end(), ',')) + 1;
-}
-
-// A header name, without the double quotes spreadsheets like to add.
-// (Quoted names containing commas are not supported.)
-std::string_view unquote(std::string_view name) {
-  if (name.size() >= 2 && name.front() == '"' && name.back() == '"') return trim(name.substr(1, name.size() - 2));
-  return name;
-}
-
-enum class CellProblem { kNone, kEmpty, kNotANumber, kNotFinite, kOutOfRange };
-
-CellProblem parse_cell(std::string_view cell, double& value) {
-  if (cell.empty()) return CellProblem::kEmpty;
-  // from_chars has no leading '+', but some writers emit one.
-  if (cell.size() > 1 && cell.front() == '+' && cell[1] != '-' && cell[1] != '+') cell.remove_prefix(1);
-  const char* end = cell.data() + cell.size();
-  const auto [ptr, ec] = std::from_chars(cell.data(), end, value, std::chars_format::general);
-  if (ec == std::errc::result_out_of_range) return CellProblem::kOutOfRange;
-  if (ec != std::errc{} || ptr != end) return CellProblem::kNotANumber;
-  if (!std::isfinite(value)) return CellProblem::kNotFinite;  // from_chars accepts "nan", "inf"
-  return CellProblem::kNone;
-}
-
-std::string describe(CellProblem problem, std::string_view cell) {
-  switch (problem) {
-    case CellProblem::kEmpty: return "empty value";
-    case CellProblem::kNotANumber: return cell_in_quotes(cell) + " is not a number";
-    case CellProblem::kNotFinite: return cell_in_quotes(cell) + " is not a finite number";
-    case CellProblem::kOutOfRange: return cell_in_quotes(cell) + " is out of the range of a double";
-    case CellProblem::kNone: break;
-  }
-  return "no problem";
-}
+// ---------------------------------------------------------------- CSV
 
 // The mapping lists time, then inputs, then outputs; `slot` indexes that list.
 struct MappingSlots {
@@ -176,22 +83,6 @@ Status check_mapping(const ColumnMapping& mapping, const std::string& source) {
     }
   }
   return Status::ok();
-}
-
-// Where a selected column of the file goes in the Dataset.
-struct Destination {
-  enum class Kind { kIgnored, kTime, kInput, kOutput };
-  Kind kind = Kind::kIgnored;
-  Index row = 0;
-};
-
-std::string list_names(const std::vector<std::string_view>& names) {
-  std::string list;
-  for (const std::string_view name : names) {
-    if (!list.empty()) list += ", ";
-    list += name;
-  }
-  return list;
 }
 
 // ---------------------------------------------------------------- files
@@ -366,80 +257,20 @@ Result<Dataset> parse_csv(std::string_view text, const ColumnMapping& mapping, s
   data.name = std::move(source_name);
   const std::string& source = data.name;
   RICCATI_RETURN_IF_ERROR(check_mapping(mapping, source));
-  if (text.starts_with(kUtf8Bom)) text.remove_prefix(kUtf8Bom.size());
-
-  LineReader lines(text);
-  std::string_view line;
-  if (!lines.next(line) || is_blank(line)) {
-    return invalid_argument(source + ": no header row (the first line must name the columns)");
-  }
-  std::vector<std::string_view> header(count_cells(line));
-  CellReader header_cells(line);
-  for (std::string_view& name : header) name = unquote(header_cells.next());
-  for (std::size_t a = 0; a < header.size(); ++a) {
-    // Unnamed columns (a spreadsheet's index column) are allowed; they cannot be selected.
-    if (header[a].empty()) continue;
-    const auto again = std::find(header.begin() + static_cast<std::ptrdiff_t>(a) + 1, header.end(), header[a]);
-    if (again != header.end()) {
-      return invalid_argument(source + " line 1: column name " + in_quotes(header[a]) + " appears twice (columns " +
-                              std::to_string(a + 1) + " and " + std::to_string(again - header.begin() + 1) + ")");
-    }
-  }
-
-  std::vector<Destination> destinations(header.size());
   const MappingSlots slots{mapping};
-  for (std::size_t slot = 0; slot < slots.size(); ++slot) {
-    const auto column = std::find(header.begin(), header.end(), slots.name(slot));
-    if (column == header.end()) {
-      return invalid_argument(source + ": missing column " + in_quotes(slots.name(slot)) + " (columns are: " +
-                              list_names(header) + ")");
-    }
-    Destination& destination = destinations[static_cast<std::size_t>(column - header.begin())];
-    if (slot == 0) {
-      destination = {Destination::Kind::kTime, 0};
-    } else if (slot <= mapping.inputs.size()) {
-      destination = {Destination::Kind::kInput, static_cast<Index>(slot - 1)};
-    } else {
-      destination = {Destination::Kind::kOutput, static_cast<Index>(slot - 1 - mapping.inputs.size())};
-    }
-  }
+  std::vector<std::string> columns;
+  columns.reserve(slots.size());
+  for (std::size_t slot = 0; slot < slots.size(); ++slot) columns.push_back(slots.name(slot));
+  csv::Table table;
+  if (auto error = csv::parse(text, columns, source, &table)) return invalid_argument(std::move(*error));
 
-  // Size the matrices once: every line up to the last non-blank one is a sample.
-  Index num_samples = 0;
-  for (LineReader scan = lines; scan.next(line);) {
-    if (!is_blank(line)) num_samples = static_cast<Index>(scan.number() - lines.number());
-  }
-  data.t.resize(num_samples);
-  data.u.resize(static_cast<Index>(mapping.inputs.size()), num_samples);
-  data.y.resize(static_cast<Index>(mapping.outputs.size()), num_samples);
-
-  for (Index j = 0; j < num_samples; ++j) {
-    lines.next(line);
-    const auto at_line = [&] { return source + " line " + std::to_string(lines.number()); };
-    if (is_blank(line)) return invalid_argument(at_line() + ": blank line inside the data (only trailing blank lines are allowed)");
-    const std::size_t found = count_cells(line);
-    if (found != header.size()) {
-      return invalid_argument(at_line() + ": expected " + plural(header.size(), "value") + ", found " + std::to_string(found));
-    }
-    CellReader cells(line);
-    for (std::size_t c = 0; c < header.size(); ++c) {
-      const std::string_view cell = cells.next();
-      const Destination& destination = destinations[c];
-      if (destination.kind == Destination::Kind::kIgnored) continue;  // may hold anything, even text
-      double value = 0.0;
-      const CellProblem problem = parse_cell(cell, value);
-      if (problem != CellProblem::kNone) {
-        return invalid_argument(at_line() + ", column " + in_quotes(header[c]) + ": " + describe(problem, cell));
-      }
-      switch (destination.kind) {
-        case Destination::Kind::kTime: data.t(j) = value; break;
-        case Destination::Kind::kInput: data.u(destination.row, j) = value; break;
-        case Destination::Kind::kOutput: data.y(destination.row, j) = value; break;
-        case Destination::Kind::kIgnored: break;
-      }
-    }
-  }
-
+  // Row by row, the table is a (1 + nu + ny) x N matrix: time, inputs, outputs.
+  const auto nu = static_cast<Index>(mapping.inputs.size());
+  const Eigen::Map<const Eigen::MatrixXd> samples(table.values.data(), static_cast<Index>(columns.size()),
+                                                  static_cast<Index>(table.rows()));
+  data.t = samples.row(0).transpose();
+  data.u = samples.middleRows(1, nu);
+  data.y = samples.bottomRows(static_cast<Index>(mapping.outputs.size()));
   data.input_names = mapping.inputs;
   data.output_names = mapping.outputs;
   RICCATI_RETURN_IF_ERROR(validate_dataset(data));

@@ -1,0 +1,56 @@
+#include "client.hpp"
+
+#include <chrono>
+#include <cstdio>
+
+namespace riccati::cli {
+
+int exit_code_for(grpc::StatusCode code) {
+  switch (code) {
+    case grpc::StatusCode::OK: return kExitOk;
+    case grpc::StatusCode::UNAVAILABLE:
+    case grpc::StatusCode::DEADLINE_EXCEEDED: return kExitUnreachable;
+    case grpc::StatusCode::NOT_FOUND: return kExitNotFound;
+    default: return kExitFailed;
+  }
+}
+
+Client::Client(const Connection& connection, double timeout, bool json_output)
+    : timeout_s(timeout), json(json_output), token_(connection.token) {
+  grpc::ChannelArguments args;
+  args.SetMaxReceiveMessageSize(-1);  // results of long identifications are large
+  connection.apply(&args);
+  channel = grpc::CreateCustomChannel(connection.server, connection.credentials(), args);
+  models = v1::ModelService::NewStub(channel);
+  datasets = v1::DatasetService::NewStub(channel);
+  jobs = v1::JobService::NewStub(channel);
+  sessions = v1::SessionService::NewStub(channel);
+  health = grpc::health::v1::Health::NewStub(channel);
+}
+
+std::unique_ptr<grpc::ClientContext> Client::context() const {
+  auto ctx = stream_context();
+  ctx->set_deadline(std::chrono::system_clock::now() +
+                    std::chrono::milliseconds(static_cast<long long>(timeout_s * 1000)));
+  return ctx;
+}
+
+std::unique_ptr<grpc::ClientContext> Client::stream_context() const {
+  auto ctx = std::make_unique<grpc::ClientContext>();
+  if (!token_.empty()) ctx->AddMetadata("authorization", "Bearer " + token_);
+  return ctx;
+}
+
+int Client::fail(const std::string& what, const grpc::Status& status) const {
+  std::fprintf(stderr, "riccati: %s: %s\n", what.c_str(), status.error_message().c_str());
+  return exit_code_for(status.error_code());
+}
+
+grpc::Status Client::get_model(const std::string& name, v1::ModelInfo* out) const {
+  auto ctx = context();
+  v1::GetModelRequest request;
+  request.set_name(name);
+  return models->GetModel(ctx.get(), request, out);
+}
+
+}  // namespace riccati::cli

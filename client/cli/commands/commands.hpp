@@ -1,0 +1,81 @@
+// The `riccati` commands: each talks to riccatid through the API and prints
+// a table (or JSON with --json), and returns a process exit code. One file
+// per area: health.cpp, models.cpp, data.cpp, jobs.cpp (jobs and results),
+// identify.cpp, validate.cpp, stream.cpp, simulate.cpp.
+#pragma once
+
+#include <string>
+#include <vector>
+
+#include "client.hpp"
+#include "settings.hpp"
+
+namespace riccati::cli {
+
+// grpc.health.v1.Health/Check of `service` (empty: the daemon as a whole).
+// Prints the serving status: SERVING exits 0; NOT_SERVING or UNKNOWN exit 1
+// (the operation failed); a service the daemon does not know prints
+// SERVICE_UNKNOWN and exits 4 (not found); riccatid unreachable exits 3. For
+// container health checks and probes: no token is needed.
+int health(Client& c, const std::string& service);
+
+int models_list(Client& c);
+int models_show(Client& c, const std::string& name);
+
+struct UploadOptions {
+  std::string file, name, time = "t";
+  std::vector<std::string> inputs, outputs;
+};
+int data_upload(Client& c, const UploadOptions& o, std::string* dataset_id = nullptr);
+int data_list(Client& c);
+int data_show(Client& c, const std::string& id);
+int data_delete(Client& c, const std::string& id);
+// Whether `path` is a file here (rather than the id of something riccatid keeps).
+bool is_local_file(const std::string& path);
+// The dataset `data` names: uploaded first when it is a local file.
+int dataset_for(Client& c, const std::string& data, const std::vector<std::string>& inputs,
+                const std::vector<std::string>& outputs, std::string* id);
+
+int identify(Client& c, const RunSettings& s, bool wait);
+int jobs_list(Client& c);
+int job_show(Client& c, const std::string& id);
+int job_watch(Client& c, const std::string& id);
+int job_cancel(Client& c, const std::string& id);
+// Follows a job to its end (a progress bar on a terminal); `last` is the job
+// as it ended.
+int watch_until_done(Client& c, const std::string& id, v1::Job* last);
+int result(Client& c, const std::string& id, const std::string& format, const std::string& output,
+           const std::vector<double>& truth);
+
+// `riccati validate`: model, data, x0, hold and integrator in `settings`.
+struct ValidateOptions {
+  RunSettings settings;
+  std::string params;
+};
+int validate(Client& c, const ValidateOptions& o);
+// Parameters from a finished identification job id, a YAML file with
+// `theta: [...]` or a list of numbers. A job id goes into `spec` as it is
+// when there is one; otherwise the job's result is fetched.
+bool resolve_parameters(Client& c, const std::string& params, v1::ValidationSpec* spec, std::vector<double>* theta,
+                        std::string* error);
+
+struct StreamOptions {
+  RunSettings settings;
+  std::string file, output, time = "t";
+  double rate = 0.0;
+  int batch = 1;
+  bool full_covariance = false;
+  bool keep = false;
+  std::string live = "auto";  // the live view on stderr: auto (on a terminal), always, never
+};
+int stream(Client& c, const StreamOptions& o);
+
+// `riccati simulate`: model, hold and integrator in `settings`.
+struct SimulateOptions {
+  RunSettings settings;
+  std::string params, inputs_file, time = "t", output, x0;
+  std::vector<std::string> input_columns;
+};
+int simulate(Client& c, const SimulateOptions& o);
+
+}  // namespace riccati::cli

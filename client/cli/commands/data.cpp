@@ -1,0 +1,118 @@
+#include <cstdio>
+#include <filesystem>
+#include <fstream>
+
+#include "commands/commands.hpp"
+#include "output.hpp"
+
+namespace riccati::cli {
+
+namespace {
+
+constexpr std::size_t kChunkBytes = 64 * 1024;
+
+}  // namespace
+
+bool is_local_file(const std::string& path) {
+  std::error_code ec;
+  return std::filesystem::is_regular_file(path, ec);
+}
+
+int data_upload(Client& c, const UploadOptions& o, std::string* dataset_id) {
+  std::ifstream in(o.file, std::ios::binary);
+  if (!in) {
+    std::fprintf(stderr, "riccati: cannot open %s\n", o.file.c_str());
+    return kExitUsage;
+  }
+  auto ctx = c.stream_context();
+  v1::DatasetInfo info;
+  auto writer = c.datasets->UploadDataset(ctx.get(), &info);
+  v1::UploadDatasetRequest header;
+  auto* h = header.mutable_header();
+  h->set_name(o.name.empty() ? std::filesystem::path(o.file).filename().string() : o.name);
+  h->set_time_column(o.time);
+  for (const auto& i : o.inputs) h->add_input_columns(i);
+  for (const auto& n : o.outputs) h->add_output_columns(n);
+  bool open = writer->Write(header);
+  std::string buffer(kChunkBytes, '\0');
+  while (open && in) {
+    in.read(buffer.data(), static_cast<std::streamsize>(buffer.size()));
+    const auto got = in.gcount();
+    if (got <= 0) break;
+    v1::UploadDatasetRequest chunk;
+    chunk.set_chunk(buffer.data(), static_cast<std::size_t>(got));
+    open = writer->Write(chunk);
+  }
+  writer->WritesDone();
+  const grpc::Status s = writer->Finish();
+  if (!s.ok()) return c.fail("uploading " + o.file, s);
+  if (dataset_id != nullptr) {
+    *dataset_id = info.id();
+    return kExitOk;
+  }
+  if (c.json) {
+    std::printf("%s\n", to_json(info).c_str());
+  } else {
+    std::printf("%s\n", info.id().c_str());
+  }
+  return kExitOk;
+}
+
+int data_list(Client& c) {
+  auto ctx = c.context();
+  v1::ListDatasetsResponse list;
+  const grpc::Status s = c.datasets->ListDatasets(ctx.get(), {}, &list);
+  if (!s.ok()) return c.fail("listing datasets", s);
+  if (c.json) {
+    std::printf("%s\n", to_json(list).c_str());
+    return kExitOk;
+  }
+  std::printf("%-22s %-24s %8s %12s %12s\n", "id", "name", "samples", "t start", "t end");
+  for (const auto& d : list.datasets()) {
+    std::printf("%-22s %-24s %8llu %12.6g %12.6g\n", d.id().c_str(), d.name().c_str(),
+                static_cast<unsigned long long>(d.samples()), d.t_start(), d.t_end());
+  }
+  return kExitOk;
+}
+
+int data_show(Client& c, const std::string& id) {
+  auto ctx = c.context();
+  v1::GetDatasetRequest request;
+  request.set_id(id);
+  v1::DatasetInfo info;
+  const grpc::Status s = c.datasets->GetDataset(ctx.get(), request, &info);
+  if (!s.ok()) return c.fail("dataset " + id, s);
+  if (c.json) {
+    std::printf("%s\n", to_json(info).c_str());
+    return kExitOk;
+  }
+  std::printf("%s  %s\n  samples: %llu, t from %.6g to %.6g s\n  inputs:  %s\n  outputs: %s\n  size: %llu bytes\n",
+              info.id().c_str(), info.name().c_str(), static_cast<unsigned long long>(info.samples()), info.t_start(),
+              info.t_end(), join(info.input_names()).c_str(), join(info.output_names()).c_str(),
+              static_cast<unsigned long long>(info.size_bytes()));
+  return kExitOk;
+}
+
+int data_delete(Client& c, const std::string& id) {
+  auto ctx = c.context();
+  v1::DeleteDatasetRequest request;
+  request.set_id(id);
+  v1::DeleteDatasetResponse response;
+  const grpc::Status s = c.datasets->DeleteDataset(ctx.get(), request, &response);
+  if (!s.ok()) return c.fail("deleting dataset " + id, s);
+  return kExitOk;
+}
+
+int dataset_for(Client& c, const std::string& data, const std::vector<std::string>& inputs,
+                const std::vector<std::string>& outputs, std::string* id) {
+  if (!is_local_file(data)) {
+    *id = data;
+    return kExitOk;
+  }
+  UploadOptions upload{data, std::filesystem::path(data).filename().string(), "t", inputs, outputs};
+  const int rc = data_upload(c, upload, id);
+  if (rc == kExitOk) std::fprintf(stderr, "uploaded %s as dataset %s\n", data.c_str(), id->c_str());
+  return rc;
+}
+
+}  // namespace riccati::cli

@@ -1,0 +1,34 @@
+#include <cstdio>
+
+#include "commands/commands.hpp"
+#include "output.hpp"
+
+namespace riccati::cli {
+
+int identify(Client& c, const RunSettings& settings, bool wait) {
+  if (!settings.model || !settings.data) {
+    std::fprintf(stderr, "riccati: identify needs --model and --data (or model: and data: in --config)\n");
+    return kExitUsage;
+  }
+  std::string dataset;
+  if (const int rc = dataset_for(c, *settings.data, settings.inputs, settings.outputs, &dataset); rc != kExitOk) {
+    return rc;
+  }
+  const v1::IdentificationSpec spec = to_identification_spec(settings, dataset);
+  v1::Job job;
+  {
+    auto ctx = c.context();
+    const grpc::Status s = c.jobs->SubmitIdentification(ctx.get(), spec, &job);
+    if (!s.ok()) return c.fail("submitting the identification", s);
+  }
+  if (!wait) {
+    std::printf("%s\n", c.json ? to_json(job).c_str() : job.id().c_str());
+    return kExitOk;
+  }
+  std::fprintf(stderr, "job %s\n", job.id().c_str());
+  v1::Job last;
+  if (const int rc = watch_until_done(c, job.id(), &last); rc != kExitOk) return rc;
+  return result(c, job.id(), c.json ? "json" : "table", "", settings.truth.value_or(std::vector<double>{}));
+}
+
+}  // namespace riccati::cli

@@ -1,0 +1,134 @@
+#include <unistd.h>
+
+#include <cstdio>
+#include <fstream>
+
+#include "commands/commands.hpp"
+#include "output.hpp"
+
+namespace riccati::cli {
+
+int jobs_list(Client& c) {
+  auto ctx = c.context();
+  v1::ListJobsResponse list;
+  const grpc::Status s = c.jobs->ListJobs(ctx.get(), {}, &list);
+  if (!s.ok()) return c.fail("listing jobs", s);
+  if (c.json) {
+    std::printf("%s\n", to_json(list).c_str());
+    return kExitOk;
+  }
+  std::printf("%-22s %-15s %-10s %-20s %s\n", "id", "kind", "state", "model", "progress");
+  for (const auto& j : list.jobs()) std::printf("%s\n", job_line(j).c_str());
+  return kExitOk;
+}
+
+int job_show(Client& c, const std::string& id) {
+  auto ctx = c.context();
+  v1::GetJobRequest request;
+  request.set_id(id);
+  v1::Job job;
+  const grpc::Status s = c.jobs->GetJob(ctx.get(), request, &job);
+  if (!s.ok()) return c.fail("job " + id, s);
+  if (c.json) {
+    std::printf("%s\n", to_json(job).c_str());
+  } else {
+    std::printf("%s\n", job_line(job).c_str());
+    if (job.has_error()) std::printf("  error: %s\n", job.error().message().c_str());
+  }
+  return kExitOk;
+}
+
+int job_watch(Client& c, const std::string& id) {
+  v1::Job last;
+  const int rc = watch_until_done(c, id, &last);
+  if (c.json) std::printf("%s\n", to_json(last).c_str());
+  return rc;
+}
+
+int job_cancel(Client& c, const std::string& id) {
+  auto ctx = c.context();
+  v1::CancelJobRequest request;
+  request.set_id(id);
+  v1::Job job;
+  const grpc::Status s = c.jobs->CancelJob(ctx.get(), request, &job);
+  if (!s.ok()) return c.fail("cancelling job " + id, s);
+  std::printf("%s\n", c.json ? to_json(job).c_str() : job_line(job).c_str());
+  return kExitOk;
+}
+
+int watch_until_done(Client& c, const std::string& id, v1::Job* last) {
+  auto ctx = c.stream_context();
+  v1::WatchJobRequest request;
+  request.set_id(id);
+  auto reader = c.jobs->WatchJob(ctx.get(), request);
+  const bool tty = isatty(STDERR_FILENO) != 0 && !c.json;
+  uint32_t last_pass_printed = 0;
+  while (reader->Read(last)) {
+    const auto& p = last->progress();
+    if (tty && p.samples() > 0 && p.passes() > 0) {
+      const double done = ((p.pass() > 0 ? p.pass() - 1 : 0) + double(p.sample()) / double(p.samples())) / p.passes();
+      const int width = 30;
+      const int filled = static_cast<int>(done * width);
+      std::string theta;
+      for (double v : p.theta()) theta += format(" %.5g", v);
+      std::fprintf(stderr, "\r[%-*s] pass %u/%u sample %llu/%llu theta%s   ", width, std::string(filled, '#').c_str(),
+                   p.pass(), p.passes(), static_cast<unsigned long long>(p.sample()),
+                   static_cast<unsigned long long>(p.samples()), theta.c_str());
+    } else if (!tty && !c.json && p.pass() != last_pass_printed && p.sample() == p.samples() && p.pass() > 0) {
+      std::fprintf(stderr, "pass %u/%u done\n", p.pass(), p.passes());
+      last_pass_printed = p.pass();
+    }
+  }
+  if (tty) std::fprintf(stderr, "\n");
+  const grpc::Status s = reader->Finish();
+  if (!s.ok()) return c.fail("watching job " + id, s);
+  if (last->state() != v1::JOB_STATE_SUCCEEDED) {
+    std::fprintf(stderr, "riccati: job %s %s: %s\n", id.c_str(), state_name(last->state()).c_str(),
+                 last->error().message().c_str());
+    return kExitFailed;
+  }
+  return kExitOk;
+}
+
+int result(Client& c, const std::string& id, const std::string& format_name, const std::string& output,
+           const std::vector<double>& truth) {
+  v1::JobResult r;
+  v1::Job job;
+  {
+    auto ctx = c.context();
+    v1::GetResultRequest request;
+    request.set_job_id(id);
+    const grpc::Status s = c.jobs->GetResult(ctx.get(), request, &r);
+    if (!s.ok()) return c.fail("result of job " + id, s);
+  }
+  {
+    auto ctx = c.context();
+    v1::GetJobRequest request;
+    request.set_id(id);
+    (void)c.jobs->GetJob(ctx.get(), request, &job);
+  }
+  std::string text;
+  if (format_name == "json") {
+    text = to_json(r) + "\n";
+  } else if (format_name == "csv") {
+    text = result_csv(r);
+  } else if (format_name == "table") {
+    text = result_table(r, job, truth);
+  } else {
+    std::fprintf(stderr, "riccati: unknown format \"%s\" (table, json or csv)\n", format_name.c_str());
+    return kExitUsage;
+  }
+  if (output.empty()) {
+    std::fputs(text.c_str(), stdout);
+  } else {
+    std::ofstream out(output);
+    out << text;
+    if (!out) {
+      std::fprintf(stderr, "riccati: cannot write %s\n", output.c_str());
+      return kExitUsage;
+    }
+  }
+  return kExitOk;
+}
+
+}  // namespace riccati::cli

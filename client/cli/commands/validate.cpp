@@ -1,0 +1,67 @@
+#include <yaml-cpp/yaml.h>
+
+#include <cstdio>
+
+#include "commands/commands.hpp"
+
+namespace riccati::cli {
+
+bool resolve_parameters(Client& c, const std::string& params, v1::ValidationSpec* spec, std::vector<double>* theta,
+                        std::string* error) {
+  if (params.rfind("job-", 0) == 0) {
+    if (spec != nullptr) {
+      spec->set_identification_job_id(params);
+      return true;
+    }
+    auto ctx = c.context();
+    v1::GetResultRequest request;
+    request.set_job_id(params);
+    v1::JobResult r;
+    const grpc::Status s = c.jobs->GetResult(ctx.get(), request, &r);
+    if (!s.ok()) {
+      *error = "job " + params + ": " + s.error_message();
+      return false;
+    }
+    theta->assign(r.identification().theta_mean().begin(), r.identification().theta_mean().end());
+    return true;
+  }
+  if (is_local_file(params)) {
+    try {
+      const YAML::Node root = YAML::LoadFile(params);
+      theta->clear();
+      for (const auto& v : root["theta"]) theta->push_back(v.as<double>());
+    } catch (const YAML::Exception& e) {
+      *error = params + ": " + e.what() + " (expected a YAML file with theta: [...])";
+      return false;
+    }
+  } else if (!parse_list(params, theta, error)) {
+    *error = "--params: " + *error + " (give a job id, a YAML file or a list of numbers)";
+    return false;
+  }
+  if (spec != nullptr) spec->mutable_theta()->mutable_values()->Add(theta->begin(), theta->end());
+  return true;
+}
+
+int validate(Client& c, const ValidateOptions& o) {
+  const RunSettings& s = o.settings;
+  std::string dataset;
+  if (const int rc = dataset_for(c, s.data.value_or(""), s.inputs, s.outputs, &dataset); rc != kExitOk) return rc;
+  v1::ValidationSpec spec = to_validation_spec(s, dataset);
+  std::string error;
+  std::vector<double> theta;
+  if (!resolve_parameters(c, o.params, &spec, &theta, &error)) {
+    std::fprintf(stderr, "riccati: %s\n", error.c_str());
+    return kExitUsage;
+  }
+  v1::Job job;
+  {
+    auto ctx = c.context();
+    const grpc::Status status = c.jobs->SubmitValidation(ctx.get(), spec, &job);
+    if (!status.ok()) return c.fail("submitting the validation", status);
+  }
+  v1::Job last;
+  if (const int rc = watch_until_done(c, job.id(), &last); rc != kExitOk) return rc;
+  return result(c, job.id(), c.json ? "json" : "table", "", {});
+}
+
+}  // namespace riccati::cli

@@ -1,0 +1,142 @@
+#include "output.hpp"
+
+#include <google/protobuf/util/json_util.h>
+
+#include <cstdio>
+#include <sstream>
+
+#include "enum_choices.hpp"
+
+namespace riccati::cli {
+
+std::string to_json(const google::protobuf::Message& m) {
+  std::string out;
+  google::protobuf::util::JsonPrintOptions options;
+  options.add_whitespace = true;
+  options.preserve_proto_field_names = true;
+  (void)google::protobuf::util::MessageToJsonString(m, &out, options);
+  return out;
+}
+
+std::string format(const char* fmt, double v) {
+  char buf[64];
+  std::snprintf(buf, sizeof buf, fmt, v);
+  return buf;
+}
+
+std::string join(const google::protobuf::RepeatedPtrField<std::string>& names) {
+  std::string out;
+  for (const auto& n : names) out += (out.empty() ? "" : ", ") + n;
+  return out;
+}
+
+double element(const v1::Matrix& m, uint32_t i, uint32_t j) { return m.values(static_cast<int>(i + j * m.rows())); }
+
+std::string state_name(v1::JobState state) {
+  const auto* value = v1::JobState_descriptor()->FindValueByNumber(state);
+  return value != nullptr ? choice_name(*value) : "unknown";
+}
+
+std::string job_line(const v1::Job& j) {
+  const std::string kind = j.has_identification() ? "identification" : "validation";
+  const std::string& model = j.has_identification() ? j.identification().model() : j.validation().model();
+  std::string progress;
+  if (j.progress().passes() > 0) {
+    progress = "pass " + std::to_string(j.progress().pass()) + "/" + std::to_string(j.progress().passes());
+  }
+  char line[256];
+  std::snprintf(line, sizeof line, "%-22s %-15s %-10s %-20s %s", j.id().c_str(), kind.c_str(),
+                state_name(j.state()).c_str(), model.c_str(), progress.c_str());
+  return line;
+}
+
+std::string parameter_table(const v1::IdentificationResult& r, const std::vector<double>& initial,
+                            const std::vector<double>& truth) {
+  const int n = r.param_names_size();
+  const bool with_truth = static_cast<int>(truth.size()) == n;
+  const bool with_initial = static_cast<int>(initial.size()) == n;
+  std::string out;
+  char line[256];
+  std::snprintf(line, sizeof line, "%-10s %12s %14s %12s %12s", "parameter", "initial", "estimate", "std", "final");
+  out += line;
+  if (with_truth) {
+    std::snprintf(line, sizeof line, " %12s %9s", "true", "error %");
+    out += line;
+  }
+  out += "\n";
+  for (int i = 0; i < n; ++i) {
+    std::snprintf(line, sizeof line, "%-10s %12s %14.8g %12.4g %12.6g", r.param_names(i).c_str(),
+                  with_initial ? format("%.6g", initial[i]).c_str() : "-", r.theta_mean(i), r.theta_std(i),
+                  r.theta(i));
+    out += line;
+    if (with_truth) {
+      std::snprintf(line, sizeof line, " %12.6g %9.3f", truth[i], 100.0 * (r.theta_mean(i) - truth[i]) / truth[i]);
+      out += line;
+    }
+    out += "\n";
+  }
+  out += "(estimate: mean over the last pass, as the 1999 toolbox reports; std: at the end)\n";
+  return out;
+}
+
+std::string fit_table(const v1::ValidationResult& r) {
+  std::string out;
+  char line[256];
+  std::snprintf(line, sizeof line, "%-12s %12s %10s %10s %12s\n", "output", "RMSE", "fit %", "VAF %", "RRSE");
+  out += line;
+  for (const auto& f : r.fits()) {
+    std::snprintf(line, sizeof line, "%-12s %12.4g %10.3f %10.3f %12.4g\n", f.name().c_str(), f.rmse(),
+                  f.fit_percent(), f.vaf_percent(), f.rrse());
+    out += line;
+  }
+  return out;
+}
+
+std::string result_table(const v1::JobResult& r, const v1::Job& job, const std::vector<double>& truth) {
+  if (!r.has_identification()) return fit_table(r.validation());
+  const auto& spec = job.identification();
+  const std::vector<double> initial(spec.theta0().begin(), spec.theta0().end());
+  std::string text = parameter_table(r.identification(), initial, truth);
+  const auto& last = r.identification().passes(r.identification().passes_size() - 1);
+  std::string rms;
+  for (double v : last.innovation_rms()) rms += format(" %.3g", v);
+  return text + "innovation RMS (last pass):" + rms + "; mean NIS " + format("%.3g", last.nis_mean()) + "\n";
+}
+
+std::string result_csv(const v1::JobResult& r) {
+  std::ostringstream csv;
+  csv.precision(17);
+  if (r.has_identification()) {
+    const auto& id_r = r.identification();
+    const auto& last = id_r.passes(id_r.passes_size() - 1);
+    csv << "t";
+    for (uint32_t i = 0; i < id_r.x_trace().rows(); ++i) csv << ",x" << i + 1;
+    for (const auto& n : id_r.param_names()) csv << "," << n;
+    for (uint32_t i = 0; i < id_r.y_model().rows(); ++i) csv << ",y_model" << i + 1;
+    for (uint32_t i = 0; i < id_r.innovations().rows(); ++i) csv << ",innovation" << i + 1;
+    csv << "\n";
+    for (int k = 0; k < id_r.t_size(); ++k) {
+      csv << id_r.t(k);
+      for (uint32_t i = 0; i < id_r.x_trace().rows(); ++i) csv << "," << element(id_r.x_trace(), i, k);
+      for (uint32_t i = 0; i < last.theta_trace().rows(); ++i) csv << "," << element(last.theta_trace(), i, k);
+      for (uint32_t i = 0; i < id_r.y_model().rows(); ++i) csv << "," << element(id_r.y_model(), i, k);
+      for (uint32_t i = 0; i < id_r.innovations().rows(); ++i) csv << "," << element(id_r.innovations(), i, k);
+      csv << "\n";
+    }
+    return csv.str();
+  }
+  const auto& v = r.validation();
+  csv << "t";
+  for (const auto& f : v.fits()) csv << "," << f.name() << "_measured";
+  for (const auto& f : v.fits()) csv << "," << f.name() << "_simulated";
+  csv << "\n";
+  for (int k = 0; k < v.t_size(); ++k) {
+    csv << v.t(k);
+    for (uint32_t i = 0; i < v.y_measured().rows(); ++i) csv << "," << element(v.y_measured(), i, k);
+    for (uint32_t i = 0; i < v.y_simulated().rows(); ++i) csv << "," << element(v.y_simulated(), i, k);
+    csv << "\n";
+  }
+  return csv.str();
+}
+
+}  // namespace riccati::cli
