@@ -5,7 +5,7 @@
 #include <cstdio>
 #include <sstream>
 
-#include "enum_choices.hpp"
+#include "riccati/enum_names.hpp"
 
 namespace riccati::cli {
 
@@ -34,7 +34,7 @@ double element(const v1::Matrix& m, uint32_t i, uint32_t j) { return m.values(st
 
 std::string state_name(v1::JobState state) {
   const auto* value = v1::JobState_descriptor()->FindValueByNumber(state);
-  return value != nullptr ? choice_name(*value) : "unknown";
+  return value != nullptr ? api::enum_value_name(*value) : "unknown";
 }
 
 std::string job_line(const v1::Job& j) {

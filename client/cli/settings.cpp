@@ -9,7 +9,7 @@
 #include <type_traits>
 #include <variant>
 
-#include "enum_choices.hpp"
+#include "riccati/enum_names.hpp"
 
 namespace riccati::cli {
 
@@ -140,7 +140,7 @@ const char* type_name(const Target& target) {
 
 std::string help_of(const Setting& setting) {
   if (setting.choices == nullptr) return setting.help;
-  return setting.help + " (" + choices_text(*setting.choices) + ")";
+  return setting.help + " (" + api::enum_choice_list(*setting.choices) + ")";
 }
 
 // ------------------------------------------------------------ values
@@ -210,7 +210,7 @@ bool read(const YAML::Node& node, bool* out, std::string* error) {
 
 bool read_choice(const YAML::Node& node, const EnumDescriptor& type, int* out, std::string* error) {
   if (!node.IsScalar()) {
-    *error = "expected one of " + choices_text(type);
+    *error = "expected one of " + api::enum_choice_list(type);
     return false;
   }
   const std::optional<int> value = parse_choice(type, node.Scalar(), error);
@@ -536,6 +536,14 @@ v1::ValidationSpec to_validation_spec(const RunSettings& s, const std::string& d
   if (s.hold) out.set_hold(static_cast<v1::HoldOrder>(*s.hold));
   if (auto integrator = to_integrator(s)) *out.mutable_integrator() = *integrator;
   return out;
+}
+
+std::optional<int> parse_choice(const google::protobuf::EnumDescriptor& type, std::string_view name,
+                                std::string* error) {
+  const google::protobuf::EnumValueDescriptor* value = api::find_enum_value(type, name);
+  if (value != nullptr) return value->number();
+  *error = "\"" + std::string(name) + "\" is unknown (" + api::enum_choice_list(type) + ")";
+  return std::nullopt;
 }
 
 }  // namespace riccati::cli

@@ -9,7 +9,8 @@
 // which settings apply to which filter, and its defaults stand for what was
 // left out. The choices of enum settings (filter, hold, integrator.kind,
 // inversion, ukf.weights, optimal.form) come from the API's enums
-// (enum_choices.hpp): `riccati identify --help` lists them.
+// (riccati/enum_names.hpp, in the proto library): `riccati identify --help`
+// lists them.
 //
 // Job file keys (all optional; the flag of the same name overrides each):
 //
@@ -39,6 +40,8 @@
 //   end_sample: 0
 //   truth: [10, 5, 0.0791, 0.1342]     (printed beside the estimates)
 #pragma once
+
+#include <google/protobuf/descriptor.h>
 
 #include <CLI/CLI.hpp>
 
@@ -103,5 +106,10 @@ v1::CreateSessionRequest to_session_request(const RunSettings& s);
 v1::ValidationSpec to_validation_spec(const RunSettings& s, const std::string& dataset_id);
 v1::FilterSettings to_filter_settings(const RunSettings& s);
 std::optional<v1::IntegratorSettings> to_integrator(const RunSettings& s);  // nothing when none is given
+
+// The value of enum `type` named `name`, or nothing with an error that
+// lists the choices: "\"ZERO\" is unknown (zoh, foh)".
+std::optional<int> parse_choice(const google::protobuf::EnumDescriptor& type, std::string_view name,
+                                std::string* error);
 
 }  // namespace riccati::cli

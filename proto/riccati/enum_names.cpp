@@ -7,19 +7,15 @@
 namespace riccati::api {
 namespace {
 
-// The prefix every value of the enum shares: "FILTER_KIND_" for FilterKind.
-std::string common_prefix(const google::protobuf::EnumDescriptor& e) {
-  if (e.value_count() == 0) return "";
-  std::string prefix = e.value(0)->name();
-  for (int i = 1; i < e.value_count(); ++i) {
-    const std::string& name = e.value(i)->name();
-    std::size_t n = 0;
-    while (n < prefix.size() && n < name.size() && prefix[n] == name[n]) ++n;
-    prefix.resize(n);
+// The prefix of an enum's value names, as protobuf's style guide has it:
+// the enum's name in upper snake case (FilterKind: "FILTER_KIND_").
+std::string value_prefix(const google::protobuf::EnumDescriptor& e) {
+  std::string prefix;
+  for (const char c : e.name()) {
+    if (std::isupper(static_cast<unsigned char>(c)) && !prefix.empty()) prefix += '_';
+    prefix += static_cast<char>(std::toupper(static_cast<unsigned char>(c)));
   }
-  // Up to and including the last underscore: a whole word.
-  const std::size_t underscore = prefix.rfind('_');
-  return underscore == std::string::npos ? "" : prefix.substr(0, underscore + 1);
+  return prefix + '_';
 }
 
 }  // namespace
@@ -27,9 +23,12 @@ std::string common_prefix(const google::protobuf::EnumDescriptor& e) {
 std::string enum_value_name(const google::protobuf::EnumValueDescriptor& value) {
   const std::string& short_name = value.options().GetExtension(v1::short_name);
   if (!short_name.empty()) return short_name;
-  std::string name = value.name().substr(common_prefix(*value.type()).size());
-  for (char& c : name) c = c == '_' ? '-' : static_cast<char>(std::tolower(static_cast<unsigned char>(c)));
-  return name;
+  std::string_view name = value.name();
+  const std::string prefix = value_prefix(*value.type());
+  if (name.starts_with(prefix)) name.remove_prefix(prefix.size());
+  std::string out;
+  for (const char c : name) out += c == '_' ? '-' : static_cast<char>(std::tolower(static_cast<unsigned char>(c)));
+  return out;
 }
 
 std::vector<const google::protobuf::EnumValueDescriptor*> enum_choices(const google::protobuf::EnumDescriptor& e) {
@@ -48,13 +47,15 @@ const google::protobuf::EnumValueDescriptor* find_enum_value(const google::proto
   return nullptr;
 }
 
+std::vector<std::string> enum_choice_names(const google::protobuf::EnumDescriptor& e) {
+  std::vector<std::string> names;
+  for (const auto* value : enum_choices(e)) names.push_back(enum_value_name(*value));
+  return names;
+}
+
 std::string enum_choice_list(const google::protobuf::EnumDescriptor& e) {
-  const auto choices = enum_choices(e);
   std::string list;
-  for (std::size_t i = 0; i < choices.size(); ++i) {
-    if (i > 0) list += i + 1 == choices.size() ? " or " : ", ";
-    list += enum_value_name(*choices[i]);
-  }
+  for (const std::string& name : enum_choice_names(e)) list += (list.empty() ? "" : ", ") + name;
   return list;
 }
 

@@ -22,7 +22,8 @@ std::vector<const google::protobuf::EnumValueDescriptor*> enum_choices(const goo
 // The value of that name, or null.
 const google::protobuf::EnumValueDescriptor* find_enum_value(const google::protobuf::EnumDescriptor& e,
                                                              std::string_view name);
-// "ekf, ukf or optimal": the choices' names, for help texts and messages.
+std::vector<std::string> enum_choice_names(const google::protobuf::EnumDescriptor& e);
+// "ekf, ukf, optimal": the choices' names, for help texts and messages.
 std::string enum_choice_list(const google::protobuf::EnumDescriptor& e);
 
 }  // namespace riccati::api

@@ -15,7 +15,7 @@
 
 #include "commands/commands.hpp"
 #include "connection.hpp"
-#include "enum_choices.hpp"
+#include "riccati/enum_names.hpp"
 #include "output.hpp"
 #include "settings.hpp"
 
@@ -66,13 +66,13 @@ RunSettings from_job_file(const std::string& name, const std::string& text) {
 // The names users write today, derived from the proto's values.
 TEST(EnumChoices, DerivedFromTheValueNamesOrTheirShortName) {
   using Names = std::vector<std::string>;
-  EXPECT_EQ(choice_names(*v1::FilterKind_descriptor()), (Names{"ekf", "ukf", "optimal"}));
-  EXPECT_EQ(choice_names(*v1::HoldOrder_descriptor()), (Names{"zoh", "foh"}));
-  EXPECT_EQ(choice_names(*v1::IntegratorKind_descriptor()),
+  EXPECT_EQ(api::enum_choice_names(*v1::FilterKind_descriptor()), (Names{"ekf", "ukf", "optimal"}));
+  EXPECT_EQ(api::enum_choice_names(*v1::HoldOrder_descriptor()), (Names{"zoh", "foh"}));
+  EXPECT_EQ(api::enum_choice_names(*v1::IntegratorKind_descriptor()),
             (Names{"rk4", "rk3", "cvode-bdf", "cvode-adams", "arkode-erk"}));
-  EXPECT_EQ(choice_names(*v1::GainInversion_descriptor()), (Names{"cholesky", "pinv"}));
-  EXPECT_EQ(choice_names(*v1::SigmaWeights_descriptor()), (Names{"julier", "scaled"}));
-  EXPECT_EQ(choice_names(*v1::OptimalForm_descriptor()), (Names{"continuous", "split-step"}));
+  EXPECT_EQ(api::enum_choice_names(*v1::GainInversion_descriptor()), (Names{"cholesky", "pinv"}));
+  EXPECT_EQ(api::enum_choice_names(*v1::SigmaWeights_descriptor()), (Names{"julier", "scaled"}));
+  EXPECT_EQ(api::enum_choice_names(*v1::OptimalForm_descriptor()), (Names{"continuous", "split-step"}));
 }
 
 TEST(EnumChoices, NamesReadBackAsTheirValues) {
@@ -84,7 +84,7 @@ TEST(EnumChoices, NamesReadBackAsTheirValues) {
   };
   std::vector<std::string> names;
   for (const auto& [type, number] : values) {
-    const std::string name = choice_name(*type->FindValueByNumber(number));
+    const std::string name = api::enum_value_name(*type->FindValueByNumber(number));
     names.push_back(name);
     std::string error;
     EXPECT_EQ(parse_choice(*type, name, &error), number) << name << ": " << error;
@@ -134,7 +134,7 @@ std::vector<std::string> listed_after(const std::string& text, const std::string
 std::vector<std::string> values_of(const EnumDescriptor& type) {
   std::vector<std::string> names;
   for (int i = 0; i < type.value_count(); ++i) {
-    if (type.value(i)->number() != 0) names.push_back(choice_name(*type.value(i)));
+    if (type.value(i)->number() != 0) names.push_back(api::enum_value_name(*type.value(i)));
   }
   return names;
 }

@@ -65,7 +65,7 @@ TEST(RunSettings, UnspecifiedIsTheEngineDefaultAndAnUnknownNumberIsRefused) {
   settings = from_proto(s, *model);
   ASSERT_FALSE(settings.is_ok());
   EXPECT_EQ(settings.status().code(), StatusCode::kInvalidArgument);
-  EXPECT_NE(settings.status().message().find("filter.kind 42 is unknown (expected ekf, ukf or optimal)"),
+  EXPECT_NE(settings.status().message().find("filter.kind 42 is unknown (expected ekf, ukf, optimal)"),
             std::string::npos)
       << settings.status().message();
 }
