@@ -263,7 +263,7 @@ TEST_F(CliTest, HealthPrintsServingAndExitsZero) {
   EXPECT_NE(last_stderr().find("no.such.Service"), std::string::npos) << last_stderr();
   // A stopped daemon: unreachable (3), with nothing on stdout.
   const auto address = daemon_->address();
-  ASSERT_EQ(daemon_->stop(), 0);
+  ASSERT_EQ(daemon_->stop(), 0) << daemon_->exit_report();
   const std::string command =
       std::string(RICCATI_CLI_BIN) + " --server " + address + " --timeout 2 health 2>/dev/null";
   std::FILE* pipe = popen(command.c_str(), "r");

@@ -341,7 +341,7 @@ TEST_F(DaemonTest, RestartKeepsDatasetsJobsAndResultsAndFinishesARunningJob) {
     if (job.state() == v1::JOB_STATE_RUNNING && job.progress().pass() >= 1) break;
     std::this_thread::sleep_for(std::chrono::milliseconds(10));
   }
-  EXPECT_EQ(daemon_->stop(), 0);  // SIGTERM: a clean exit
+  EXPECT_EQ(daemon_->stop(), 0) << daemon_->exit_report();  // SIGTERM: a clean exit
 
   daemon_->start();
   connect();
@@ -464,7 +464,7 @@ TEST_F(DaemonTest, SigtermEndsStreamsAndWatchesWithUnavailableAndExitsCleanly) {
     return watcher->Finish();
   });
 
-  EXPECT_EQ(daemon_->stop(), 0);
+  EXPECT_EQ(daemon_->stop(), 0) << daemon_->exit_report();
 
   const grpc::Status stream_status = streamed.get();
   EXPECT_EQ(stream_status.error_code(), grpc::StatusCode::UNAVAILABLE) << stream_status.error_message();
@@ -512,7 +512,7 @@ TEST_F(DaemonTest, AnOptimalFilterSessionContinuesBitForBitAfterARestart) {
   const Eigen::Index half = data.size() / 2;
   const std::string id = create();
   ASSERT_EQ(static_cast<Eigen::Index>(stream(id, 0, half).size()), half);
-  EXPECT_EQ(daemon_->stop(), 0);
+  EXPECT_EQ(daemon_->stop(), 0) << daemon_->exit_report();
   daemon_->start();
   connect();
 
@@ -1212,7 +1212,7 @@ TEST(DaemonMetrics, ThePrometheusEndpointCountsWhatHappened) {
   EXPECT_EQ(sample_value(page, R"(riccati_rpc_total{code="OK",method="/riccati.v1.SessionService/Stream"})"), 1);
   EXPECT_EQ(sample_value(page, R"(riccati_rpc_total{code="OK",method="/riccati.v1.DatasetService/UploadDataset"})"),
             1);
-  EXPECT_EQ(daemon.stop(), 0);
+  EXPECT_EQ(daemon.stop(), 0) << daemon.exit_report();
 
   // Restarted, the daemon resumes the session from its snapshot when asked.
   daemon.start();
@@ -1227,7 +1227,7 @@ TEST(DaemonMetrics, ThePrometheusEndpointCountsWhatHappened) {
   }
   page = http_get(port, "/metrics");
   EXPECT_EQ(sample_value(page, "riccati_sessions_resumed_total"), 1) << page;
-  EXPECT_EQ(daemon.stop(), 0);
+  EXPECT_EQ(daemon.stop(), 0) << daemon.exit_report();
 }
 
 TEST(DaemonConfig, IdleSessionsExpireAndBadConfigFilesAreRefused) {
@@ -1288,7 +1288,7 @@ TEST_F(PostgresDaemonTest, AnIdentificationAndItsDataSurviveARestart) {
   ASSERT_TRUE(before.has_identification());
   ASSERT_EQ(before.identification().passes_size(), 2);
 
-  EXPECT_EQ(daemon_->stop(), 0);
+  EXPECT_EQ(daemon_->stop(), 0) << daemon_->exit_report();
   daemon_->start();
   connect();
   {

@@ -529,7 +529,7 @@ TEST_F(SessionFailoverTest, ALiveInstanceKeepsItsSessionsAndOtherTenantsSeeNone)
 
   // A clean stop releases its sessions: no instance serves it, and B
   // resumes it at once, where A left it.
-  EXPECT_EQ(a().stop(), 0);
+  EXPECT_EQ(a().stop(), 0) << a().exit_report();
   on_b_list = list(on_b());
   ASSERT_EQ(on_b_list.size(), 1u);
   EXPECT_EQ(on_b_list[0].instance(), "");

@@ -138,7 +138,7 @@ TEST(Soak, SessionsAndJobsForMinutesWithoutErrorsOrMemoryGrowth) {
   // Growth after warm-up: a leak of even 100 bytes per measurement would
   // show as megabytes here.
   EXPECT_LT(rss_end - rss_warm, 16 * 1024) << "KiB";
-  EXPECT_EQ(daemon.stop(), 0);
+  EXPECT_EQ(daemon.stop(), 0) << daemon.exit_report();
 }
 
 }  // namespace
