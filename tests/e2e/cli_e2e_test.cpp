@@ -213,29 +213,70 @@ TEST_F(SecureCliTest, AWrongOrMissingTokenFailsWithTheReason) {
   EXPECT_EQ(r.exit_code, 3) << last_stderr();
 }
 
+// The noisy two-tank record through an EKF session, from Hensen's start
+// theta0 = [20 20 1 1] (A1, A2, k1, k2: 2, 4, 13 and 7 times the truth
+// [10 5 0.0791 0.1342], which is also the model's default theta0) with his
+// P0, and R the noise's variance (0.005^2).
 TEST_F(CliTest, StreamReplaysAFileIntoASession) {
   const auto out = dir_.path() / "estimates.csv";
   const CliRun r = riccati("stream --model two_tank --data " + kData +
-                        "/two_tank_noisy.csv --inputs F1,F2 --outputs h1,h2 --r 2.5e-5 --p0 0,0,1,1,1e-6,1e-6 "
-                        "--theta0 10,5,0.08,0.13 --batch 16 -o " + out.string());
+                           "/two_tank_noisy.csv --inputs F1,F2 --outputs h1,h2 --r 2.5e-5 --p0 0,0,10,10,10,10 "
+                           "--theta0 20,20,1,1 --batch 16 -o " + out.string());
   ASSERT_EQ(r.exit_code, 0) << last_stderr();
   EXPECT_NE(last_stderr().find("2000 estimates, 0 refused"), std::string::npos) << last_stderr();
   std::ifstream in(out);
-  std::string header, line, last;
+  std::string header, line;
   std::getline(in, header);
   EXPECT_EQ(header.rfind("t,h1,h2,A1,A2,k1,k2", 0), 0u) << header;
-  int rows = 0;
+  std::vector<std::vector<double>> rows;
   while (std::getline(in, line)) {
-    ++rows;
-    last = line;
+    std::istringstream fields(line);
+    std::vector<double> v;
+    for (std::string cell; std::getline(fields, cell, ',');) v.push_back(std::stod(cell));
+    rows.push_back(v);
   }
-  EXPECT_EQ(rows, 2000);
-  // k1 and k2 tracked close to the truth by the end of the noisy data.
-  std::istringstream fields(last);
-  std::vector<double> v;
-  for (std::string cell; std::getline(fields, cell, ',');) v.push_back(std::stod(cell));
-  EXPECT_NEAR(v[5], 0.0791, 0.002);
-  EXPECT_NEAR(v[6], 0.1342, 0.003);
+  ASSERT_EQ(rows.size(), 2000u);
+  const std::array<double, 4> theta0 = {20, 20, 1, 1}, truth = {10, 5, 0.0791, 0.1342};
+  const std::array<const char*, 4> names = {"A1", "A2", "k1", "k2"};
+
+  // The session started where --theta0 said: at the first sample the state
+  // is the measurement (x0 first, its variance 0), so the parameters are
+  // still theta0. A session that ignored the flag would start at the truth.
+  for (int j = 0; j < 4; ++j) EXPECT_EQ(rows.front()[3 + j], theta0[j]) << names[j] << " at the first sample";
+
+  // The engine in this process, one pass of the same filter from the same
+  // start over the same file: the same numbers (the CSV has 17 digits).
+  auto registry = ModelRegistry::load_directory(RICCATI_TEST_PLUGIN_DIR).value();
+  const auto data =
+      read_csv_file(kData + "/two_tank_noisy.csv", ColumnMapping{"t", {"F1", "F2"}, {"h1", "h2"}}).value();
+  IdentificationSettings s;
+  s.filter.kind = FilterKind::kEkf;
+  s.filter.Q = Eigen::MatrixXd::Zero(6, 6);
+  s.filter.R = Eigen::Vector2d(2.5e-5, 2.5e-5).asDiagonal();
+  s.initial_state = InitialState::kFirstMeasurement;
+  s.theta0 = Eigen::Map<const Eigen::Vector4d>(theta0.data());
+  Eigen::VectorXd p0(6);
+  p0 << 0, 0, 10, 10, 10, 10;
+  s.P0 = p0.asDiagonal();
+  const auto local = identify(registry.find("two_tank"), data, s);
+  ASSERT_TRUE(local.is_ok()) << local.status().to_string();
+  const Eigen::MatrixXd& trace = local.value().passes[0].theta_trace;
+  for (int j = 0; j < 4; ++j) {
+    EXPECT_NEAR(rows.back()[3 + j], trace(j, trace.cols() - 1), 1e-9 * truth[j]) << names[j] << " against the engine";
+  }
+
+  // And the truth, every parameter, at the end of the record. What one pass
+  // from so far reaches on these data (the run above): A1 -1.3 %, A2
+  // +1.4 %, k1 -0.17 %, k2 -0.10 %; A1 and A2, which only the transients
+  // tell, still converging (A1 9.31, 9.61, 9.78, 9.87 after 500, 1000,
+  // 1500, 2000 samples), k1 and k2, which the levels tell, settled. Twice
+  // that: 3 % and 0.4 %, against starts 100 % to 1200 % off. (The filter's
+  // own standard deviations, 0.006 for A1 at the end, are no measure: an
+  // EKF with Q = 0 is overconfident on a nonlinear model.)
+  const std::array<double, 4> tolerance = {0.03, 0.03, 0.004, 0.004};
+  for (int j = 0; j < 4; ++j) {
+    EXPECT_NEAR(rows.back()[3 + j], truth[j], tolerance[j] * truth[j]) << names[j] << " against the truth";
+  }
 }
 
 TEST_F(CliTest, StreamsTheManipulatorIntoAnOptimalFilterSessionWithALiveView) {
@@ -288,7 +329,7 @@ TEST_F(CliTest, HealthPrintsServingAndExitsZero) {
   EXPECT_NE(last_stderr().find("no.such.Service"), std::string::npos) << last_stderr();
   // A stopped daemon: unreachable (3), with nothing on stdout.
   const auto address = daemon_->address();
-  ASSERT_EQ(daemon_->stop(), 0);
+  ASSERT_EQ(daemon_->stop(), 0) << daemon_->exit_report();
   const std::string command =
       std::string(RICCATI_CLI_BIN) + " --server " + address + " --timeout 2 health 2>/dev/null";
   std::FILE* pipe = popen(command.c_str(), "r");

@@ -13,6 +13,7 @@
 #include <algorithm>
 #include <chrono>
 #include <cstdlib>
+#include <cstring>
 #include <filesystem>
 #include <fstream>
 #include <limits>
@@ -43,7 +44,25 @@ class DaemonProcess {
   // `data_dir` is kept across stop() and start(), so a restart finds its data.
   explicit DaemonProcess(std::filesystem::path data_dir, std::vector<std::string> extra_args = {})
       : data_dir_(std::move(data_dir)), extra_args_(std::move(extra_args)) {}
-  ~DaemonProcess() { kill_now(); }
+  // A daemon still running at the end is stopped as an operator would
+  // (SIGTERM), and must exit 0: a sanitizer's report at exit (LeakSanitizer
+  // among them) makes the exit status non-zero, and fails the test here.
+  // Tests that mean to kill a daemon do it themselves (kill_now()).
+  ~DaemonProcess() {
+    if (pid_ <= 0) return;
+    const int status = stop();
+    if (status != 0) {
+      ADD_FAILURE() << "riccatid (pid " << last_pid_ << ") did not stop cleanly at the end of the test: "
+                    << exit_report();
+    }
+  }
+  DaemonProcess(const DaemonProcess&) = delete;
+  DaemonProcess& operator=(const DaemonProcess&) = delete;
+
+  // How long a SIGTERM may take before the daemon is killed and the stop
+  // counts as failed: its shutdown grace is 5 s; the rest is for a loaded
+  // machine or a sanitized build.
+  static constexpr std::chrono::seconds kStopDeadline{kSanitized ? 120 : 30};
 
   void start() {
     const auto port_file = data_dir_ / "port";
@@ -61,6 +80,12 @@ class DaemonProcess {
       }
     }
     args.insert(args.end(), extra_args_.begin(), extra_args_.end());
+    log_start_ = 0;
+    if (!log_file_.empty()) {
+      std::error_code ec;
+      const auto size = std::filesystem::file_size(log_file_, ec);
+      log_start_ = ec ? 0 : size;
+    }
     pid_ = fork();
     if (pid_ == 0) {
       if (!log_file_.empty()) {
@@ -80,7 +105,7 @@ class DaemonProcess {
       int status = 0;
       if (waitpid(pid_, &status, WNOHANG) == pid_) {
         pid_ = -1;
-        throw std::runtime_error("riccatid exited at start");
+        throw std::runtime_error("riccatid exited at start: " + describe(status) + stderr_hint());
       }
       std::this_thread::sleep_for(std::chrono::milliseconds(10));
     }
@@ -100,10 +125,18 @@ class DaemonProcess {
   // the next start() on; empty: the test's own standard error.
   void set_log_file(std::filesystem::path path) { log_file_ = std::move(path); }
 
-  // SIGTERM, then wait; returns the exit status (0 for a clean stop).
+  // SIGTERM, then wait up to kStopDeadline (then SIGKILL); returns the exit
+  // status: 0 for a clean stop, 128 + the signal for a death by signal (a
+  // sanitizer report with abort_on_error is SIGABRT; a stop that timed out
+  // is SIGKILL). exit_report() says which, in words.
   int stop() { return signal_and_wait(SIGTERM); }
   // SIGKILL, as a crash would.
   int kill_now() { return signal_and_wait(SIGKILL); }
+  // The last stop or kill, in words ("exit status 0", "killed by signal 9
+  // (Killed) after 30 s without stopping on SIGTERM", ...), and where the
+  // daemon's standard error is (the end of its log file, when it has one):
+  // for the message of a test that checks what stop() returned.
+  std::string exit_report() const { return last_exit_ + stderr_hint(); }
   // SIGSTOP and SIGCONT: a frozen daemon does nothing until thawed (or
   // killed), so a test can look at the shared store while it holds still.
   void freeze() const {
@@ -134,18 +167,73 @@ class DaemonProcess {
  private:
   int signal_and_wait(int sig) {
     if (pid_ <= 0) return -1;
+    // Our channel goes first: a daemon that stops waits for its clients'
+    // connections to close (up to its grace period), and with no stub left
+    // on this one it closes now rather than at gRPC's next poll.
+    channel_.reset();
+    ::kill(pid_, SIGCONT);  // a frozen daemon (freeze()) handles no signal but SIGKILL
     ::kill(pid_, sig);
     int status = 0;
-    waitpid(pid_, &status, 0);
+    bool timed_out = false;
+    if (sig == SIGKILL) {
+      waitpid(pid_, &status, 0);
+    } else {
+      const auto deadline = std::chrono::steady_clock::now() + kStopDeadline;
+      while (waitpid(pid_, &status, WNOHANG) == 0) {
+        if (std::chrono::steady_clock::now() > deadline) {
+          timed_out = true;
+          ::kill(pid_, SIGKILL);
+          waitpid(pid_, &status, 0);
+          break;
+        }
+        std::this_thread::sleep_for(std::chrono::milliseconds(2));
+      }
+    }
+    last_pid_ = pid_;
+    last_exit_ = describe(status) + (timed_out ? " after " + std::to_string(kStopDeadline.count()) +
+                                                     " s without stopping on SIGTERM"
+                                               : "");
     pid_ = -1;
     port_ = 0;
     return WIFEXITED(status) ? WEXITSTATUS(status) : 128 + WTERMSIG(status);
   }
 
+  static std::string describe(int status) {
+    if (WIFEXITED(status)) {
+      const int code = WEXITSTATUS(status);
+      return "exit status " + std::to_string(code) + (code == 23 ? " (LeakSanitizer's: leaks)" : "");
+    }
+    if (WIFSIGNALED(status)) {
+      const int sig = WTERMSIG(status);
+      return "killed by signal " + std::to_string(sig) + " (" + strsignal(sig) + ")" +
+             (sig == SIGABRT ? ", as a sanitizer report with abort_on_error is" : "");
+    }
+    return "wait status " + std::to_string(status);
+  }
+
+  // Where the daemon's standard error (its log, and any sanitizer report)
+  // is: the end of the log file, or the test's own output.
+  std::string stderr_hint() const {
+    if (log_file_.empty()) return "; its standard error is in the test's output above";
+    std::ifstream in(log_file_, std::ios::binary);
+    constexpr std::streamoff kTail = 16 * 1024;
+    in.seekg(0, std::ios::end);
+    const std::streamoff end = in.tellg();
+    const std::streamoff from = std::max<std::streamoff>(static_cast<std::streamoff>(log_start_), end - kTail);
+    in.seekg(from);
+    std::string tail(static_cast<std::size_t>(std::max<std::streamoff>(0, end - from)), '\0');
+    in.read(tail.data(), static_cast<std::streamsize>(tail.size()));
+    return "; the end of its log, " + log_file_.string() + (from > static_cast<std::streamoff>(log_start_) ? " (cut)" : "") +
+           ":\n" + tail;
+  }
+
   std::filesystem::path data_dir_;
   std::vector<std::string> extra_args_;
   std::filesystem::path log_file_;
+  std::uintmax_t log_start_ = 0;  // the log file's size at the last start(): this run's log follows
   pid_t pid_ = -1;
+  pid_t last_pid_ = -1;
+  std::string last_exit_;
   int port_ = 0;
   std::shared_ptr<grpc::Channel> channel_;
 };

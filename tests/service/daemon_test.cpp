@@ -24,6 +24,7 @@
 #include "support/requests.hpp"
 #include "support/postgres.hpp"
 #include "support/two_tank_hensen.hpp"
+#include "support/wait.hpp"
 #include "engine/estimation/identification.hpp"
 #include "engine/models/plugin_loader.hpp"
 #include "riccati/v1/datasets.grpc.pb.h"
@@ -39,11 +40,74 @@ using testing::TempDir;
 
 const std::string kData = RICCATI_TEST_DATA_DIR;
 
+// How long a test waits for the daemon to reach a state it must reach
+// (wait_until); far beyond what it takes, so that only a daemon that never
+// gets there fails, however loaded the machine or slow the build.
+constexpr std::chrono::milliseconds kWait = std::chrono::seconds(testing::kSanitized ? 120 : 30);
+
+// The most passes a job may ask for (the max_passes default): tens of
+// seconds of work (a Hensen pass on two_tank.csv takes about 10 ms here),
+// for a job that must still be running when a test looks, and that the
+// test cancels or a stop interrupts.
+constexpr int kEndlessPasses = 10'000;
+
 std::string read_file(const std::string& path) {
   std::ifstream in(path, std::ios::binary);
   std::stringstream ss;
   ss << in.rdbuf();
   return ss.str();
+}
+
+// A free loopback TCP port (a tiny race with other processes, acceptable in tests).
+int free_port() {
+  const int fd = socket(AF_INET, SOCK_STREAM, 0);
+  sockaddr_in addr{};
+  addr.sin_family = AF_INET;
+  addr.sin_addr.s_addr = htonl(INADDR_LOOPBACK);
+  addr.sin_port = 0;
+  socklen_t len = sizeof addr;
+  if (bind(fd, reinterpret_cast<sockaddr*>(&addr), sizeof addr) != 0 ||
+      getsockname(fd, reinterpret_cast<sockaddr*>(&addr), &len) != 0) {
+    close(fd);
+    return 0;
+  }
+  close(fd);
+  return ntohs(addr.sin_port);
+}
+
+// GET http://127.0.0.1:port/path with a plain socket: the body, or "" on failure.
+std::string http_get(int port, const std::string& path) {
+  const int fd = socket(AF_INET, SOCK_STREAM, 0);
+  sockaddr_in addr{};
+  addr.sin_family = AF_INET;
+  addr.sin_addr.s_addr = htonl(INADDR_LOOPBACK);
+  addr.sin_port = htons(static_cast<std::uint16_t>(port));
+  if (connect(fd, reinterpret_cast<sockaddr*>(&addr), sizeof addr) != 0) {
+    close(fd);
+    return "";
+  }
+  const std::string request = "GET " + path + " HTTP/1.0\r\nHost: 127.0.0.1\r\n\r\n";
+  if (write(fd, request.data(), request.size()) != static_cast<ssize_t>(request.size())) {
+    close(fd);
+    return "";
+  }
+  std::string response;
+  char buffer[4096];
+  for (ssize_t n; (n = read(fd, buffer, sizeof buffer)) > 0;) response.append(buffer, static_cast<std::size_t>(n));
+  close(fd);
+  const auto body = response.find("\r\n\r\n");
+  return body == std::string::npos ? "" : response.substr(body + 4);
+}
+
+// The value of one sample line of a Prometheus text page (name with its
+// labels, exactly as printed); NaN when absent.
+double sample_value(const std::string& page, const std::string& series) {
+  std::istringstream in(page);
+  std::string line;
+  while (std::getline(in, line)) {
+    if (line.rfind(series + " ", 0) == 0) return std::stod(line.substr(series.size() + 1));
+  }
+  return std::nan("");
 }
 
 class DaemonTest : public ::testing::Test {
@@ -103,6 +167,32 @@ class DaemonTest : public ::testing::Test {
     return result;
   }
 
+  v1::Job get_job(const std::string& id) {
+    grpc::ClientContext ctx;
+    v1::GetJobRequest get;
+    get.set_id(id);
+    v1::Job job;
+    const grpc::Status s = jobs_->GetJob(&ctx, get, &job);
+    EXPECT_TRUE(s.ok()) << s.error_message();
+    return job;
+  }
+
+  // Polls job `id` until it runs with at least `passes` passes completed,
+  // or has ended; returns what it saw last (the caller checks the state:
+  // a job that ended is not running).
+  v1::Job wait_running(const std::string& id, std::uint32_t passes = 0) {
+    v1::Job job;
+    const auto seen = [&] {
+      job = get_job(id);
+      return (job.state() == v1::JOB_STATE_RUNNING && job.progress().pass() >= passes) ||
+             job.state() >= v1::JOB_STATE_SUCCEEDED;
+    };
+    EXPECT_TRUE(testing::wait_until(seen, kWait,
+                                    "job " + id + " runs with " + std::to_string(passes) + " passes completed"))
+        << job.ShortDebugString();
+    return job;
+  }
+
   v1::Job submit(const v1::IdentificationSpec& spec) {
     grpc::ClientContext ctx;
     v1::Job job;
@@ -124,6 +214,36 @@ class DaemonTest : public ::testing::Test {
   std::unique_ptr<v1::DatasetService::Stub> datasets_;
   std::unique_ptr<v1::JobService::Stub> jobs_;
   std::unique_ptr<v1::SessionService::Stub> sessions_;
+};
+
+// The same, with the daemon's metrics on a loopback port: there a test
+// sees when the daemon has finished a call (riccati_rpc_total counts each
+// call as its status goes out, after the handler has done all it does).
+class DaemonWithMetricsTest : public DaemonTest {
+ protected:
+  void SetUp() override {
+    metrics_port_ = free_port();
+    ASSERT_GT(metrics_port_, 0);
+    daemon_ = std::make_unique<DaemonProcess>(
+        dir_.path() / "data", std::vector<std::string>{"--metrics-listen", "127.0.0.1:" + std::to_string(metrics_port_)});
+    daemon_->start();
+    connect();
+  }
+
+  // Calls of `method` ("/riccati.v1.DatasetService/UploadDataset") the
+  // daemon has finished, whatever their status.
+  double calls_finished(const std::string& method) {
+    std::istringstream page(http_get(metrics_port_, "/metrics"));
+    double total = 0;
+    for (std::string line; std::getline(page, line);) {
+      if (line.rfind("riccati_rpc_total{", 0) == 0 && line.find("method=\"" + method + "\"") != std::string::npos) {
+        total += std::stod(line.substr(line.rfind(' ') + 1));
+      }
+    }
+    return total;
+  }
+
+  int metrics_port_ = 0;
 };
 
 TEST_F(DaemonTest, ListsTheBuiltInModels) {
@@ -329,19 +449,15 @@ TEST_F(DaemonTest, RestartKeepsDatasetsJobsAndResultsAndFinishesARunningJob) {
   const std::string dataset = upload_two_tank();
   const v1::Job quick = submit(hensen(dataset, 1));
   ASSERT_EQ(wait_for(quick.id()).state(), v1::JOB_STATE_SUCCEEDED);
-  // A long job, stopped while it runs.
+  // A long job, stopped while it runs, after a pass (a checkpoint): the
+  // 99 passes left take about a second, which the stop, a few
+  // milliseconds after the look, cannot wait for.
   constexpr int kPasses = 100;
   const v1::Job slow = submit(hensen(dataset, kPasses));
-  for (int i = 0; i < 500; ++i) {
-    grpc::ClientContext ctx;
-    v1::GetJobRequest get;
-    get.set_id(slow.id());
-    v1::Job job;
-    ASSERT_TRUE(jobs_->GetJob(&ctx, get, &job).ok());
-    if (job.state() == v1::JOB_STATE_RUNNING && job.progress().pass() >= 1) break;
-    std::this_thread::sleep_for(std::chrono::milliseconds(10));
-  }
-  EXPECT_EQ(daemon_->stop(), 0);  // SIGTERM: a clean exit
+  const v1::Job running = wait_running(slow.id(), 1);
+  ASSERT_EQ(running.state(), v1::JOB_STATE_RUNNING) << "the job ended before the stop: " << running.ShortDebugString();
+  const auto signalled = std::chrono::system_clock::now();
+  EXPECT_EQ(daemon_->stop(), 0) << daemon_->exit_report();  // SIGTERM: a clean exit
 
   daemon_->start();
   connect();
@@ -363,6 +479,12 @@ TEST_F(DaemonTest, RestartKeepsDatasetsJobsAndResultsAndFinishesARunningJob) {
   const v1::Job resumed = wait_for(slow.id());
   EXPECT_EQ(resumed.state(), v1::JOB_STATE_SUCCEEDED) << resumed.error().message();
   EXPECT_EQ(result_of(slow.id()).identification().passes_size(), kPasses);
+  // It was still running when SIGTERM went out: it ended after (the
+  // daemon's clock is this machine's; its timestamps are in milliseconds).
+  const auto signalled_ms =
+      std::chrono::duration_cast<std::chrono::milliseconds>(signalled.time_since_epoch()).count();
+  const auto finished_ms = resumed.finished().seconds() * 1000 + resumed.finished().nanos() / 1'000'000;
+  EXPECT_GT(finished_ms, signalled_ms) << "the job had ended before the stop";
 }
 
 // kill -9 in the middle of a job: after the restart the job goes on from its
@@ -464,7 +586,7 @@ TEST_F(DaemonTest, SigtermEndsStreamsAndWatchesWithUnavailableAndExitsCleanly) {
     return watcher->Finish();
   });
 
-  EXPECT_EQ(daemon_->stop(), 0);
+  EXPECT_EQ(daemon_->stop(), 0) << daemon_->exit_report();
 
   const grpc::Status stream_status = streamed.get();
   EXPECT_EQ(stream_status.error_code(), grpc::StatusCode::UNAVAILABLE) << stream_status.error_message();
@@ -512,7 +634,7 @@ TEST_F(DaemonTest, AnOptimalFilterSessionContinuesBitForBitAfterARestart) {
   const Eigen::Index half = data.size() / 2;
   const std::string id = create();
   ASSERT_EQ(static_cast<Eigen::Index>(stream(id, 0, half).size()), half);
-  EXPECT_EQ(daemon_->stop(), 0);
+  EXPECT_EQ(daemon_->stop(), 0) << daemon_->exit_report();
   daemon_->start();
   connect();
 
@@ -775,16 +897,9 @@ TEST(DaemonFaults, AFailingModelEndsOnlyItsOwnSessionAndJob) {
 
 TEST_F(DaemonTest, CancelStopsARunningJob) {
   const std::string dataset = upload_two_tank();
-  const v1::Job slow = submit(hensen(dataset, 1000));
-  for (int i = 0; i < 500; ++i) {
-    grpc::ClientContext ctx;
-    v1::GetJobRequest get;
-    get.set_id(slow.id());
-    v1::Job job;
-    ASSERT_TRUE(jobs_->GetJob(&ctx, get, &job).ok());
-    if (job.state() == v1::JOB_STATE_RUNNING) break;
-    std::this_thread::sleep_for(std::chrono::milliseconds(10));
-  }
+  const v1::Job slow = submit(hensen(dataset, kEndlessPasses));
+  const v1::Job running = wait_running(slow.id());
+  ASSERT_EQ(running.state(), v1::JOB_STATE_RUNNING) << running.ShortDebugString();
   grpc::ClientContext ctx;
   v1::CancelJobRequest cancel;
   cancel.set_id(slow.id());
@@ -792,7 +907,7 @@ TEST_F(DaemonTest, CancelStopsARunningJob) {
   ASSERT_TRUE(jobs_->CancelJob(&ctx, cancel, &job).ok());
   const v1::Job done = wait_for(slow.id());
   EXPECT_EQ(done.state(), v1::JOB_STATE_CANCELLED);
-  EXPECT_LT(done.progress().pass(), 1000u);
+  EXPECT_LT(done.progress().pass(), static_cast<std::uint32_t>(kEndlessPasses));
   grpc::ClientContext ctx2;
   v1::GetResultRequest get;
   get.set_job_id(slow.id());
@@ -926,7 +1041,9 @@ TEST_F(DaemonTest, StreamRefusesBadMeasurementsOneByOneAndGoesOn) {
 
 TEST_F(DaemonTest, AStreamAndAJobDoNotBlockEachOther) {
   const std::string dataset = upload_two_tank();
-  const v1::Job slow = submit(hensen(dataset, 400));
+  const v1::Job slow = submit(hensen(dataset, kEndlessPasses));
+  const v1::Job running = wait_running(slow.id());
+  ASSERT_EQ(running.state(), v1::JOB_STATE_RUNNING) << running.ShortDebugString();
   const v1::CreateSessionRequest create = two_tank_session();
   v1::SessionInfo session;
   {
@@ -948,24 +1065,27 @@ TEST_F(DaemonTest, AStreamAndAJobDoNotBlockEachOther) {
   }
   stream->WritesDone();
   ASSERT_TRUE(stream->Finish().ok());
-  // All 200 round trips happened while the 400-pass job (seconds of work)
-  // was still running on the worker pool.
-  grpc::ClientContext get_ctx;
-  v1::GetJobRequest get;
-  get.set_id(slow.id());
-  v1::Job job;
-  ASSERT_TRUE(jobs_->GetJob(&get_ctx, get, &job).ok());
+  // All 200 round trips happened while the job (running before them, and
+  // far from its last pass) was still running on the worker pool.
+  const v1::Job job = get_job(slow.id());
   EXPECT_EQ(job.state(), v1::JOB_STATE_RUNNING);
-  EXPECT_LT(job.progress().pass(), 400u);
+  EXPECT_LT(job.progress().pass(), static_cast<std::uint32_t>(kEndlessPasses));
+  grpc::ClientContext cancel_ctx;
+  v1::CancelJobRequest cancel;
+  cancel.set_id(slow.id());
+  v1::Job cancelled;
+  EXPECT_TRUE(jobs_->CancelJob(&cancel_ctx, cancel, &cancelled).ok());
 }
 
 // A client's deadline or cancellation ends that call, and only that call:
 // the job a watch was watching runs on, a session whose stream timed out
 // takes the next stream where the last one stopped, and an upload cut off
 // mid-way stores nothing (what arrived could parse: it ends at a line).
-TEST_F(DaemonTest, ClientDeadlinesAndCancellationEndOnlyTheirOwnCall) {
+TEST_F(DaemonWithMetricsTest, ClientDeadlinesAndCancellationEndOnlyTheirOwnCall) {
   const std::string dataset = upload_two_tank();
-  const v1::Job slow = submit(hensen(dataset, 400));
+  const v1::Job slow = submit(hensen(dataset, kEndlessPasses));  // runs to the end of the test, unless touched
+  const v1::Job running = wait_running(slow.id());
+  ASSERT_EQ(running.state(), v1::JOB_STATE_RUNNING) << running.ShortDebugString();
   {
     grpc::ClientContext ctx;
     ctx.set_deadline(std::chrono::system_clock::now() + std::chrono::milliseconds(300));
@@ -1034,6 +1154,8 @@ TEST_F(DaemonTest, ClientDeadlinesAndCancellationEndOnlyTheirOwnCall) {
     EXPECT_TRUE(stream->Finish().ok());
   }
 
+  const std::string upload_method = "/riccati.v1.DatasetService/UploadDataset";
+  const double uploads_before = calls_finished(upload_method);
   {
     grpc::ClientContext ctx;
     v1::DatasetInfo info;
@@ -1043,13 +1165,19 @@ TEST_F(DaemonTest, ClientDeadlinesAndCancellationEndOnlyTheirOwnCall) {
     const std::string csv = read_file(kData + "/two_tank.csv");
     chunk.set_chunk(csv.substr(0, csv.find('\n', 4096) + 1));  // whole lines: a parsable start
     ASSERT_TRUE(writer->Write(chunk));
+    // Time for the chunk to reach the daemon before the cancellation, so
+    // that a daemon which stored a cut upload would have something to
+    // store. Not a synchronisation: nothing the daemon shows says it has
+    // read a chunk, and the check below holds either way.
     std::this_thread::sleep_for(std::chrono::milliseconds(100));
     ctx.TryCancel();
     EXPECT_EQ(writer->Finish().error_code(), grpc::StatusCode::CANCELLED);
   }
-  // The server may still be finishing the cancelled upload: give it a moment
-  // to store what it should not.
-  std::this_thread::sleep_for(std::chrono::milliseconds(200));
+  // The client hears CANCELLED at once; the daemon's handler may still be
+  // running, and would store the cut upload (if it did) before its call
+  // ends: wait until the daemon has finished the call.
+  ASSERT_TRUE(testing::wait_until([&] { return calls_finished(upload_method) == uploads_before + 1; }, kWait,
+                                  "the daemon has finished the cancelled upload"));
   {
     grpc::ClientContext ctx;
     v1::ListDatasetsResponse list;
@@ -1058,11 +1186,7 @@ TEST_F(DaemonTest, ClientDeadlinesAndCancellationEndOnlyTheirOwnCall) {
     EXPECT_EQ(list.datasets(0).id(), dataset);
   }
 
-  grpc::ClientContext get_ctx;
-  v1::GetJobRequest get;
-  get.set_id(slow.id());
-  v1::Job job;
-  ASSERT_TRUE(jobs_->GetJob(&get_ctx, get, &job).ok());
+  const v1::Job job = get_job(slow.id());
   EXPECT_EQ(job.state(), v1::JOB_STATE_RUNNING) << "a watch's deadline must not touch the job";
   grpc::ClientContext cancel_ctx;
   v1::CancelJobRequest cancel;
@@ -1070,58 +1194,6 @@ TEST_F(DaemonTest, ClientDeadlinesAndCancellationEndOnlyTheirOwnCall) {
   v1::Job cancelled;
   EXPECT_TRUE(jobs_->CancelJob(&cancel_ctx, cancel, &cancelled).ok());
   expect_serving();
-}
-
-// A free loopback TCP port (a tiny race with other processes, acceptable in tests).
-int free_port() {
-  const int fd = socket(AF_INET, SOCK_STREAM, 0);
-  sockaddr_in addr{};
-  addr.sin_family = AF_INET;
-  addr.sin_addr.s_addr = htonl(INADDR_LOOPBACK);
-  addr.sin_port = 0;
-  socklen_t len = sizeof addr;
-  if (bind(fd, reinterpret_cast<sockaddr*>(&addr), sizeof addr) != 0 ||
-      getsockname(fd, reinterpret_cast<sockaddr*>(&addr), &len) != 0) {
-    close(fd);
-    return 0;
-  }
-  close(fd);
-  return ntohs(addr.sin_port);
-}
-
-// GET http://127.0.0.1:port/path with a plain socket: the body, or "" on failure.
-std::string http_get(int port, const std::string& path) {
-  const int fd = socket(AF_INET, SOCK_STREAM, 0);
-  sockaddr_in addr{};
-  addr.sin_family = AF_INET;
-  addr.sin_addr.s_addr = htonl(INADDR_LOOPBACK);
-  addr.sin_port = htons(static_cast<std::uint16_t>(port));
-  if (connect(fd, reinterpret_cast<sockaddr*>(&addr), sizeof addr) != 0) {
-    close(fd);
-    return "";
-  }
-  const std::string request = "GET " + path + " HTTP/1.0\r\nHost: 127.0.0.1\r\n\r\n";
-  if (write(fd, request.data(), request.size()) != static_cast<ssize_t>(request.size())) {
-    close(fd);
-    return "";
-  }
-  std::string response;
-  char buffer[4096];
-  for (ssize_t n; (n = read(fd, buffer, sizeof buffer)) > 0;) response.append(buffer, static_cast<std::size_t>(n));
-  close(fd);
-  const auto body = response.find("\r\n\r\n");
-  return body == std::string::npos ? "" : response.substr(body + 4);
-}
-
-// The value of one sample line of a Prometheus text page (name with its
-// labels, exactly as printed); NaN when absent.
-double sample_value(const std::string& page, const std::string& series) {
-  std::istringstream in(page);
-  std::string line;
-  while (std::getline(in, line)) {
-    if (line.rfind(series + " ", 0) == 0) return std::stod(line.substr(series.size() + 1));
-  }
-  return std::nan("");
 }
 
 // The metrics operators read: calls by code, measurements estimated and
@@ -1190,11 +1262,13 @@ TEST(DaemonMetrics, ThePrometheusEndpointCountsWhatHappened) {
 
   // The session's snapshots: one at its creation (before the client heard
   // of it), one when its stream ended (by the writer thread: waited for).
-  std::string page = http_get(port, "/metrics");
-  for (int i = 0; i < 100 && sample_value(page, R"(riccati_session_snapshots_total{outcome="stored"})") < 2; ++i) {
-    std::this_thread::sleep_for(std::chrono::milliseconds(50));
-    page = http_get(port, "/metrics");
-  }
+  std::string page;
+  EXPECT_TRUE(testing::wait_until(
+      [&] {
+        page = http_get(port, "/metrics");
+        return sample_value(page, R"(riccati_session_snapshots_total{outcome="stored"})") >= 2;
+      },
+      kWait, "the session's two snapshots are stored", std::chrono::milliseconds(50)));
   ASSERT_FALSE(page.empty()) << "no metrics on port " << port;
   EXPECT_EQ(sample_value(page, R"(riccati_session_snapshots_total{outcome="stored"})"), 2) << page;
   EXPECT_EQ(sample_value(page, R"(riccati_session_snapshots_total{outcome="failed"})"), 0);
@@ -1212,7 +1286,7 @@ TEST(DaemonMetrics, ThePrometheusEndpointCountsWhatHappened) {
   EXPECT_EQ(sample_value(page, R"(riccati_rpc_total{code="OK",method="/riccati.v1.SessionService/Stream"})"), 1);
   EXPECT_EQ(sample_value(page, R"(riccati_rpc_total{code="OK",method="/riccati.v1.DatasetService/UploadDataset"})"),
             1);
-  EXPECT_EQ(daemon.stop(), 0);
+  EXPECT_EQ(daemon.stop(), 0) << daemon.exit_report();
 
   // Restarted, the daemon resumes the session from its snapshot when asked.
   daemon.start();
@@ -1227,7 +1301,7 @@ TEST(DaemonMetrics, ThePrometheusEndpointCountsWhatHappened) {
   }
   page = http_get(port, "/metrics");
   EXPECT_EQ(sample_value(page, "riccati_sessions_resumed_total"), 1) << page;
-  EXPECT_EQ(daemon.stop(), 0);
+  EXPECT_EQ(daemon.stop(), 0) << daemon.exit_report();
 }
 
 TEST(DaemonConfig, IdleSessionsExpireAndBadConfigFilesAreRefused) {
@@ -1242,16 +1316,25 @@ TEST(DaemonConfig, IdleSessionsExpireAndBadConfigFilesAreRefused) {
   create.mutable_initial_state()->set_first_measurement(true);
   for (int i = 0; i < 6; ++i) create.mutable_p0()->mutable_diagonal()->add_values(1.0);
   v1::SessionInfo session;
+  const auto created = std::chrono::steady_clock::now();  // before the daemon's clock starts for it
   {
     grpc::ClientContext ctx;
     ASSERT_TRUE(sessions->CreateSession(&ctx, create, &session).ok());
   }
-  // Idle for 1 s it expires; the reaper looks every 250 ms.
-  std::this_thread::sleep_for(std::chrono::milliseconds(2000));
-  grpc::ClientContext ctx;
-  v1::GetSessionRequest get;
-  get.set_id(session.id());
-  EXPECT_EQ(sessions->GetSession(&ctx, get, &session).error_code(), grpc::StatusCode::NOT_FOUND);
+  auto get_session = [&] {
+    grpc::ClientContext ctx;
+    v1::GetSessionRequest get;
+    get.set_id(session.id());
+    v1::SessionInfo info;
+    return sessions->GetSession(&ctx, get, &info);
+  };
+  const grpc::Status found = get_session();
+  ASSERT_TRUE(found.ok()) << "the session is not there to expire: " << found.error_message();
+  // Idle for 1 s it expires (looking at it is no activity); the reaper
+  // looks every 250 ms. Not before 1 s, and not much after.
+  ASSERT_TRUE(testing::wait_until([&] { return get_session().error_code() == grpc::StatusCode::NOT_FOUND; }, kWait,
+                                  "the idle session has expired", std::chrono::milliseconds(50)));
+  EXPECT_GE(std::chrono::steady_clock::now() - created, std::chrono::seconds(1)) << "it expired before 1 s idle";
 
   // A config file with a typo stops the daemon at start, naming the key.
   const auto config = dir.path() / "riccatid.yaml";
@@ -1288,7 +1371,7 @@ TEST_F(PostgresDaemonTest, AnIdentificationAndItsDataSurviveARestart) {
   ASSERT_TRUE(before.has_identification());
   ASSERT_EQ(before.identification().passes_size(), 2);
 
-  EXPECT_EQ(daemon_->stop(), 0);
+  EXPECT_EQ(daemon_->stop(), 0) << daemon_->exit_report();
   daemon_->start();
   connect();
   {

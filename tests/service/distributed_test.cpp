@@ -29,6 +29,7 @@
 #include "support/postgres.hpp"
 #include "support/requests.hpp"
 #include "support/two_tank_hensen.hpp"
+#include "support/wait.hpp"
 
 namespace riccati {
 namespace {
@@ -57,7 +58,8 @@ class Cluster {
       const std::string name = "inst-" + std::to_string(i);
       auto daemon = std::make_unique<DaemonProcess>(
           dir.path() / name,
-          std::vector<std::string>{"--database", database, "--workers", "1", "--instance-id", name,
+          std::vector<std::string>{"--database", database + "&application_name=" + name, "--workers", "1",
+                                   "--instance-id", name,
                                    "--job-lease-seconds", "2", "--job-poll-ms", "100", "--log-level", "info"});
       logs_.push_back(dir.path() / (name + ".log"));
       daemon->set_log_file(logs_.back());
@@ -139,19 +141,24 @@ class DistributedTest : public ::testing::Test {
 
   // Polls until every job has ended (through instance `via`); their last states.
   static std::vector<v1::Job> wait_for_all(Cluster& cluster, std::size_t via, const std::vector<std::string>& ids) {
-    const auto give_up = std::chrono::steady_clock::now() + std::chrono::minutes(3);
     std::vector<v1::Job> out(ids.size());
-    for (;;) {
-      std::size_t ended = 0;
-      for (std::size_t i = 0; i < ids.size(); ++i) {
-        grpc::ClientContext ctx;
-        v1::GetJobRequest get;
-        get.set_id(ids[i]);
-        if (cluster.jobs(via).GetJob(&ctx, get, &out[i]).ok() && out[i].state() >= v1::JOB_STATE_SUCCEEDED) ++ended;
-      }
-      if (ended == ids.size() || std::chrono::steady_clock::now() > give_up) return out;
-      std::this_thread::sleep_for(std::chrono::milliseconds(100));
-    }
+    std::size_t ended = 0;
+    EXPECT_TRUE(testing::wait_until(
+        [&] {
+          ended = 0;
+          for (std::size_t i = 0; i < ids.size(); ++i) {
+            grpc::ClientContext ctx;
+            v1::GetJobRequest get;
+            get.set_id(ids[i]);
+            if (cluster.jobs(via).GetJob(&ctx, get, &out[i]).ok() && out[i].state() >= v1::JOB_STATE_SUCCEEDED) {
+              ++ended;
+            }
+          }
+          return ended == ids.size();
+        },
+        std::chrono::minutes(3), "every job has ended", std::chrono::milliseconds(100)))
+        << ended << " of " << ids.size() << " ended";
+    return out;
   }
 
   // Every job succeeded with the single run's numbers, fetched from any instance.
@@ -190,17 +197,31 @@ TEST_F(DistributedTest, ThreeInstancesRunThirtyJobsOnceEachThroughAKillDashNine)
   // Kill inst-0 while it holds a job with a checkpoint (a completed pass),
   // so that the job is taken over mid-run and must resume from it. inst-0
   // is frozen while the store is read: a job seen running then cannot end
-  // (and its end go unlogged) between the look and the kill.
+  // (and its end go unlogged) between the look and the kill. A job's end is
+  // one transaction (state and result), and its commit may have left
+  // before the freeze: the store is read only once none of inst-0's
+  // connections (by their application_name) is running a statement, and
+  // none is in a transaction (a commit sent but not yet read), else inst-0
+  // is thawed and looked at again.
+  auto inst0_connections = [&](const std::string& states) {
+    return schema.exec("SELECT count(*) FROM pg_stat_activity WHERE application_name = 'inst-0' AND state IN (" +
+                       states + ")")[0][0]
+        .as<int>();
+  };
   std::string killed_job;
-  for (int tries = 0; tries < 1000 && killed_job.empty(); ++tries) {
+  const auto give_up = std::chrono::steady_clock::now() + std::chrono::minutes(1);
+  while (killed_job.empty() && std::chrono::steady_clock::now() < give_up) {
     cluster.daemon(0).freeze();
-    std::this_thread::sleep_for(std::chrono::milliseconds(20));  // a commit already sent lands
-    const pqxx::result r = schema.exec(
-        "SELECT id FROM jobs WHERE owner = 'inst-0' AND state = 'running' AND EXISTS "
-        "(SELECT 1 FROM job_passes WHERE job_passes.job_id = jobs.id) LIMIT 1");
-    if (!r.empty()) {
-      killed_job = r[0][0].as<std::string>();
-    } else {
+    ASSERT_TRUE(testing::wait_until([&] { return inst0_connections("'active'") == 0; }, std::chrono::seconds(30),
+                                    "the statements inst-0 sent before it froze have run",
+                                    std::chrono::milliseconds(1)));
+    if (inst0_connections("'idle in transaction', 'idle in transaction (aborted)'") == 0) {
+      const pqxx::result r = schema.exec(
+          "SELECT id FROM jobs WHERE owner = 'inst-0' AND state = 'running' AND EXISTS "
+          "(SELECT 1 FROM job_passes WHERE job_passes.job_id = jobs.id) LIMIT 1");
+      if (!r.empty()) killed_job = r[0][0].as<std::string>();
+    }
+    if (killed_job.empty()) {
       cluster.daemon(0).thaw();
       std::this_thread::sleep_for(std::chrono::milliseconds(5));
     }
@@ -529,7 +550,7 @@ TEST_F(SessionFailoverTest, ALiveInstanceKeepsItsSessionsAndOtherTenantsSeeNone)
 
   // A clean stop releases its sessions: no instance serves it, and B
   // resumes it at once, where A left it.
-  EXPECT_EQ(a().stop(), 0);
+  EXPECT_EQ(a().stop(), 0) << a().exit_report();
   on_b_list = list(on_b());
   ASSERT_EQ(on_b_list.size(), 1u);
   EXPECT_EQ(on_b_list[0].instance(), "");

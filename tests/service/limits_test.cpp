@@ -111,16 +111,23 @@ TEST_F(LimitsTest, JobsPerTenantAndPassesPerJob) {
   ASSERT_TRUE(upload("beta", csv_, &beta_data).ok());
   v1::Job beta_job;
   EXPECT_TRUE(jobs_->SubmitIdentification(as("beta").get(), testing::hensen_spec(beta_data.id(), 1), &beta_job).ok());
-  // Once alpha's job has ended, alpha may submit again.
+  // Once alpha's job has ended, alpha may submit again: its end (the
+  // watch's last state) frees its place.
   v1::CancelJobRequest cancel;
   cancel.set_id(running.id());
   ASSERT_TRUE(jobs_->CancelJob(as("alpha").get(), cancel, &job).ok());
-  grpc::Status again;
-  for (int i = 0; i < 200; ++i) {
-    again = jobs_->SubmitIdentification(as("alpha").get(), testing::hensen_spec(data.id(), 1), &job);
-    if (again.ok()) break;
-    std::this_thread::sleep_for(std::chrono::milliseconds(20));
+  {
+    auto ctx = as("alpha");
+    v1::WatchJobRequest watch;
+    watch.set_id(running.id());
+    auto reader = jobs_->WatchJob(ctx.get(), watch);
+    v1::Job seen;
+    while (reader->Read(&seen)) {
+    }
+    ASSERT_TRUE(reader->Finish().ok());
+    ASSERT_EQ(seen.state(), v1::JOB_STATE_CANCELLED) << seen.ShortDebugString();
   }
+  const grpc::Status again = jobs_->SubmitIdentification(as("alpha").get(), testing::hensen_spec(data.id(), 1), &job);
   EXPECT_TRUE(again.ok()) << again.error_message();
 }
 

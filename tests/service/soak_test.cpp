@@ -122,23 +122,37 @@ TEST(Soak, SessionsAndJobsForMinutesWithoutErrorsOrMemoryGrowth) {
   // Memory once warmed up (allocator pools, gRPC buffers, SQLite cache), and at the end.
   std::this_thread::sleep_until(start + std::chrono::seconds(std::max(5, seconds / 10)));
   const long rss_warm = daemon.rss_kib();
+  const long measurements_warm = measurements.load();
   for (auto& t : threads) t.join();
   const long rss_end = daemon.rss_kib();
   const double elapsed = std::chrono::duration<double>(Clock::now() - start).count();
 
+  // Growth after warm-up, against what a leak of 100 bytes per measurement
+  // would add over the same measurements: with the defaults (60 s, 20
+  // sessions at 100 Hz; CI's) 54 s x 2000/s = 108,000 measurements, 10.3
+  // MiB. Observed on the 2-core machine (2026-11-24): 0.9 to 1.3 MiB in
+  // four runs of 60 s, alone and beside other service tests, and 1.0 MiB
+  // in 180 s, so it does not grow with time (SQLite's page cache, gRPC's
+  // and the allocator's pools settling). 4 MiB is 3 times the most seen
+  // and 2.6 times less than that leak; longer runs catch smaller leaks.
+  const long kBoundKib = 4 * 1024;
+  const long leak_kib = (measurements.load() - measurements_warm) * 100 / 1024;
   std::printf("soak: %d s, %d sessions at %d Hz, %ld measurements (%.0f/s), %ld jobs, %ld failures; "
-              "daemon RSS %ld KiB warm, %ld KiB at the end\n",
+              "daemon RSS %ld KiB warm, %ld KiB at the end: %+ld KiB (bound %ld KiB; a leak of 100 B per "
+              "measurement would have added %ld KiB over the %ld measurements after warm-up)\n",
               seconds, n_sessions, rate_hz, measurements.load(), measurements.load() / elapsed, jobs_done.load(),
-              failures.load(), rss_warm, rss_end);
+              failures.load(), rss_warm, rss_end, rss_end - rss_warm, kBoundKib, leak_kib,
+              measurements.load() - measurements_warm);
   EXPECT_EQ(failures.load(), 0);
   EXPECT_GT(jobs_done.load(), 0);
   // At least 90% of the paced measurements went through (a loaded 2-core
   // machine may lag a little; it must not stall).
   EXPECT_GT(measurements.load(), static_cast<long>(0.9 * seconds * rate_hz * n_sessions));
-  // Growth after warm-up: a leak of even 100 bytes per measurement would
-  // show as megabytes here.
-  EXPECT_LT(rss_end - rss_warm, 16 * 1024) << "KiB";
-  EXPECT_EQ(daemon.stop(), 0);
+  EXPECT_LT(rss_end - rss_warm, kBoundKib) << "KiB";
+  if (leak_kib <= kBoundKib) {
+    std::printf("soak: this run is too short for the bound to catch a leak of 100 B per measurement\n");
+  }
+  EXPECT_EQ(daemon.stop(), 0) << daemon.exit_report();
 }
 
 }  // namespace
