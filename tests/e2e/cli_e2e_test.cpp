@@ -253,11 +253,11 @@ TEST_F(CliTest, StreamReplaysAFileIntoASession) {
   s.filter.kind = FilterKind::kEkf;
   s.filter.Q = Eigen::MatrixXd::Zero(6, 6);
   s.filter.R = Eigen::Vector2d(2.5e-5, 2.5e-5).asDiagonal();
-  s.initial_state = InitialState::kFirstMeasurement;
-  s.theta0 = Eigen::Map<const Eigen::Vector4d>(theta0.data());
+  s.initial.mode = InitialState::kFirstMeasurement;
+  s.initial.theta0 = Eigen::Map<const Eigen::Vector4d>(theta0.data());
   Eigen::VectorXd p0(6);
   p0 << 0, 0, 10, 10, 10, 10;
-  s.P0 = p0.asDiagonal();
+  s.initial.P0 = p0.asDiagonal();
   const auto local = identify(registry.find("two_tank"), data, s);
   ASSERT_TRUE(local.is_ok()) << local.status().to_string();
   const Eigen::MatrixXd& trace = local.value().passes[0].theta_trace;
