@@ -10,29 +10,18 @@ namespace {
 class SimulationRhs final : public OdeRhs {
  public:
   SimulationRhs(const Model& model, const Eigen::VectorXd& theta, HoldOrder hold)
-      : model_(model), theta_(theta), hold_(hold), u_(model.nu()) {}
+      : model_(model), theta_(theta), hold_(hold, model.nu()) {}
 
-  void set_interval(double t0, double t1, const double* u0, const double* u1) {
-    t0_ = t0;
-    t1_ = t1;
-    u0_ = u0;
-    u1_ = u1;
-  }
+  void set_interval(double t0, double t1, const double* u0, const double* u1) { hold_.set_interval(t0, t1, u0, u1); }
 
   Status eval(double t, const double* y, double* ydot) override {
-    const double a = hold_ == HoldOrder::kFirst ? (t - t0_) / (t1_ - t0_) : 0.0;
-    for (Eigen::Index i = 0; i < u_.size(); ++i) u_[i] = u0_[i] + a * (u1_[i] - u0_[i]);
-    return model_.f(t, u_.data(), 1, 1, y, theta_.data(), ydot);
+    return model_.f(t, hold_.at(t), 1, 1, y, theta_.data(), ydot);
   }
 
  private:
   const Model& model_;
   const Eigen::VectorXd& theta_;
-  HoldOrder hold_;
-  Eigen::VectorXd u_;
-  double t0_ = 0.0, t1_ = 1.0;
-  const double* u0_ = nullptr;
-  const double* u1_ = nullptr;
+  InputHold hold_;
 };
 
 }  // namespace

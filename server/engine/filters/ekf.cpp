@@ -117,10 +117,7 @@ class Ekf final : public KalmanFilter {
     Eigen::Map<Eigen::MatrixXd>(y + nx + nx * nx, nx, nth) = P_.topRightCorner(nx, nth);
     Pthth0_ = P_.bottomRightCorner(nth, nth);
     Pthth_ = Pthth0_;
-    t0_ = t_;
-    t1_ = t1;
-    u0_ = u0;
-    u1_ = u1;
+    hold_.set_interval(t_, t1, u0, u1);
     Status s = integrator_->integrate(rhs_, t_, t1, y_);
     if (!s.is_ok()) return s.with_context("EKF prediction from t = " + std::to_string(t_));
     z_.head(nx) = Eigen::Map<const Eigen::VectorXd>(y, nx);
@@ -172,10 +169,9 @@ class Ekf final : public KalmanFilter {
 
   Status derivatives(double t, const double* y, double* ydot) {
     const int nx = model_->nx(), nth = model_->ntheta();
-    hold_input(t, t0_, t1_, u0_, u1_);
     const double* theta = z_.data() + nx;  // constant over the interval
-    RICCATI_RETURN_IF_ERROR(model_->f_jacobian(t, u_hold_.data(), y, theta, ydot, jac_f_.data()));
-    if (!q_thth_is_zero_) Pthth_ = Pthth0_ + settings_.Q.bottomRightCorner(nth, nth) * (t - t0_);
+    RICCATI_RETURN_IF_ERROR(model_->f_jacobian(t, hold_.at(t), y, theta, ydot, jac_f_.data()));
+    if (!q_thth_is_zero_) Pthth_ = Pthth0_ + settings_.Q.bottomRightCorner(nth, nth) * (t - hold_.t0());
     const double* Pxx = y + nx;
     const double* Pxth = Pxx + nx * nx;
     covariance_derivative_(nx, nth, jac_f_.data(), Pxx, Pxth, Pthth_.data(), settings_.Q.data(), A_.data(),
@@ -187,10 +183,6 @@ class Ekf final : public KalmanFilter {
   Rhs rhs_;
   bool q_thth_is_zero_ = true;
   CovarianceDerivativeFn covariance_derivative_ = nullptr;
-  // The interval being integrated and its inputs (valid during predict()).
-  double t0_ = 0.0, t1_ = 0.0;
-  const double* u0_ = nullptr;
-  const double* u1_ = nullptr;
   // Work space, sized once.
   std::vector<double> y_;
   Eigen::MatrixXd jac_f_, A_, G_, PGt_, IKG_, IKGP_, KR_, Pnew_;

@@ -9,14 +9,6 @@
 
 namespace riccati {
 
-const char* hold_order_name(HoldOrder hold) { return hold == HoldOrder::kZero ? "zoh" : "foh"; }
-
-Result<HoldOrder> parse_hold_order(std::string_view name) {
-  if (name == "zoh" || name == "0") return HoldOrder::kZero;
-  if (name == "foh" || name == "1") return HoldOrder::kFirst;
-  return invalid_argument("unknown input hold \"" + std::string(name) + "\" (expected zoh or foh)");
-}
-
 Result<GainInversion> parse_gain_inversion(std::string_view name) {
   if (name == "cholesky" || name == "normal") return GainInversion::kCholesky;
   if (name == "pinv" || name == "pseudo-inverse") return GainInversion::kPseudoInverse;
@@ -89,14 +81,13 @@ Result<Eigen::MatrixXd> covariance_from_confidence(const Eigen::MatrixXd& R, con
 const Eigen::VectorXd Filter::kNothing;
 
 Filter::Filter(ModelPtr model, FilterSettings settings)
-    : model_(std::move(model)), settings_(std::move(settings)) {
+    : model_(std::move(model)), settings_(std::move(settings)), hold_(settings_.hold, model_->nu()) {
   const Eigen::Index nz = model_->nz(), ny = model_->ny();
   z_ = Eigen::VectorXd::Zero(nz);
   P_ = Eigen::MatrixXd::Zero(nz, nz);
   y_pred_ = Eigen::VectorXd::Zero(ny);
   innovation_ = Eigen::VectorXd::Zero(ny);
   S_ = Eigen::MatrixXd::Zero(ny, ny);
-  u_hold_ = Eigen::VectorXd::Zero(model_->nu());
 }
 
 Status Filter::reset(double t, const Eigen::VectorXd& z, const Eigen::MatrixXd& P) {
@@ -135,16 +126,6 @@ Status Filter::restore(double t, const Eigen::VectorXd& z, const Eigen::MatrixXd
 Status Filter::step(double t1, const double* u0, const double* u1, const double* y1) {
   RICCATI_RETURN_IF_ERROR(predict(t1, u0, u1));
   return update(y1, u1);
-}
-
-void Filter::hold_input(double t, double t0, double t1, const double* u0, const double* u1) {
-  const Eigen::Index nu = u_hold_.size();
-  if (settings_.hold == HoldOrder::kZero || u1 == nullptr) {
-    for (Eigen::Index i = 0; i < nu; ++i) u_hold_[i] = u0[i];
-    return;
-  }
-  const double a = (t - t0) / (t1 - t0);
-  for (Eigen::Index i = 0; i < nu; ++i) u_hold_[i] = u0[i] + a * (u1[i] - u0[i]);
 }
 
 Status Filter::check_estimate(const char* where) const {

@@ -13,6 +13,7 @@
 #include <string_view>
 
 #include "engine/integrators/integrator.hpp"
+#include "engine/models/input_hold.hpp"
 #include "engine/models/model.hpp"
 #include "engine/status.hpp"
 
@@ -24,11 +25,6 @@ enum class FilterKind {
   kOptimal,  // the optimal filter of van de Molengraft / van Kessel (mechanical models)
 };
 
-// How inputs are held between two samples (the toolbox's `order`).
-enum class HoldOrder {
-  kZero,   // u(t) = u_k on [t_k, t_k+1)
-  kFirst,  // u(t) linear from u_k to u_k+1
-};
 
 // How the gain solves with the innovation covariance S (the toolbox's `inverse`).
 enum class GainInversion {
@@ -81,9 +77,8 @@ struct FilterSettings {
   OptimalSettings optimal;
 };
 
-// Names of the settings' other enums, as the API, the CLI and job files write them.
-const char* hold_order_name(HoldOrder hold);
-Result<HoldOrder> parse_hold_order(std::string_view name);    // "zoh", "foh"
+// Names of the settings' other enums, as the API, the CLI and job files write
+// them (hold_order_name and parse_hold_order are in input_hold.hpp).
 Result<GainInversion> parse_gain_inversion(std::string_view name);  // "cholesky", "pinv"
 Result<SigmaWeights> parse_sigma_weights(std::string_view name);    // "julier", "scaled"
 Result<OptimalForm> parse_optimal_form(std::string_view name);      // "continuous", "split-step"
@@ -160,8 +155,6 @@ class Filter {
   // A diverged filter: non-finite state or a covariance that lost positive
   // semi-definiteness. Returns kFailedPrecondition naming what went wrong.
   Status check_estimate(const char* where) const;
-  // The input held at time t inside [t0, t1] (zero or first order) into u_hold_.
-  void hold_input(double t, double t0, double t1, const double* u0, const double* u1);
 
   ModelPtr model_;
   FilterSettings settings_;
@@ -171,7 +164,7 @@ class Filter {
   Eigen::VectorXd y_pred_, innovation_;
   Eigen::MatrixXd S_;
   double nis_ = 0.0;
-  Eigen::VectorXd u_hold_;  // scratch: the held input [nu]
+  InputHold hold_;  // the inputs over the interval being integrated
 
  private:
   static const Eigen::VectorXd kNothing;

@@ -80,8 +80,6 @@ class OptimalFilter final : public Filter {
     V_tilde_CQ_.resize(L, N);
     p_hat_ = Eigen::VectorXd::Zero(P);
     zeta_ = Eigen::VectorXd::Zero(L);
-    u0_.resize(nu);
-    u1_.resize(nu);
     u_now_.resize(nu);
     y_last_.resize(ny);
     y_next_.resize(ny);
@@ -183,11 +181,8 @@ class OptimalFilter final : public Filter {
       return invalid_argument("predict to t = " + std::to_string(t1) + " is not after the filter's time " +
                               std::to_string(t_));
     }
-    const int nu = model_->nu(), ny = model_->ny(), N = model_->nz();
-    t0_ = t_;
-    t1_ = t1;
-    u0_ = Eigen::Map<const Eigen::VectorXd>(u0, nu);
-    u1_ = Eigen::Map<const Eigen::VectorXd>(u1, nu);
+    const int ny = model_->ny(), N = model_->nz();
+    hold_.set_interval(t_, t1, u0, u1);
     interpolating_ = y1 != nullptr;
     if (interpolating_) y_next_ = Eigen::Map<const Eigen::VectorXd>(y1, ny);
     Eigen::Map<Eigen::VectorXd>(x_hat_Q_.data(), N) = x_hat_;
@@ -249,10 +244,9 @@ class OptimalFilter final : public Filter {
   // measurement terms in the split-step form).
   Status derivatives(double t, const double* w, double* wdot) {
     const int N = model_->nz(), nth = N - 2 * n_, nu = model_->nu();
-    hold_input(t, t0_, t1_, u0_.data(), u1_.data());
-    u_now_ = u_hold_;
+    u_now_ = Eigen::Map<const Eigen::VectorXd>(hold_.at(t), u_now_.size());
     if (interpolating_) {
-      const double a = (t - t0_) / (t1_ - t0_);
+      const double a = (t - hold_.t0()) / (hold_.t1() - hold_.t0());
       y_now_ = y_last_ + a * (y_next_ - y_last_);
     } else {
       y_now_ = y_last_;
@@ -350,10 +344,8 @@ class OptimalFilter final : public Filter {
   int n_ = 0;  // degrees of freedom
   bool continuous_ = true;
   Eigen::MatrixXd V_, W_inv_;
-  // The interval being integrated (valid during propagate()).
-  double t0_ = 0.0, t1_ = 0.0;
-  bool interpolating_ = false;
-  Eigen::VectorXd u0_, u1_, u_now_, y_last_, y_next_, y_now_;
+  bool interpolating_ = false;  // outputs interpolated over the interval being integrated
+  Eigen::VectorXd u_now_, y_last_, y_next_, y_now_;
   bool has_measurement_ = false;  // y_last_ holds the measurement at time()
   double interval_ = 0.0;         // length of the prediction not yet followed by an update
   // Work space, sized once.

@@ -125,10 +125,7 @@ class Ukf final : public KalmanFilter {
     }
     RICCATI_RETURN_IF_ERROR(draw_sigma_points());
     const int nx = model_->nx();
-    t0_ = t_;
-    t1_ = t1;
-    u0_ = u0;
-    u1_ = u1;
+    hold_.set_interval(t_, t1, u0, u1);
     // Columns 0..nx-1 of X (the states of every point) are contiguous.
     Status s = integrator_->integrate(rhs_, t_, t1, std::span<double>(X_.data(), std::size_t(npts_) * nx));
     if (!s.is_ok()) return s.with_context("UKF prediction from t = " + std::to_string(t_));
@@ -169,10 +166,9 @@ class Ukf final : public KalmanFilter {
     explicit Rhs(Ukf* ukf) : ukf_(ukf) {}
     Status eval(double t, const double* y, double* ydot) override {
       Ukf& u = *ukf_;
-      u.hold_input(t, u.t0_, u.t1_, u.u0_, u.u1_);
       const std::size_t ld = u.npts_;
       const double* theta = u.X_.data() + ld * u.model_->nx();  // constant over the interval
-      return u.model_->f(t, u.u_hold_.data(), u.npts_, ld, y, theta, ydot);
+      return u.model_->f(t, u.hold_.at(t), u.npts_, ld, y, theta, ydot);
     }
 
    private:
@@ -213,9 +209,6 @@ class Ukf final : public KalmanFilter {
   double spread_ = 1.0;
   Eigen::VectorXd wm_, wc_;
   bool q_is_zero_ = false;
-  double t0_ = 0.0, t1_ = 0.0;
-  const double* u0_ = nullptr;
-  const double* u1_ = nullptr;
   // Sigma points [npts x nz] and outputs [npts x ny]: one column per variable.
   Eigen::MatrixXd X_, Ypts_, dX_, dY_;
   Eigen::MatrixXd wdX_, wdY_;  // the deviations times the covariance weights Wc
