@@ -1,0 +1,94 @@
+#include "engine/estimation/estimate.hpp"
+
+#include <cmath>
+#include <limits>
+
+namespace riccati {
+namespace {
+
+std::string number(double v) {
+  char buffer[32];
+  std::snprintf(buffer, sizeof buffer, "%.6g", v);
+  return buffer;
+}
+
+}  // namespace
+
+ParameterSettings default_parameters(const Model& model, Eigen::VectorXd theta0) {
+  ParameterSettings p;
+  p.theta0 = std::move(theta0);
+  p.lower = model.theta_lower();
+  p.upper = model.theta_upper();
+  p.fixed.assign(static_cast<std::size_t>(model.ntheta()), false);
+  p.log_scale.assign(static_cast<std::size_t>(model.ntheta()), false);
+  return p;
+}
+
+Status validate(const ParameterSettings& p, const Model& model) {
+  const Eigen::Index n = model.ntheta();
+  const auto count = [](std::size_t size) { return static_cast<Eigen::Index>(size); };
+  if (p.theta0.size() != n || p.lower.size() != n || p.upper.size() != n || count(p.fixed.size()) != n ||
+      count(p.log_scale.size()) != n) {
+    return invalid_argument("the parameter settings need " + std::to_string(n) + " values each (model " +
+                            model.name() + ")");
+  }
+  for (Eigen::Index i = 0; i < n; ++i) {
+    const std::string& name = model.param_names()[static_cast<std::size_t>(i)];
+    const double lo = p.lower[i], hi = p.upper[i], v = p.theta0[i];
+    if (!std::isfinite(v)) return invalid_argument("theta0 of " + name + " is not finite");
+    if (std::isnan(lo) || std::isnan(hi) || lo > hi) {
+      return invalid_argument("the bounds of " + name + " are not an interval: [" + number(lo) + ", " + number(hi) +
+                              "]");
+    }
+    if (v < lo || v > hi) {
+      return invalid_argument("theta0 of " + name + " = " + number(v) + " is outside its bounds [" + number(lo) +
+                              ", " + number(hi) + "]");
+    }
+    if (p.log_scale[static_cast<std::size_t>(i)] && !(lo > 0.0)) {
+      return invalid_argument(name + " is estimated on a log scale, so it needs a positive lower bound (it has " +
+                              number(lo) + ")");
+    }
+  }
+  return Status::ok();
+}
+
+double to_solver(const ParameterSettings& p, Eigen::Index i, double theta) {
+  return p.log_scale[static_cast<std::size_t>(i)] ? std::log(theta) : theta;
+}
+
+double from_solver(const ParameterSettings& p, Eigen::Index i, double phi) {
+  return p.log_scale[static_cast<std::size_t>(i)] ? std::exp(phi) : phi;
+}
+
+double theta_per_phi(const ParameterSettings& p, Eigen::Index i, double theta) {
+  return p.log_scale[static_cast<std::size_t>(i)] ? theta : 1.0;
+}
+
+Status validate(const Experiment& e, const Model& model, std::size_t index) {
+  const std::string which = "experiment " + std::to_string(index + 1) +
+                            (e.data.name.empty() ? std::string() : " (" + e.data.name + ")");
+  RICCATI_RETURN_IF_ERROR(validate_dataset(e.data).with_context(which));
+  if (e.data.num_inputs() != model.nu() || e.data.num_outputs() != model.ny()) {
+    return invalid_argument(which + ": the data are not bound to model " + model.name());
+  }
+  if (e.x0.size() != model.nx() || !e.x0.allFinite()) {
+    return invalid_argument(which + ": x0 needs " + std::to_string(model.nx()) + " finite values");
+  }
+  if (!e.estimate_x0.empty() && static_cast<int>(e.estimate_x0.size()) != model.nx()) {
+    return invalid_argument(which + ": which initial states to estimate needs " + std::to_string(model.nx()) +
+                            " flags");
+  }
+  if (e.mask.size() != 0) {
+    if (e.mask.rows() != model.ny() || e.mask.cols() != e.data.size()) {
+      return invalid_argument(which + ": the sample mask must be " + std::to_string(model.ny()) + " x " +
+                              std::to_string(e.data.size()));
+    }
+    if (((e.mask != 0.0) && (e.mask != 1.0)).any()) return invalid_argument(which + ": the mask holds 0 and 1 only");
+    if ((e.mask.rowwise().sum() == 0.0).any()) {
+      return invalid_argument(which + ": an output has every sample excluded");
+    }
+  }
+  return Status::ok();
+}
+
+}  // namespace riccati

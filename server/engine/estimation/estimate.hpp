@@ -1,0 +1,106 @@
+// What the identification methods that find an optimum share (output error,
+// maximum likelihood; IDENTIFICATION.md): the unknowns and their bounds, the
+// experiments, the optimiser's settings, how a run is watched and stopped,
+// and the result with its uncertainty.
+//
+// Unknowns are the free parameters theta (some fixed by name, each within
+// [lower, upper], positive ones optionally on a log scale) shared by every
+// experiment, and each experiment's initial states that are estimated. The
+// optimiser moves in solver coordinates: phi = log(theta) for a log-scaled
+// parameter, theta otherwise.
+#pragma once
+
+#include <Eigen/Core>
+#include <functional>
+#include <stop_token>
+#include <string>
+#include <vector>
+
+#include "engine/data/dataset.hpp"
+#include "engine/estimation/fit_metrics.hpp"
+#include "engine/models/model.hpp"
+#include "engine/status.hpp"
+
+namespace riccati {
+
+struct ParameterSettings {
+  Eigen::VectorXd theta0;        // [ntheta] start (the value of a fixed parameter)
+  Eigen::VectorXd lower, upper;  // [ntheta] bounds; -inf / +inf: none
+  std::vector<bool> fixed;       // [ntheta] held at theta0
+  std::vector<bool> log_scale;   // [ntheta] estimated as log(theta): needs a positive lower bound
+};
+
+// Bounds from the model's own (Model::theta_lower/upper) where none is given,
+// nothing fixed, nothing log-scaled.
+ParameterSettings default_parameters(const Model& model, Eigen::VectorXd theta0);
+
+// Sizes, theta0 finite and within its bounds, lower <= upper, log-scaled
+// parameters with a positive lower bound; errors name the parameter.
+Status validate(const ParameterSettings& parameters, const Model& model);
+
+// theta <-> solver coordinates phi, and d theta / d phi, for parameter i.
+double to_solver(const ParameterSettings& p, Eigen::Index i, double theta);
+double from_solver(const ParameterSettings& p, Eigen::Index i, double phi);
+double theta_per_phi(const ParameterSettings& p, Eigen::Index i, double theta);
+
+// One record of the system: its data (bound to the model) and where it starts.
+struct Experiment {
+  Dataset data;                    // bound to the model (bind_dataset)
+  Eigen::VectorXd x0;              // [nx] the initial states, or the start of those estimated
+  std::vector<bool> estimate_x0;   // [nx] empty: none estimated
+  Eigen::ArrayXXd mask;            // [ny x N] 1 for a sample used, 0 for one excluded; empty: all used
+};
+
+Status validate(const Experiment& experiment, const Model& model, std::size_t index);
+
+struct OptimizerSettings {
+  int max_iterations = 200;
+  double function_tolerance = 1e-14;   // relative change of the cost
+  double gradient_tolerance = 1e-14;   // largest gradient entry, relative
+  double parameter_tolerance = 1e-12;  // relative change of the unknowns
+};
+
+struct EstimationProgress {
+  int iteration = 0;
+  double cost = 0.0;
+};
+
+struct EstimationHooks {
+  std::function<void(const EstimationProgress&)> progress;  // after every iteration
+  std::stop_token stop;  // checked at every iteration (and evaluation): kCancelled
+};
+
+struct ExperimentResult {
+  Eigen::VectorXd x0;              // [nx] the initial states (the estimate where estimated)
+  Eigen::VectorXd x0_std;          // [nx] standard errors (0 where given)
+  std::vector<bool> x0_estimated;  // [nx]
+  Eigen::VectorXd t;               // [N]
+  Eigen::MatrixXd y_measured;      // [ny x N]
+  Eigen::MatrixXd y_model;         // [ny x N] the model's prediction (OE: simulated; ML: one step ahead)
+  Eigen::MatrixXd residuals;       // [ny x N] normalised (see each method); 0 where masked out
+  Eigen::ArrayXXd mask;            // [ny x N] as used (all ones when none was given)
+  std::vector<OutputFit> fits;     // per output, over the samples used
+};
+
+struct EstimationResult {
+  std::vector<std::string> param_names;
+  Eigen::VectorXd theta;             // [ntheta] the estimate
+  Eigen::VectorXd theta_std;         // [ntheta] standard errors (0 for fixed; +inf where not identifiable)
+  Eigen::VectorXd ci_lower, ci_upper;  // [ntheta] 95 % confidence intervals
+  std::vector<bool> fixed;           // [ntheta]
+  Eigen::MatrixXd covariance;        // [ntheta x ntheta] (zero rows and columns for fixed ones)
+  Eigen::MatrixXd correlation;       // [ntheta x ntheta]
+  std::vector<std::string> warnings;  // parameters that are not identifiable, bounds that are active
+  double cost = 0.0;                 // the criterion at the estimate
+  double sigma2 = 1.0;               // the residual variance the covariance is scaled by (1: noise known)
+  std::vector<double> cost_history;  // the criterion after each iteration
+  int iterations = 0;
+  int evaluations = 0;               // simulations (OE) or filter runs (ML) of the whole record set
+  int jacobian_evaluations = 0;
+  bool converged = false;
+  std::string termination;           // the optimiser's reason for stopping
+  std::string gradient;              // how the gradient was had: exact sensitivities, or central differences
+  std::vector<ExperimentResult> experiments;
+};
+
+}  // namespace riccati
