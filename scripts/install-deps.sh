@@ -6,6 +6,7 @@ set -euo pipefail
 packages=(
   build-essential cmake ninja-build ccache pkg-config   # toolchain, one cached build
   libeigen3-dev                                         # linear algebra
+  libboost-dev                                          # Boost.Math (header-only): chi-square quantiles in residual diagnostics
   libsundials-dev                                       # CVODE / ARKODE integrators
   libspdlog-dev                                         # logging
   libmatio-dev                                          # MAT files (the 1999 toolbox's T/U/Y layout)
