@@ -172,6 +172,7 @@ TEST(OutputError, ConfidenceIntervalsCoverTheTruthAtTheirLevel) {
   std::normal_distribution<double> noise(0.0, kSigma);
   Eigen::VectorXi covered = Eigen::VectorXi::Zero(4);
   double mean_sigma = 0.0;
+  int white = 0;
   for (int run = 0; run < kRuns; ++run) {
     Experiment e = clean;
     for (Eigen::Index k = 0; k < e.data.size(); ++k) {
@@ -184,6 +185,7 @@ TEST(OutputError, ConfidenceIntervalsCoverTheTruthAtTheirLevel) {
     ASSERT_TRUE(r.is_ok()) << r.status().to_string();
     for (Eigen::Index i = 0; i < 4; ++i) covered[i] += truth[i] >= r->ci_lower[i] && truth[i] <= r->ci_upper[i];
     mean_sigma += std::sqrt(r->sigma2) / kRuns;
+    white += r->experiments[0].diagnostics.white();
   }
   std::printf("covered %d %d %d %d of %d; mean sigma-hat %.6g (true %.6g)\n", covered[0], covered[1], covered[2],
               covered[3], kRuns, mean_sigma, kSigma);
@@ -193,6 +195,11 @@ TEST(OutputError, ConfidenceIntervalsCoverTheTruthAtTheirLevel) {
     EXPECT_LE(covered[i], 99) << model->param_names()[static_cast<std::size_t>(i)];
   }
   EXPECT_NEAR(mean_sigma, kSigma, 0.02 * kSigma);
+  // Both outputs' residuals pass the whiteness test with probability 0.95^2
+  // when the model is right: 90 of 100, binomial 95 % range 84-96.
+  EXPECT_GE(white, 83);
+  EXPECT_LE(white, 97);
+  std::printf("white in %d of %d\n", white, kRuns);
 }
 
 // Hensen's published values for the arm: the simulated arm hardly moves

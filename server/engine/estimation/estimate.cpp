@@ -91,4 +91,20 @@ Status validate(const Experiment& e, const Model& model, std::size_t index) {
   return Status::ok();
 }
 
+Result<ResidualDiagnostics> diagnose(const ExperimentResult& e, const Eigen::MatrixXd& inputs, const Eigen::VectorXd* nis) {
+  std::vector<Eigen::Index> used;
+  for (Eigen::Index k = 0; k < e.residuals.cols(); ++k) {
+    if (e.mask.size() == 0 || (e.mask.col(k) != 0.0).all()) used.push_back(k);
+  }
+  const auto n = static_cast<Eigen::Index>(used.size());
+  Eigen::MatrixXd r(e.residuals.rows(), n), u(inputs.rows(), n);
+  Eigen::VectorXd s(nis != nullptr ? n : 0);
+  for (Eigen::Index c = 0; c < n; ++c) {
+    r.col(c) = e.residuals.col(used[static_cast<std::size_t>(c)]);
+    u.col(c) = inputs.col(used[static_cast<std::size_t>(c)]);
+    if (nis != nullptr) s[c] = (*nis)[used[static_cast<std::size_t>(c)]];
+  }
+  return diagnose_residuals(r, u, nis != nullptr ? &s : nullptr);
+}
+
 }  // namespace riccati

@@ -17,6 +17,7 @@
 #include <vector>
 
 #include "engine/data/dataset.hpp"
+#include "engine/estimation/diagnostics.hpp"
 #include "engine/estimation/fit_metrics.hpp"
 #include "engine/models/model.hpp"
 #include "engine/status.hpp"
@@ -80,7 +81,15 @@ struct ExperimentResult {
   Eigen::MatrixXd residuals;       // [ny x N] normalised (see each method); 0 where masked out
   Eigen::ArrayXXd mask;            // [ny x N] as used (all ones when none was given)
   std::vector<OutputFit> fits;     // per output, over the samples used
+  // Of the residuals over the samples where every output is used (ML: with
+  // the one-step NIS).
+  ResidualDiagnostics diagnostics;
 };
+
+// The diagnostics of an experiment's residuals over the samples where every
+// output is used, against its inputs; `nis` [N] per sample when the method has one.
+Result<ResidualDiagnostics> diagnose(const ExperimentResult& experiment, const Eigen::MatrixXd& inputs,
+                                     const Eigen::VectorXd* nis = nullptr);
 
 struct EstimationResult {
   std::vector<std::string> param_names;

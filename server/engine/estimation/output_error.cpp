@@ -354,7 +354,9 @@ Result<EstimationResult> output_error(ModelPtr model, const std::vector<Experime
     confidence_interval(result.theta[a], result.theta_std[a], p.log_scale[static_cast<std::size_t>(a)],
                         &result.ci_lower[a], &result.ci_upper[a]);
   }
-  const double sigma_scale = std::sqrt(result.sigma2);
+  // An exact fit (noise-free data, cost 0) has no residual scale: its
+  // residuals are 0 either way.
+  const double sigma_scale = result.sigma2 > 0.0 && std::isfinite(result.sigma2) ? std::sqrt(result.sigma2) : 1.0;
   for (std::size_t e = 0; e < experiments.size(); ++e) {
     ExperimentResult& out = result.experiments[e];
     for (int j = 0; j < nx; ++j) {
@@ -365,6 +367,7 @@ Result<EstimationResult> output_error(ModelPtr model, const std::vector<Experime
     out.residuals = ((out.y_measured - out.y_model).array().colwise() * weights.array()).matrix() / sigma_scale;
     out.residuals = (out.residuals.array() * out.mask).matrix();
     RICCATI_ASSIGN_OR_RETURN(out.fits, fits_over_mask(out.y_measured, out.y_model, out.mask, model->output_names()));
+    RICCATI_ASSIGN_OR_RETURN(out.diagnostics, diagnose(out, experiments[e].data.u));
   }
   return result;
 }
