@@ -22,8 +22,7 @@ packages=(
   nlohmann-json3-dev                                    # JSON (dataset metadata in tests)
   libgtest-dev libgmock-dev                             # GoogleTest
   libbenchmark-dev                                      # Google Benchmark
-  libceres-dev                                          # Ceres Solver: output-error least squares
-  libnlopt-cxx-dev                                      # NLopt: the likelihood's bound-constrained optimiser
+  libceres-dev                                          # Ceres Solver: the least squares of output error and maximum likelihood
 )
 
 # "fuzz": also what scripts/fuzz.sh needs (clang with libFuzzer and the sanitizers' runtime).

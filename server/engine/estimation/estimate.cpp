@@ -1,5 +1,7 @@
 #include "engine/estimation/estimate.hpp"
 
+#include "engine/estimation/uncertainty.hpp"
+
 #include <cmath>
 #include <limits>
 
@@ -89,6 +91,60 @@ Status validate(const Experiment& e, const Model& model, std::size_t index) {
     }
   }
   return Status::ok();
+}
+
+Result<std::vector<OutputFit>> fits_over_mask(const Eigen::MatrixXd& y, const Eigen::MatrixXd& y_model,
+                                              const Eigen::ArrayXXd& mask, const std::vector<std::string>& names) {
+  std::vector<OutputFit> fits;
+  for (Eigen::Index i = 0; i < y.rows(); ++i) {
+    const Eigen::Index used = static_cast<Eigen::Index>(mask.row(i).sum());
+    Eigen::MatrixXd a(1, used), b(1, used);
+    for (Eigen::Index k = 0, c = 0; k < y.cols(); ++k) {
+      if (mask(i, k) == 0.0) continue;
+      a(0, c) = y(i, k);
+      b(0, c++) = y_model(i, k);
+    }
+    RICCATI_ASSIGN_OR_RETURN(std::vector<OutputFit> one, compare_outputs(a, b, {names[static_cast<std::size_t>(i)]}));
+    fits.push_back(one.front());
+  }
+  return fits;
+}
+
+void warn_active_bounds(const ParameterSettings& p, EstimationResult* r) {
+  const std::vector<std::string>& names = r->param_names;
+  for (Eigen::Index i = 0; i < r->theta.size(); ++i) {
+    if (p.fixed[static_cast<std::size_t>(i)]) continue;
+    const double v = r->theta[i], tolerance = 1e-9 * std::max(1.0, std::abs(v));
+    const char* which = std::abs(v - p.lower[i]) <= tolerance ? "lower" : std::abs(v - p.upper[i]) <= tolerance ? "upper" : nullptr;
+    if (which != nullptr) {
+      r->warnings.push_back(names[static_cast<std::size_t>(i)] + " ended on its " + which + " bound " + number(v) +
+                            ": the best fit may lie beyond it");
+    }
+  }
+}
+
+void set_parameter_uncertainty(const ParameterSettings& p, const Uncertainty& u, const std::vector<Eigen::Index>& columns,
+                               EstimationResult* result) {
+  const Eigen::Index ntheta = result->theta.size();
+  result->warnings.insert(result->warnings.end(), u.warnings.begin(), u.warnings.end());
+  result->theta_std = Eigen::VectorXd::Zero(ntheta);
+  result->covariance = Eigen::MatrixXd::Zero(ntheta, ntheta);
+  result->correlation = Eigen::MatrixXd::Identity(ntheta, ntheta);
+  result->ci_lower = result->theta;
+  result->ci_upper = result->theta;
+  for (Eigen::Index a = 0; a < ntheta; ++a) {
+    const Eigen::Index ca = columns[static_cast<std::size_t>(a)];
+    if (ca < 0) continue;
+    result->theta_std[a] = u.std[ca];
+    for (Eigen::Index b = 0; b < ntheta; ++b) {
+      const Eigen::Index cb = columns[static_cast<std::size_t>(b)];
+      if (cb < 0) continue;
+      result->covariance(a, b) = u.covariance(ca, cb);
+      result->correlation(a, b) = u.correlation(ca, cb);
+    }
+    confidence_interval(result->theta[a], result->theta_std[a], p.log_scale[static_cast<std::size_t>(a)],
+                        &result->ci_lower[a], &result->ci_upper[a]);
+  }
 }
 
 Result<ResidualDiagnostics> diagnose(const ExperimentResult& e, const Eigen::MatrixXd& inputs, const Eigen::VectorXd* nis) {

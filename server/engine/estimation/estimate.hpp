@@ -86,6 +86,10 @@ struct ExperimentResult {
   ResidualDiagnostics diagnostics;
 };
 
+// The fit of each output over the samples the mask [ny x N] uses.
+Result<std::vector<OutputFit>> fits_over_mask(const Eigen::MatrixXd& y, const Eigen::MatrixXd& y_model,
+                                              const Eigen::ArrayXXd& mask, const std::vector<std::string>& names);
+
 // The diagnostics of an experiment's residuals over the samples where every
 // output is used, against its inputs; `nis` [N] per sample when the method has one.
 Result<ResidualDiagnostics> diagnose(const ExperimentResult& experiment, const Eigen::MatrixXd& inputs,
@@ -111,5 +115,15 @@ struct EstimationResult {
   std::string gradient;              // how the gradient was had: exact sensitivities, or central differences
   std::vector<ExperimentResult> experiments;
 };
+
+// The parameters' part of an uncertainty over the unknowns (uncertainty.hpp):
+// `columns` [ntheta] gives each parameter's index among the unknowns (-1:
+// fixed). Fills theta_std, covariance, correlation, the 95 % intervals and
+// the warnings of `result` (its theta set).
+struct Uncertainty;
+void set_parameter_uncertainty(const ParameterSettings& parameters, const Uncertainty& uncertainty,
+                               const std::vector<Eigen::Index>& columns, EstimationResult* result);
+// A warning for each free parameter that ended on a bound: the best fit may lie beyond it.
+void warn_active_bounds(const ParameterSettings& parameters, EstimationResult* result);
 
 }  // namespace riccati

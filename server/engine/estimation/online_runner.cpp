@@ -140,6 +140,36 @@ Status OnlineRunner::advance(double t, std::span<const double> u, std::span<cons
   return Status::ok();
 }
 
+Status OnlineRunner::advance_without_measurement(double t, std::span<const double> u) {
+  if (diverged()) return divergence_;
+  const Model& model = filter_->model();
+  if (u.size() != static_cast<std::size_t>(model.nu())) {
+    return invalid_argument("measurement needs " + std::to_string(model.nu()) + " inputs (model " + model.name() +
+                            "), got " + std::to_string(u.size()));
+  }
+  if (!std::isfinite(t) || (started_ && !(t > filter_->time()))) {
+    return invalid_argument("time " + std::to_string(t) + " is not after the run's " + std::to_string(filter_->time()));
+  }
+  Status stepped;
+  if (started_) {
+    stepped = filter_->predict(t, u_last_.data(), u.data());
+  } else {
+    if (initial_.mode != InitialState::kGiven) {
+      return invalid_argument("a run that starts without a measurement needs x0 given");
+    }
+    Eigen::VectorXd z(model.nz());
+    z << initial_.x0, initial_.theta0;
+    stepped = filter_->reset(t, z, initial_.P0);
+    started_ = stepped.is_ok();
+  }
+  if (!stepped.is_ok()) {
+    divergence_ = stepped;
+    return divergence_;
+  }
+  std::copy(u.begin(), u.end(), u_last_.data());
+  return Status::ok();
+}
+
 OnlineRunner::Snapshot OnlineRunner::snapshot() const {
   Snapshot s;
   s.started = started_;

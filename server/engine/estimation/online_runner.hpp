@@ -63,6 +63,10 @@ class OnlineRunner {
   // Advances the run by the measurement at time t with inputs u [nu] and
   // outputs y [ny] (see the top of this file for what the errors mean).
   Status advance(double t, std::span<const double> u, std::span<const double> y);
+  // Advances to time t with the inputs u [nu] and no measurement of the
+  // outputs (a sample excluded, or missing): a prediction, no update. A run
+  // that starts so starts from x0 as given (InitialState::kGiven).
+  Status advance_without_measurement(double t, std::span<const double> u);
 
   bool started() const { return started_; }
   bool diverged() const { return !divergence_.is_ok(); }

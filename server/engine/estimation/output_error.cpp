@@ -1,7 +1,6 @@
 #include "engine/estimation/output_error.hpp"
 
 #include <ceres/ceres.h>
-#include <glog/logging.h>
 
 #include <cmath>
 #include <limits>
@@ -9,6 +8,7 @@
 #include <mutex>
 #include <string>
 
+#include "engine/estimation/least_squares.hpp"
 #include "engine/estimation/sensitivity.hpp"
 #include "engine/estimation/uncertainty.hpp"
 
@@ -92,21 +92,6 @@ class ExperimentCost final : public ceres::CostFunction {
   mutable SimulatedRecord record_;
 };
 
-// Progress, the cost after each iteration, and cancellation.
-class Watcher final : public ceres::IterationCallback {
- public:
-  Watcher(const EstimationHooks& hooks, std::vector<double>* history) : hooks_(hooks), history_(history) {}
-  ceres::CallbackReturnType operator()(const ceres::IterationSummary& summary) override {
-    history_->push_back(summary.cost);
-    if (hooks_.progress) hooks_.progress(EstimationProgress{summary.iteration, summary.cost});
-    return hooks_.stop.stop_requested() ? ceres::SOLVER_ABORT : ceres::SOLVER_CONTINUE;
-  }
-
- private:
-  const EstimationHooks& hooks_;
-  std::vector<double>* history_;
-};
-
 std::string number(double v) {
   char buffer[32];
   std::snprintf(buffer, sizeof buffer, "%.6g", v);
@@ -117,46 +102,6 @@ std::string join(const Eigen::VectorXd& v) {
   std::string out;
   for (Eigen::Index i = 0; i < v.size(); ++i) out += (i > 0 ? ", " : "") + number(v[i]);
   return out;
-}
-
-// The fit of each output over the samples used.
-Result<std::vector<OutputFit>> fits_over_mask(const Eigen::MatrixXd& y, const Eigen::MatrixXd& y_model,
-                                              const Eigen::ArrayXXd& mask, const std::vector<std::string>& names) {
-  std::vector<OutputFit> fits;
-  for (Eigen::Index i = 0; i < y.rows(); ++i) {
-    const Eigen::Index used = static_cast<Eigen::Index>(mask.row(i).sum());
-    Eigen::MatrixXd a(1, used), b(1, used);
-    for (Eigen::Index k = 0, c = 0; k < y.cols(); ++k) {
-      if (mask(i, k) == 0.0) continue;
-      a(0, c) = y(i, k);
-      b(0, c++) = y_model(i, k);
-    }
-    RICCATI_ASSIGN_OR_RETURN(std::vector<OutputFit> one, compare_outputs(a, b, {names[static_cast<std::size_t>(i)]}));
-    fits.push_back(one.front());
-  }
-  return fits;
-}
-
-// Warnings for parameters that ended on a bound: the optimum of the
-// criterion may lie beyond it.
-void warn_active_bounds(const ParameterSettings& p, const std::vector<std::string>& names, EstimationResult* r) {
-  for (Eigen::Index i = 0; i < r->theta.size(); ++i) {
-    if (p.fixed[static_cast<std::size_t>(i)]) continue;
-    const double v = r->theta[i], tolerance = 1e-9 * std::max(1.0, std::abs(v));
-    const char* which = std::abs(v - p.lower[i]) <= tolerance ? "lower" : std::abs(v - p.upper[i]) <= tolerance ? "upper" : nullptr;
-    if (which != nullptr) {
-      r->warnings.push_back(names[static_cast<std::size_t>(i)] + " ended on its " + which + " bound " + number(v) +
-                            ": the best fit may lie beyond it");
-    }
-  }
-}
-
-// Ceres reports through glog; riccati reports what the optimiser did in the
-// result (termination, failures) and logs through spdlog, so glog is kept
-// quiet (it would write to stderr before any InitGoogleLogging).
-void quiet_ceres_logging() {
-  static std::once_flag once;
-  std::call_once(once, [] { FLAGS_minloglevel = google::GLOG_FATAL; });
 }
 
 }  // namespace
@@ -182,12 +127,7 @@ Result<EstimationResult> output_error(ModelPtr model, const std::vector<Experime
   }
   for (std::size_t e = 0; e < experiments.size(); ++e) RICCATI_RETURN_IF_ERROR(validate(experiments[e], *model, e));
 
-  // The unknowns: theta in solver coordinates, and each experiment's x0.
-  Eigen::VectorXd phi(ntheta);
-  for (Eigen::Index i = 0; i < ntheta; ++i) phi[i] = to_solver(p, i, p.theta0[i]);
-  std::vector<Eigen::VectorXd> x0s;
-  for (const Experiment& e : experiments) x0s.push_back(e.x0);
-
+  LeastSquaresUnknowns unknowns(p, experiments);
   Counters counters;
   ceres::Problem::Options problem_options;
   problem_options.manifold_ownership = ceres::TAKE_OWNERSHIP;
@@ -195,57 +135,19 @@ Result<EstimationResult> output_error(ModelPtr model, const std::vector<Experime
   ceres::Problem problem(problem_options);
   std::vector<const ExperimentCost*> costs;
   for (std::size_t e = 0; e < experiments.size(); ++e) {
-    const Experiment& ex = experiments[e];
-    const bool any_x0 = std::find(ex.estimate_x0.begin(), ex.estimate_x0.end(), true) != ex.estimate_x0.end();
     RICCATI_ASSIGN_OR_RETURN(SensitivitySimulator simulator,
-                             SensitivitySimulator::create(model, settings.simulation, any_x0));
-    auto* cost = new ExperimentCost(ex, std::move(simulator), p, weights, &counters);
+                             SensitivitySimulator::create(model, settings.simulation, estimates_x0(experiments[e])));
+    auto* cost = new ExperimentCost(experiments[e], std::move(simulator), p, weights, &counters);
     costs.push_back(cost);
-    problem.AddResidualBlock(cost, nullptr, phi.data(), x0s[e].data());
-    if (!any_x0) {
-      problem.SetParameterBlockConstant(x0s[e].data());
-    } else {
-      std::vector<int> fixed;
-      for (int i = 0; i < nx; ++i) {
-        if (!ex.estimate_x0[static_cast<std::size_t>(i)]) fixed.push_back(i);
-      }
-      if (!fixed.empty()) problem.SetManifold(x0s[e].data(), new ceres::SubsetManifold(nx, fixed));
-    }
+    problem.AddResidualBlock(cost, nullptr, unknowns.phi.data(), unknowns.x0[e].data());
   }
-  std::vector<int> fixed_theta;
-  for (int i = 0; i < ntheta; ++i) {
-    if (p.fixed[static_cast<std::size_t>(i)]) fixed_theta.push_back(i);
-  }
-  if (static_cast<int>(fixed_theta.size()) == ntheta) {
-    problem.SetParameterBlockConstant(phi.data());
-  } else {
-    if (!fixed_theta.empty()) problem.SetManifold(phi.data(), new ceres::SubsetManifold(ntheta, fixed_theta));
-    for (int i = 0; i < ntheta; ++i) {
-      if (std::isfinite(p.lower[i]) && !p.fixed[static_cast<std::size_t>(i)]) {
-        problem.SetParameterLowerBound(phi.data(), i, to_solver(p, i, p.lower[i]));
-      }
-      if (std::isfinite(p.upper[i]) && !p.fixed[static_cast<std::size_t>(i)]) {
-        problem.SetParameterUpperBound(phi.data(), i, to_solver(p, i, p.upper[i]));
-      }
-    }
-  }
+  unknowns.constrain(problem, p, experiments);
 
   EstimationResult result;
   result.param_names = model->param_names();
   result.gradient = "exact: forward sensitivities of the simulation";
-  Watcher watcher(hooks, &result.cost_history);
-  ceres::Solver::Options options;
-  options.minimizer_type = ceres::TRUST_REGION;
-  options.trust_region_strategy_type = ceres::LEVENBERG_MARQUARDT;
-  options.linear_solver_type = ceres::DENSE_QR;
-  options.max_num_iterations = settings.optimizer.max_iterations;
-  options.function_tolerance = settings.optimizer.function_tolerance;
-  options.gradient_tolerance = settings.optimizer.gradient_tolerance;
-  options.parameter_tolerance = settings.optimizer.parameter_tolerance;
-  options.num_threads = 1;
-  options.logging_type = ceres::SILENT;
-  options.minimizer_progress_to_stdout = false;
-  options.callbacks.push_back(&watcher);
+  IterationWatcher watcher(hooks, &result.cost_history);
+  const ceres::Solver::Options options = solver_options(settings.optimizer, &watcher);
   ceres::Solver::Summary summary;
   ceres::Solve(options, &problem, &summary);
   if (hooks.stop.stop_requested()) {
@@ -263,8 +165,7 @@ Result<EstimationResult> output_error(ModelPtr model, const std::vector<Experime
   result.converged = summary.termination_type == ceres::CONVERGENCE;
   result.termination = summary.message;
   result.cost = summary.final_cost;
-  result.theta.resize(ntheta);
-  for (Eigen::Index i = 0; i < ntheta; ++i) result.theta[i] = from_solver(p, i, phi[i]);
+  result.theta = unknowns.theta(p);
   result.fixed = p.fixed;
 
   // The information J'J at the estimate over the free unknowns, in natural
@@ -287,17 +188,17 @@ Result<EstimationResult> output_error(ModelPtr model, const std::vector<Experime
                       (experiments.size() > 1 ? " of experiment " + std::to_string(e + 1) : ""));
     }
   }
-  const Eigen::Index unknowns = static_cast<Eigen::Index>(names.size());
-  values.resize(unknowns);
-  Eigen::MatrixXd information = Eigen::MatrixXd::Zero(unknowns, unknowns);
+  const Eigen::Index free_count = static_cast<Eigen::Index>(names.size());
+  values.resize(free_count);
+  Eigen::MatrixXd information = Eigen::MatrixXd::Zero(free_count, free_count);
   double used_residuals = 0.0;
   Eigen::MatrixXd J;
   for (std::size_t e = 0; e < experiments.size(); ++e) {
     const Experiment& ex = experiments[e];
-    RICCATI_ASSIGN_OR_RETURN(const SimulatedRecord* r, costs[e]->analyse(result.theta, x0s[e]));
+    RICCATI_ASSIGN_OR_RETURN(const SimulatedRecord* r, costs[e]->analyse(result.theta, unknowns.x0[e]));
     const Eigen::Index N = ex.data.size();
     ExperimentResult out;
-    out.x0 = x0s[e];
+    out.x0 = unknowns.x0[e];
     out.x0_std = Eigen::VectorXd::Zero(nx);
     out.x0_estimated = ex.estimate_x0.empty() ? std::vector<bool>(static_cast<std::size_t>(nx), false) : ex.estimate_x0;
     out.t = ex.data.t;
@@ -305,7 +206,7 @@ Result<EstimationResult> output_error(ModelPtr model, const std::vector<Experime
     out.y_model = r->y;
     out.mask = ex.mask.size() != 0 ? ex.mask : Eigen::ArrayXXd::Ones(ny, N);
     used_residuals += out.mask.sum();
-    J.setZero(N * ny, unknowns);
+    J.setZero(N * ny, free_count);
     for (Eigen::Index k = 0; k < N; ++k) {
       for (Eigen::Index i = 0; i < ny; ++i) {
         const Eigen::Index row = k * ny + i;
@@ -331,29 +232,11 @@ Result<EstimationResult> output_error(ModelPtr model, const std::vector<Experime
     const Eigen::Index c = theta_columns[static_cast<std::size_t>(j)];
     if (c >= 0) values[c] = result.theta[j];
   }
-  const double dof = used_residuals - static_cast<double>(unknowns);
+  const double dof = used_residuals - static_cast<double>(free_count);
   result.sigma2 = noise_known ? 1.0 : (dof > 0.0 ? 2.0 * result.cost / dof : std::numeric_limits<double>::infinity());
   const Uncertainty u = uncertainty_from_information(information, result.sigma2, names, values);
-  result.warnings = u.warnings;
-  warn_active_bounds(p, model->param_names(), &result);
-  result.theta_std = Eigen::VectorXd::Zero(ntheta);
-  result.covariance = Eigen::MatrixXd::Zero(ntheta, ntheta);
-  result.correlation = Eigen::MatrixXd::Identity(ntheta, ntheta);
-  result.ci_lower = result.theta;
-  result.ci_upper = result.theta;
-  for (int a = 0; a < ntheta; ++a) {
-    const Eigen::Index ca = theta_columns[static_cast<std::size_t>(a)];
-    if (ca < 0) continue;
-    result.theta_std[a] = u.std[ca];
-    for (int b = 0; b < ntheta; ++b) {
-      const Eigen::Index cb = theta_columns[static_cast<std::size_t>(b)];
-      if (cb < 0) continue;
-      result.covariance(a, b) = u.covariance(ca, cb);
-      result.correlation(a, b) = u.correlation(ca, cb);
-    }
-    confidence_interval(result.theta[a], result.theta_std[a], p.log_scale[static_cast<std::size_t>(a)],
-                        &result.ci_lower[a], &result.ci_upper[a]);
-  }
+  set_parameter_uncertainty(p, u, theta_columns, &result);
+  warn_active_bounds(p, &result);
   // An exact fit (noise-free data, cost 0) has no residual scale: its
   // residuals are 0 either way.
   const double sigma_scale = result.sigma2 > 0.0 && std::isfinite(result.sigma2) ? std::sqrt(result.sigma2) : 1.0;
