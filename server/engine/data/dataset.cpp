@@ -265,12 +265,18 @@ Result<Dataset> parse_csv(std::string_view text, const ColumnMapping& mapping, s
   if (auto error = csv::parse(text, columns, source, &table)) return invalid_argument(std::move(*error));
 
   // Row by row, the table is a (1 + nu + ny) x N matrix: time, inputs, outputs.
-  const auto nu = static_cast<Index>(mapping.inputs.size());
-  const Eigen::Map<const Eigen::MatrixXd> samples(table.values.data(), static_cast<Index>(columns.size()),
-                                                  static_cast<Index>(table.rows()));
-  data.t = samples.row(0).transpose();
-  data.u = samples.middleRows(1, nu);
-  data.y = samples.bottomRows(static_cast<Index>(mapping.outputs.size()));
+  const auto nu = static_cast<Index>(mapping.inputs.size()), ny = static_cast<Index>(mapping.outputs.size());
+  const auto n = static_cast<Index>(table.rows());
+  if (n == 0) {  // no samples (validate_dataset says so); an empty table has no storage to map
+    data.t.resize(0);
+    data.u.resize(nu, 0);
+    data.y.resize(ny, 0);
+  } else {
+    const Eigen::Map<const Eigen::MatrixXd> samples(table.values.data(), static_cast<Index>(columns.size()), n);
+    data.t = samples.row(0).transpose();
+    data.u = samples.middleRows(1, nu);
+    data.y = samples.bottomRows(ny);
+  }
   data.input_names = mapping.inputs;
   data.output_names = mapping.outputs;
   RICCATI_RETURN_IF_ERROR(validate_dataset(data));
