@@ -101,6 +101,11 @@ const std::vector<const char*> kMigrations = {
       ADD COLUMN lease_until_ms BIGINT NOT NULL DEFAULT 0;
     CREATE INDEX session_snapshots_by_owner ON session_snapshots (owner);
     )sql",
+    // 4: an optimiser's progress (output error, maximum likelihood).
+    R"sql(
+    ALTER TABLE jobs ADD COLUMN iteration INTEGER NOT NULL DEFAULT 0,
+      ADD COLUMN cost DOUBLE PRECISION NOT NULL DEFAULT 0;
+    )sql",
 };
 
 // Leases are read against the database's clock, so that instances on hosts
@@ -204,7 +209,7 @@ std::vector<std::string> strings_of(const pqxx::field& f) {
 
 constexpr const char* kJobColumns =
     "id, tenant, kind, state, spec, pass, passes, sample, samples, theta, error_code, error_message, created_ms, "
-    "started_ms, finished_ms, owner, lease_until_ms, cancel_requested";
+    "started_ms, finished_ms, owner, lease_until_ms, cancel_requested, iteration, cost";
 
 JobRecord read_job(const pqxx::row& r) {
   JobRecord j;
@@ -226,6 +231,8 @@ JobRecord read_job(const pqxx::row& r) {
   j.owner = r[15].as<std::string>();
   j.lease_until_ms = r[16].as<std::int64_t>();
   j.cancel_requested = r[17].as<bool>();
+  j.iteration = r[18].as<int>();
+  j.cost = r[19].as<double>();
   return j;
 }
 
@@ -462,10 +469,11 @@ class PostgresStore final : public Store {
     return run<pqxx::nontransaction>("storing job " + j.id, false, [&](auto& tx) -> Status {
       tx.exec_params(std::string("INSERT INTO jobs (") + kJobColumns +
                          ") VALUES ($1, $2, $3, $4, $5::bytea, $6, $7, $8, $9, $10::bytea, $11, $12, $13, $14, $15, "
-                         "$16, $17, $18)",
+                         "$16, $17, $18, $19, $20)",
                      j.id, j.tenant, job_kind_name(j.kind), job_state_name(j.state), pqxx::binarystring(j.spec), j.pass, j.passes,
                      j.sample, j.samples, to_bytea(j.theta.data(), j.theta.size()), j.error_code, j.error_message,
-                     j.created_ms, j.started_ms, j.finished_ms, j.owner, j.lease_until_ms, j.cancel_requested);
+                     j.created_ms, j.started_ms, j.finished_ms, j.owner, j.lease_until_ms, j.cancel_requested,
+                     j.iteration, j.cost);
       return Status::ok();
     });
   }
@@ -475,9 +483,10 @@ class PostgresStore final : public Store {
     return run<pqxx::nontransaction>("updating job " + j.id, true, [&](auto& tx) -> Status {
       const pqxx::result r = tx.exec_params(
           "UPDATE jobs SET state = $1, pass = $2, passes = $3, sample = $4, samples = $5, theta = $6::bytea, "
-          "error_code = $7, error_message = $8, started_ms = $9, finished_ms = $10 WHERE id = $11 AND tenant = $12",
+          "error_code = $7, error_message = $8, started_ms = $9, finished_ms = $10, iteration = $11, cost = $12 WHERE "
+          "id = $13 AND tenant = $14",
           job_state_name(j.state), j.pass, j.passes, j.sample, j.samples, to_bytea(j.theta.data(), j.theta.size()),
-          j.error_code, j.error_message, j.started_ms, j.finished_ms, j.id, j.tenant);
+          j.error_code, j.error_message, j.started_ms, j.finished_ms, j.iteration, j.cost, j.id, j.tenant);
       if (r.affected_rows() == 0) return not_found("no job " + j.id);
       return Status::ok();
     });
@@ -535,9 +544,10 @@ class PostgresStore final : public Store {
     return run<pqxx::nontransaction>("renewing the lease of job " + p.id, true, [&](auto& tx) -> Result<bool> {
       const pqxx::result r = tx.exec_params(
           "UPDATE jobs SET lease_until_ms = " RICCATI_PG_NOW_MS
-          " + $1, pass = $2, passes = $3, sample = $4, samples = $5, theta = $6::bytea WHERE id = $7 AND owner = $8 "
-          "AND state = 'running' RETURNING cancel_requested",
-          lease_ms, p.pass, p.passes, p.sample, p.samples, to_bytea(p.theta.data(), p.theta.size()), p.id, owner);
+          " + $1, pass = $2, passes = $3, sample = $4, samples = $5, theta = $6::bytea, iteration = $7, cost = $8 "
+          "WHERE id = $9 AND owner = $10 AND state = 'running' RETURNING cancel_requested",
+          lease_ms, p.pass, p.passes, p.sample, p.samples, to_bytea(p.theta.data(), p.theta.size()), p.iteration,
+          p.cost, p.id, owner);
       if (r.empty()) return job_lease_lost(p.id, owner);
       return r[0][0].as<bool>();
     });
@@ -549,10 +559,10 @@ class PostgresStore final : public Store {
     return run<pqxx::work>("ending job " + j.id, true, [&](auto& tx) -> Status {
       const pqxx::result r = tx.exec_params(
           "UPDATE jobs SET state = $1, pass = $2, passes = $3, sample = $4, samples = $5, theta = $6::bytea, "
-          "error_code = $7, error_message = $8, finished_ms = $9, lease_until_ms = 0 WHERE id = $10 AND owner = $11 "
-          "AND state = 'running'",
+          "error_code = $7, error_message = $8, finished_ms = $9, lease_until_ms = 0, iteration = $10, cost = $11 WHERE "
+          "id = $12 AND owner = $13 AND state = 'running'",
           job_state_name(j.state), j.pass, j.passes, j.sample, j.samples, to_bytea(j.theta.data(), j.theta.size()),
-          j.error_code, j.error_message, j.finished_ms, j.id, owner);
+          j.error_code, j.error_message, j.finished_ms, j.iteration, j.cost, j.id, owner);
       if (r.affected_rows() == 0) return job_lease_lost(j.id, owner);
       if (result != nullptr) {
         tx.exec_params("INSERT INTO results (job_id, tenant, result) SELECT id, tenant, $1::bytea FROM jobs WHERE id = $2",

@@ -87,6 +87,11 @@ const std::vector<const char*> kMigrations = {
     ALTER TABLE session_snapshots ADD COLUMN lease_until_ms INTEGER NOT NULL DEFAULT 0;
     CREATE INDEX session_snapshots_by_owner ON session_snapshots (owner);
     )sql",
+    // 5: an optimiser's progress (output error, maximum likelihood).
+    R"sql(
+    ALTER TABLE jobs ADD COLUMN iteration INTEGER NOT NULL DEFAULT 0;
+    ALTER TABLE jobs ADD COLUMN cost REAL NOT NULL DEFAULT 0;
+    )sql",
 };
 
 // Names never contain the ASCII unit separator, so it can join them.
@@ -175,6 +180,7 @@ class Statement {
     return from_blob(sqlite3_column_blob(stmt_.get(), i), sqlite3_column_bytes(stmt_.get(), i));
   }
   std::int64_t column_int(int i) const { return sqlite3_column_int64(stmt_.get(), i); }
+  double column_double(int i) const { return sqlite3_column_double(stmt_.get(), i); }
   double column_real(int i) const { return sqlite3_column_double(stmt_.get(), i); }
 
  private:
@@ -188,7 +194,7 @@ JobState parse_state(const std::string& s) { return parse_job_state(s).value_or(
 
 constexpr const char* kJobColumns =
     "id, tenant, kind, state, spec, pass, passes, sample, samples, theta, error_code, error_message, created_ms, "
-    "started_ms, finished_ms, owner, lease_until_ms, cancel_requested";
+    "started_ms, finished_ms, owner, lease_until_ms, cancel_requested, iteration, cost";
 
 std::int64_t wall_clock_ms() {
   return std::chrono::duration_cast<std::chrono::milliseconds>(std::chrono::system_clock::now().time_since_epoch())
@@ -215,6 +221,8 @@ JobRecord read_job(const Statement& s) {
   j.owner = s.column_text(15);
   j.lease_until_ms = s.column_int(16);
   j.cancel_requested = s.column_int(17) != 0;
+  j.iteration = static_cast<int>(s.column_int(18));
+  j.cost = s.column_double(19);
   return j;
 }
 
@@ -357,12 +365,13 @@ class SqliteStore final : public Store {
   Status put_job(const JobRecord& j) override {
     std::lock_guard lock(mu_);
     Statement q(db_.get(), (std::string("INSERT INTO jobs (") + kJobColumns +
-                            ") VALUES (?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?)")
+                            ") VALUES (?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?)")
                                .c_str());
     q.text(j.id).text(j.tenant).text(job_kind_name(j.kind)).text(job_state_name(j.state)).blob(j.spec).integer(j.pass)
         .integer(j.passes).integer(j.sample).integer(j.samples).blob(to_blob(j.theta.data(), j.theta.size()))
         .integer(j.error_code).text(j.error_message).integer(j.created_ms).integer(j.started_ms)
-        .integer(j.finished_ms).text(j.owner).integer(j.lease_until_ms).integer(j.cancel_requested ? 1 : 0);
+        .integer(j.finished_ms).text(j.owner).integer(j.lease_until_ms).integer(j.cancel_requested ? 1 : 0)
+        .integer(j.iteration).real(j.cost);
     return done(q, "storing job " + j.id);
   }
 
@@ -370,10 +379,10 @@ class SqliteStore final : public Store {
     std::lock_guard lock(mu_);
     Statement q(db_.get(),
                 "UPDATE jobs SET state = ?, pass = ?, passes = ?, sample = ?, samples = ?, theta = ?, error_code = ?, "
-                "error_message = ?, started_ms = ?, finished_ms = ? WHERE id = ? AND tenant = ?");
+                "error_message = ?, started_ms = ?, finished_ms = ?, iteration = ?, cost = ? WHERE id = ? AND tenant = ?");
     q.text(job_state_name(j.state)).integer(j.pass).integer(j.passes).integer(j.sample).integer(j.samples)
         .blob(to_blob(j.theta.data(), j.theta.size())).integer(j.error_code).text(j.error_message)
-        .integer(j.started_ms).integer(j.finished_ms).text(j.id).text(j.tenant);
+        .integer(j.started_ms).integer(j.finished_ms).integer(j.iteration).real(j.cost).text(j.id).text(j.tenant);
     RICCATI_RETURN_IF_ERROR(done(q, "updating job " + j.id));
     if (sqlite3_changes(db_.get()) == 0) return not_found("no job " + j.id);
     return Status::ok();
@@ -437,10 +446,10 @@ class SqliteStore final : public Store {
   Result<bool> renew_job(const JobRecord& p, const std::string& owner, std::int64_t lease_ms) override {
     std::lock_guard lock(mu_);
     Statement q(db_.get(),
-                "UPDATE jobs SET lease_until_ms = ?, pass = ?, passes = ?, sample = ?, samples = ?, theta = ? "
-                "WHERE id = ? AND owner = ? AND state = 'running' RETURNING cancel_requested");
+                "UPDATE jobs SET lease_until_ms = ?, pass = ?, passes = ?, sample = ?, samples = ?, theta = ?, "
+                "iteration = ?, cost = ? WHERE id = ? AND owner = ? AND state = 'running' RETURNING cancel_requested");
     q.integer(wall_clock_ms() + lease_ms).integer(p.pass).integer(p.passes).integer(p.sample).integer(p.samples)
-        .blob(to_blob(p.theta.data(), p.theta.size())).text(p.id).text(owner);
+        .blob(to_blob(p.theta.data(), p.theta.size())).integer(p.iteration).real(p.cost).text(p.id).text(owner);
     if (!q.prepared()) return error("renewing the lease of job " + p.id);
     const int rc = q.step();
     if (rc == SQLITE_DONE) return job_lease_lost(p.id, owner);
@@ -455,11 +464,11 @@ class SqliteStore final : public Store {
     return in_transaction([&]() -> Status {
       Statement q(db_.get(),
                   "UPDATE jobs SET state = ?, pass = ?, passes = ?, sample = ?, samples = ?, theta = ?, error_code = ?, "
-                  "error_message = ?, finished_ms = ?, lease_until_ms = 0 WHERE id = ? AND owner = ? AND "
-                  "state = 'running'");
+                  "error_message = ?, finished_ms = ?, lease_until_ms = 0, iteration = ?, cost = ? WHERE id = ? AND "
+                  "owner = ? AND state = 'running'");
       q.text(job_state_name(j.state)).integer(j.pass).integer(j.passes).integer(j.sample).integer(j.samples)
           .blob(to_blob(j.theta.data(), j.theta.size())).integer(j.error_code).text(j.error_message)
-          .integer(j.finished_ms).text(j.id).text(owner);
+          .integer(j.finished_ms).integer(j.iteration).real(j.cost).text(j.id).text(owner);
       RICCATI_RETURN_IF_ERROR(done(q, "ending job " + j.id));
       if (sqlite3_changes(db_.get()) == 0) return job_lease_lost(j.id, owner);
       if (result == nullptr) return Status::ok();

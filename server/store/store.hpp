@@ -84,6 +84,9 @@ struct JobRecord {
   std::int64_t sample = 0;
   std::int64_t samples = 0;
   std::vector<double> theta;  // current estimate
+  // An optimiser's progress (output error, maximum likelihood): iterations so far, the criterion.
+  int iteration = 0;
+  double cost = 0.0;
   // Failure or cancellation.
   int error_code = 0;  // StatusCode
   std::string error_message;
@@ -132,7 +135,7 @@ class Store {
   // never get the same job. nullopt: nothing to run.
   virtual Result<std::optional<JobRecord>> claim_job(const std::string& owner, std::int64_t lease_ms) = 0;
   // The owner renews its lease and publishes progress (pass, passes, sample,
-  // samples, theta of `progress`). ABORTED if `owner` no longer holds the job
+  // samples, theta, iteration, cost of `progress`). ABORTED if `owner` no longer holds the job
   // (it ended, or its lease expired and another instance took it). Returns
   // whether a cancel was requested meanwhile.
   virtual Result<bool> renew_job(const JobRecord& progress, const std::string& owner, std::int64_t lease_ms) = 0;

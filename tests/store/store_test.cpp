@@ -238,6 +238,8 @@ TEST_P(StoreTest, JobsUpdateListAndUnfinishedStates) {
   j.sample = 17;
   j.theta = {1.5, -2.5};
   j.started_ms = 5;
+  j.iteration = 12;
+  j.cost = 0.1 + 1e-17;  // a double kept exactly
   ASSERT_TRUE(store->update_job(j).is_ok());
   JobRecord done = store->get_job("a", "job-1").value();
   done.state = JobState::kFailed;
@@ -249,6 +251,8 @@ TEST_P(StoreTest, JobsUpdateListAndUnfinishedStates) {
   EXPECT_EQ(back.state, JobState::kRunning);
   EXPECT_EQ(back.pass, 3);
   EXPECT_EQ(back.theta, (std::vector<double>{1.5, -2.5}));
+  EXPECT_EQ(back.iteration, 12);
+  EXPECT_EQ(back.cost, j.cost);
   EXPECT_EQ(back.spec, j.spec);
   EXPECT_EQ(store->get_job("a", "job-1").value().error_message, "diverged");
 

@@ -16,6 +16,22 @@ std::string number(double v) {
 
 }  // namespace
 
+const char* identification_method_name(IdentificationMethod method) {
+  switch (method) {
+    case IdentificationMethod::kFilter: return "filter";
+    case IdentificationMethod::kOutputError: return "oe";
+    case IdentificationMethod::kMaxLikelihood: return "ml";
+  }
+  return "unknown";
+}
+
+Result<IdentificationMethod> parse_identification_method(std::string_view name) {
+  for (auto m : {IdentificationMethod::kFilter, IdentificationMethod::kOutputError, IdentificationMethod::kMaxLikelihood}) {
+    if (name == identification_method_name(m)) return m;
+  }
+  return invalid_argument("unknown identification method \"" + std::string(name) + "\" (expected filter, oe or ml)");
+}
+
 ParameterSettings default_parameters(const Model& model, Eigen::VectorXd theta0) {
   ParameterSettings p;
   p.theta0 = std::move(theta0);

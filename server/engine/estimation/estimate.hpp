@@ -24,6 +24,14 @@
 
 namespace riccati {
 
+// How an identification finds the parameters: the iterated filter of the
+// 1999 toolbox (identification.hpp), output error (output_error.hpp) or
+// maximum likelihood (max_likelihood.hpp). Named "filter", "oe", "ml" (the
+// API's and the CLI's names).
+enum class IdentificationMethod { kFilter, kOutputError, kMaxLikelihood };
+const char* identification_method_name(IdentificationMethod method);
+Result<IdentificationMethod> parse_identification_method(std::string_view name);
+
 struct ParameterSettings {
   Eigen::VectorXd theta0;        // [ntheta] start (the value of a fixed parameter)
   Eigen::VectorXd lower, upper;  // [ntheta] bounds; -inf / +inf: none

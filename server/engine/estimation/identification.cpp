@@ -1,11 +1,20 @@
 #include "engine/estimation/identification.hpp"
 
+#include "engine/estimation/estimate.hpp"
+
 #include <algorithm>
+#include <cstdio>
 #include <string>
 
 namespace riccati {
 
 namespace {
+
+std::string number(double v) {
+  char buffer[32];
+  std::snprintf(buffer, sizeof buffer, "%.6g", v);
+  return buffer;
+}
 
 // The samples a run filters: [first, end) of the bound dataset.
 struct SampleRange {
@@ -56,8 +65,9 @@ InitialEstimate next_pass_start(const InitialEstimate& first, const Eigen::Vecto
 // traces of `result` (states, model outputs, innovations).
 class Pass {
  public:
-  Pass(OnlineRunner& runner, const Dataset& bound, SampleRange range, const IdentificationHooks& hooks)
-      : runner_(runner), bound_(bound), range_(range), hooks_(hooks) {}
+  Pass(OnlineRunner& runner, const Dataset& bound, const Eigen::ArrayXXd& mask, SampleRange range,
+       const IdentificationHooks& hooks)
+      : runner_(runner), bound_(bound), mask_(mask), range_(range), hooks_(hooks) {}
 
   Status run(int pass, int passes, PassResult* pass_result, IdentificationResult* result) {
     const Model& model = runner_.model();
@@ -67,6 +77,7 @@ class Pass {
     pass_result->theta_trace.resize(ntheta, N);
     Eigen::VectorXd innovation_sq = Eigen::VectorXd::Zero(ny);
     double nis_sum = 0.0;
+    Eigen::Index used = 0;
     Eigen::VectorXd y_model(ny);
     IdentificationProgress report{pass, passes, 0, N, &runner_.filter().state()};
     for (Eigen::Index k = 0; k < N; ++k) {
@@ -80,18 +91,23 @@ class Pass {
                std::to_string(bound_.t[s]) + ")";
       };
       const double* u = bound_.u.col(s).data();
-      Status st = runner_.advance(bound_.t[s], {u, static_cast<std::size_t>(model.nu())},
-                                  {bound_.y.col(s).data(), static_cast<std::size_t>(ny)});
+      const bool measured = mask_.size() == 0 || (mask_.col(s) != 0.0).all();
+      Status st = measured ? runner_.advance(bound_.t[s], {u, static_cast<std::size_t>(model.nu())},
+                                             {bound_.y.col(s).data(), static_cast<std::size_t>(ny)})
+                           : runner_.advance_without_measurement(bound_.t[s], {u, static_cast<std::size_t>(model.nu())});
       if (!st.is_ok()) return st.with_context(where());
 
       const Filter& filter = runner_.filter();
       const Eigen::VectorXd& z = filter.state();
       pass_result->theta_trace.col(k) = z.tail(ntheta);
-      innovation_sq += filter.innovation().cwiseAbs2();
-      nis_sum += filter.nis();
+      if (measured) {
+        innovation_sq += filter.innovation().cwiseAbs2();
+        nis_sum += filter.nis();
+        ++used;
+      }
       if (last) {
         result->x_trace.col(k) = z.head(nx);
-        result->innovations.col(k) = filter.innovation();
+        result->innovations.col(k) = measured ? filter.innovation() : Eigen::VectorXd::Zero(ny);
         st = model.g(bound_.t[s], u, 1, 1, z.data(), z.data() + nx, y_model.data());
         if (!st.is_ok()) return st.with_context(where());
         result->y_model.col(k) = y_model;
@@ -105,14 +121,15 @@ class Pass {
     pass_result->theta_final = filter.state().tail(ntheta);
     pass_result->theta_mean = pass_result->theta_trace.rowwise().mean();
     pass_result->theta_std = filter.covariance().diagonal().tail(ntheta).cwiseMax(0.0).cwiseSqrt();
-    pass_result->innovation_rms = (innovation_sq / static_cast<double>(N)).cwiseSqrt();
-    pass_result->nis_mean = nis_sum / static_cast<double>(N);
+    pass_result->innovation_rms = (innovation_sq / static_cast<double>(std::max<Eigen::Index>(used, 1))).cwiseSqrt();
+    pass_result->nis_mean = nis_sum / static_cast<double>(std::max<Eigen::Index>(used, 1));
     return Status::ok();
   }
 
  private:
   OnlineRunner& runner_;
   const Dataset& bound_;
+  const Eigen::ArrayXXd& mask_;
   const SampleRange range_;
   const IdentificationHooks& hooks_;
 };
@@ -122,6 +139,13 @@ class Pass {
 Status validate(const IdentificationSettings& s, const Model& model) {
   RICCATI_RETURN_IF_ERROR(validate(s.filter, model));
   RICCATI_RETURN_IF_ERROR(validate(s.initial, model));
+  if (s.theta_lower.size() != 0 || s.theta_upper.size() != 0) {
+    // theta0 within its bounds, the bounds intervals: as the optimisers check them.
+    ParameterSettings bounds = default_parameters(model, s.initial.theta0);
+    bounds.lower = s.theta_lower;
+    bounds.upper = s.theta_upper;
+    RICCATI_RETURN_IF_ERROR(validate(bounds, model));
+  }
   constexpr int kMaxPasses = 100000;
   if (s.passes < 1 || s.passes > kMaxPasses) {
     return invalid_argument("passes must be between 1 and " + std::to_string(kMaxPasses) + ", got " +
@@ -139,6 +163,7 @@ Result<IdentificationResult> identify(ModelPtr model, const Dataset& data, const
   const Eigen::Index N = range.size();
   const int nx = model->nx(), ny = model->ny(), nz = model->nz();
   RICCATI_ASSIGN_OR_RETURN(OnlineRunner runner, OnlineRunner::create(model, settings.filter, settings.initial));
+  RICCATI_RETURN_IF_ERROR(runner.set_parameter_bounds(settings.theta_lower, settings.theta_upper));
 
   IdentificationResult result;
   result.param_names = model->param_names();
@@ -156,7 +181,10 @@ Result<IdentificationResult> identify(ModelPtr model, const Dataset& data, const
     RICCATI_RETURN_IF_ERROR(runner.restart(next_pass_start(settings.initial, c.passes.back().theta_final,
                                                            c.covariance, nx)));
   }
-  Pass pass(runner, bound, range, hooks);
+  if (settings.mask.size() != 0 && (settings.mask.rows() != ny || settings.mask.cols() != bound.size())) {
+    return invalid_argument("the sample mask must be " + std::to_string(ny) + " x " + std::to_string(bound.size()));
+  }
+  Pass pass(runner, bound, settings.mask, range, hooks);
   for (int p = first_pass; p <= settings.passes; ++p) {
     if (p > first_pass) {
       RICCATI_RETURN_IF_ERROR(runner.restart(next_pass_start(settings.initial, result.passes.back().theta_final,
@@ -171,6 +199,13 @@ Result<IdentificationResult> identify(ModelPtr model, const Dataset& data, const
     }
   }
 
+  const Eigen::VectorXi& hits = runner.parameter_bound_hits();
+  for (Eigen::Index i = 0; i < hits.size(); ++i) {
+    if (hits[i] == 0) continue;
+    result.warnings.push_back(result.param_names[static_cast<std::size_t>(i)] + " was held at a bound (" +
+                              number(settings.theta_lower[i]) + " or " + number(settings.theta_upper[i]) + ") after " +
+                              std::to_string(hits[i]) + " samples of the last pass");
+  }
   const PassResult& last = result.passes.back();
   result.theta = last.theta_final;
   result.theta_mean = last.theta_mean;

@@ -32,6 +32,13 @@ struct IdentificationSettings {
   // (end_sample < 0 means to the end). The toolbox's "trial".
   Eigen::Index first_sample = 0;
   Eigen::Index end_sample = -1;
+  // The parameters' bounds [ntheta] the estimate is held within after every
+  // sample (empty: none; the model's own bounds are the usual ones).
+  Eigen::VectorXd theta_lower, theta_upper;
+  // [ny x N] of the whole dataset: 1 for a sample used, 0 for one left out
+  // (a sample with an output left out is a prediction without an update);
+  // empty: every sample used.
+  Eigen::ArrayXXd mask;
 };
 
 struct PassResult {
@@ -54,6 +61,7 @@ struct IdentificationResult {
   Eigen::MatrixXd x_trace;      // [nx x N] state estimates of the last pass
   Eigen::MatrixXd y_model;      // [ny x N] model outputs g(x, theta) along the last pass (the toolbox's Ymod)
   Eigen::MatrixXd innovations;  // [ny x N] innovations of the last pass
+  std::vector<std::string> warnings;  // parameters held at a bound in the last pass
 };
 
 struct IdentificationProgress {

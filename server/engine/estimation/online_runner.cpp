@@ -79,13 +79,31 @@ Result<OnlineRunner> OnlineRunner::create(ModelPtr model, const FilterSettings& 
 OnlineRunner::OnlineRunner(std::unique_ptr<Filter> filter, InitialEstimate initial)
     : filter_(std::move(filter)),
       initial_(std::move(initial)),
-      u_last_(Eigen::VectorXd::Zero(filter_->model().nu())) {}
+      u_last_(Eigen::VectorXd::Zero(filter_->model().nu())),
+      hits_(Eigen::VectorXi::Zero(filter_->model().ntheta())) {}
+
+Status OnlineRunner::set_parameter_bounds(Eigen::VectorXd lower, Eigen::VectorXd upper) {
+  const Model& model = filter_->model();
+  if (lower.size() == 0 && upper.size() == 0) {
+    lower_.resize(0);
+    upper_.resize(0);
+    return Status::ok();
+  }
+  if (lower.size() != model.ntheta() || upper.size() != model.ntheta() || (lower.array() > upper.array()).any()) {
+    return invalid_argument("parameter bounds need " + std::to_string(model.ntheta()) + " intervals (model " +
+                            model.name() + ")");
+  }
+  lower_ = std::move(lower);
+  upper_ = std::move(upper);
+  return Status::ok();
+}
 
 Status OnlineRunner::restart(InitialEstimate initial) {
   RICCATI_RETURN_IF_ERROR(validate(initial, filter_->model()));
   initial_ = std::move(initial);
   started_ = false;
   divergence_ = Status::ok();
+  hits_.setZero();
   return Status::ok();
 }
 
@@ -136,6 +154,7 @@ Status OnlineRunner::advance(double t, std::span<const double> u, std::span<cons
     divergence_ = stepped;
     return divergence_;
   }
+  if (lower_.size() != 0) filter_->clamp_parameters(lower_, upper_, &hits_);
   std::copy(u.begin(), u.end(), u_last_.data());
   return Status::ok();
 }

@@ -68,6 +68,12 @@ class OnlineRunner {
   // that starts so starts from x0 as given (InitialState::kGiven).
   Status advance_without_measurement(double t, std::span<const double> u);
 
+  // Holds the parameters' estimate within [lower, upper] [ntheta] after every
+  // measurement (empty: no bounds); parameter_bound_hits() counts, per
+  // parameter, the measurements after which it was held.
+  Status set_parameter_bounds(Eigen::VectorXd lower, Eigen::VectorXd upper);
+  const Eigen::VectorXi& parameter_bound_hits() const { return hits_; }
+
   bool started() const { return started_; }
   bool diverged() const { return !divergence_.is_ok(); }
   const Status& divergence() const { return divergence_; }
@@ -101,6 +107,8 @@ class OnlineRunner {
   bool started_ = false;
   Status divergence_;
   Eigen::VectorXd u_last_;  // [nu]
+  Eigen::VectorXd lower_, upper_;  // [ntheta], or empty
+  Eigen::VectorXi hits_;           // [ntheta], since the last (re)start
 };
 
 }  // namespace riccati

@@ -123,6 +123,20 @@ Status Filter::restore(double t, const Eigen::VectorXd& z, const Eigen::MatrixXd
   return Status::ok();
 }
 
+void Filter::clamp_parameters(const Eigen::VectorXd& lower, const Eigen::VectorXd& upper, Eigen::VectorXi* hits) {
+  const Eigen::Index nx = model_->nx();
+  for (Eigen::Index i = 0; i < lower.size(); ++i) {
+    double& theta = z_[nx + i];
+    if (theta < lower[i]) {
+      theta = lower[i];
+      ++(*hits)[i];
+    } else if (theta > upper[i]) {
+      theta = upper[i];
+      ++(*hits)[i];
+    }
+  }
+}
+
 Status Filter::step(double t1, const double* u0, const double* u1, const double* y1) {
   RICCATI_RETURN_IF_ERROR(predict(t1, u0, u1));
   return update(y1, u1);

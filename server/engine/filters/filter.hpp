@@ -122,6 +122,10 @@ class Filter {
   // filter restored from those four continues as this one would, bit for
   // bit. Empty for the EKF and the UKF.
   virtual Eigen::VectorXd carried_state() const { return {}; }
+  // Holds the parameters of the estimate within [lower, upper] [ntheta]
+  // (the covariance is left as it is): the projection that keeps an
+  // estimate inside its bounds. Sets hit[i] for each parameter moved.
+  void clamp_parameters(const Eigen::VectorXd& lower, const Eigen::VectorXd& upper, Eigen::VectorXi* hits);
   // Puts back what time(), state(), covariance() and carried_state() of a
   // filter of the same model and settings returned. Only sizes are checked:
   // the values are a filter's own, kept exactly (even a diverged one's).

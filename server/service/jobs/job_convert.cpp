@@ -122,6 +122,8 @@ v1::Job to_proto(const JobRecord& job) {
   p->set_sample(static_cast<uint64_t>(job.sample));
   p->set_samples(static_cast<uint64_t>(job.samples));
   for (double v : job.theta) p->add_theta(v);
+  p->set_iteration(static_cast<uint32_t>(job.iteration));
+  p->set_cost(job.cost);
   if (job.error_code != 0) {
     out.mutable_error()->set_code(job.error_code);
     out.mutable_error()->set_message(job.error_message);

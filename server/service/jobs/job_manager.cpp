@@ -192,7 +192,7 @@ namespace {
 std::uint64_t stored_version(const JobRecord& job) {
   std::uint64_t h = std::hash<std::string>{}(job.id);
   for (std::int64_t v : {static_cast<std::int64_t>(job.state), static_cast<std::int64_t>(job.pass), job.sample,
-                         job.started_ms, job.finished_ms}) {
+                         static_cast<std::int64_t>(job.iteration), job.started_ms, job.finished_ms}) {
     h = (h ^ static_cast<std::uint64_t>(v)) * 1099511628211ull;
   }
   return (h | (1ull << 63)) & ~1ull;  // never UINT64_MAX
