@@ -76,6 +76,14 @@ std::vector<Case> cases() {
   pinv.settings.inversion = GainInversion::kPseudoInverse;
   pinv.settings.joseph = false;
   out.push_back(pinv);
+  // Keeping what a smoother needs of each prediction (the EKF's transition
+  // matrix, the UKF's cross covariance).
+  for (int i = 0; i < 2; ++i) {
+    Case smoothing = out[static_cast<std::size_t>(i)];
+    smoothing.name = i == 0 ? "ekf_smoothing" : "ukf_smoothing";
+    smoothing.settings.smoothing = true;
+    out.push_back(smoothing);
+  }
   for (OptimalForm form : {OptimalForm::kContinuous, OptimalForm::kSplitStep}) {
     Case c{form == OptimalForm::kContinuous ? "optimal_continuous" : "optimal_split_step",
            "flexible_manipulator", "flexible_manipulator.csv", {"T"}, {"s1", "s2"}, {}, {}};
