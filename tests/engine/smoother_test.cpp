@@ -355,6 +355,10 @@ TEST(TwoTankSmoother, EkfAndUkfAgreeOnTheParametersWithinTheirStandardDeviations
       EXPECT_LT(std::abs(a - rec.theta_true[i - 2]), 4 * ekf->std_smoothed(i, k)) << ekf->names[i];
     }
   }
+  RecordProperty("theta_ekf", g6(ekf->z_smoothed.bottomRows(4).col(0).transpose()));
+  RecordProperty("theta_ukf", g6(ukf->z_smoothed.bottomRows(4).col(0).transpose()));
+  RecordProperty("theta_std_ekf", g6(ekf->std_smoothed.bottomRows(4).col(0).transpose()));
+  RecordProperty("theta_std_ukf", g6(ukf->std_smoothed.bottomRows(4).col(0).transpose()));
   // With no process noise on theta, theta_k|N is the final estimate at every k.
   EXPECT_TRUE(ekf->z_smoothed.bottomRows(4).col(0).isApprox(ekf->z_filtered.bottomRows(4).col(N - 1), 1e-9));
 }

@@ -5,6 +5,7 @@
 #include <utility>
 
 #include "engine/estimation/binding.hpp"
+#include "engine/filters/filter_kinds.hpp"
 
 namespace riccati {
 
@@ -162,6 +163,12 @@ Result<SmootherResult> smooth(ModelPtr model, const Dataset& data, const Smoothe
     result.innovations.col(k) = filter.innovation();
     if (k > 0) {
       const Prediction& prediction = filter.prediction();
+      if (prediction.C.rows() != nz || prediction.C.cols() != nz || prediction.P.rows() != nz ||
+          prediction.z.size() != nz) {
+        // A kind that neither keeps its prediction nor refuses the setting.
+        return internal_error(std::string("the ") + filter_kind_name(settings.filter.kind) +
+                              " filter gives no prediction for a smoother");
+      }
       z_prior.col(k) = prediction.z;
       block(P_prior, k) = prediction.P;
       variance_scale = variance_scale.cwiseMax(prediction.P.diagonal());
