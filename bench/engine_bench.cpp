@@ -13,6 +13,7 @@
 #include <cmath>
 
 #include "engine/estimation/identification.hpp"
+#include "engine/estimation/smoother.hpp"
 #include "engine/models/plugin_loader.hpp"
 #include "support/two_tank_hensen.hpp"
 
@@ -51,10 +52,13 @@ void TwoTankIdentification(benchmark::State& state, FilterKind kind) {
       benchmark::Counter(steps, benchmark::Counter::kIsIterationInvariantRate | benchmark::Counter::kInvert);
 }
 
-// The filter alone: predict + update over one pass, no identification bookkeeping.
-void TwoTankFilterStep(benchmark::State& state, FilterKind kind) {
+// The filter alone: predict + update over one pass, no identification
+// bookkeeping; with `smoothing`, keeping what a smoother needs of each
+// prediction (FilterSettings::smoothing).
+void TwoTankFilterStep(benchmark::State& state, FilterKind kind, bool smoothing) {
   static TwoTankFixture fixture;
-  const IdentificationSettings s = fixture.hensen(kind);
+  IdentificationSettings s = fixture.hensen(kind);
+  s.filter.smoothing = smoothing;
   auto filter = make_filter(fixture.model, s.filter).value();
   Eigen::VectorXd z0(6);
   z0 << fixture.data.y.col(0), s.initial.theta0;
@@ -75,10 +79,37 @@ void TwoTankFilterStep(benchmark::State& state, FilterKind kind) {
   }
 }
 
+// The fixed-interval smoother over the record (2000 samples), one pass of
+// Hensen's settings: the filter forward, keeping what the backward pass
+// needs, then the backward pass; per_sample is the whole run's time divided
+// by the samples.
+void TwoTankSmoother(benchmark::State& state, FilterKind kind) {
+  static TwoTankFixture fixture;
+  const IdentificationSettings hensen = fixture.hensen(kind);
+  SmootherSettings settings;
+  settings.filter = hensen.filter;
+  settings.initial = hensen.initial;
+  for (auto _ : state) {
+    auto r = smooth(fixture.model, fixture.data, settings);
+    if (!r.is_ok()) {
+      state.SkipWithError(r.status().to_string().c_str());
+      break;
+    }
+    benchmark::DoNotOptimize(r.value().z_smoothed.data());
+  }
+  state.counters["per_sample"] = benchmark::Counter(static_cast<double>(fixture.data.size()),
+                                                    benchmark::Counter::kIsIterationInvariantRate |
+                                                        benchmark::Counter::kInvert);
+}
+
 BENCHMARK_CAPTURE(TwoTankIdentification, ekf, FilterKind::kEkf)->Unit(benchmark::kMillisecond);
 BENCHMARK_CAPTURE(TwoTankIdentification, ukf, FilterKind::kUkf)->Unit(benchmark::kMillisecond);
-BENCHMARK_CAPTURE(TwoTankFilterStep, ekf, FilterKind::kEkf)->Unit(benchmark::kMicrosecond);
-BENCHMARK_CAPTURE(TwoTankFilterStep, ukf, FilterKind::kUkf)->Unit(benchmark::kMicrosecond);
+BENCHMARK_CAPTURE(TwoTankFilterStep, ekf, FilterKind::kEkf, false)->Unit(benchmark::kMicrosecond);
+BENCHMARK_CAPTURE(TwoTankFilterStep, ukf, FilterKind::kUkf, false)->Unit(benchmark::kMicrosecond);
+BENCHMARK_CAPTURE(TwoTankFilterStep, ekf_smoothing, FilterKind::kEkf, true)->Unit(benchmark::kMicrosecond);
+BENCHMARK_CAPTURE(TwoTankFilterStep, ukf_smoothing, FilterKind::kUkf, true)->Unit(benchmark::kMicrosecond);
+BENCHMARK_CAPTURE(TwoTankSmoother, ekf, FilterKind::kEkf)->Unit(benchmark::kMillisecond);
+BENCHMARK_CAPTURE(TwoTankSmoother, ukf, FilterKind::kUkf)->Unit(benchmark::kMillisecond);
 
 }  // namespace
 }  // namespace riccati

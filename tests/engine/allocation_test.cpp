@@ -9,6 +9,7 @@
 
 #include "engine/data/dataset.hpp"
 #include "engine/estimation/online_runner.hpp"
+#include "engine/estimation/smoother.hpp"
 #include "engine/models/plugin_loader.hpp"
 
 extern "C" {
@@ -76,6 +77,14 @@ std::vector<Case> cases() {
   pinv.settings.inversion = GainInversion::kPseudoInverse;
   pinv.settings.joseph = false;
   out.push_back(pinv);
+  // Keeping what a smoother needs of each prediction (the EKF's transition
+  // matrix, the UKF's cross covariance).
+  for (int i = 0; i < 2; ++i) {
+    Case smoothing = out[static_cast<std::size_t>(i)];
+    smoothing.name = i == 0 ? "ekf_smoothing" : "ukf_smoothing";
+    smoothing.settings.smoothing = true;
+    out.push_back(smoothing);
+  }
   for (OptimalForm form : {OptimalForm::kContinuous, OptimalForm::kSplitStep}) {
     Case c{form == OptimalForm::kContinuous ? "optimal_continuous" : "optimal_split_step",
            "flexible_manipulator", "flexible_manipulator.csv", {"T"}, {"s1", "s2"}, {}, {}};
@@ -119,6 +128,31 @@ TEST_P(NoAllocation, PerMeasurement) {
 
 INSTANTIATE_TEST_SUITE_P(EveryFilterKind, NoAllocation, ::testing::ValuesIn(cases()),
                          [](const ::testing::TestParamInfo<Case>& param) { return std::string(param.param.name); });
+
+// The smoother sizes its storage once for the whole record: smoothing 400
+// samples allocates as often as smoothing 200 (nothing per sample, forward
+// or backward).
+TEST(NoAllocation, PerSmoothedSample) {
+  static const ModelRegistry registry = ModelRegistry::load_directory(RICCATI_TEST_PLUGIN_DIR).value();
+  const Dataset d =
+      read_csv_file(std::string(RICCATI_TEST_DATA_DIR) + "/two_tank.csv", ColumnMapping{"t", {"F1", "F2"}, {"h1", "h2"}})
+          .value();
+  for (const Case& c : cases()) {
+    if (c.settings.kind == FilterKind::kOptimal || c.settings.smoothing) continue;
+    SmootherSettings s;
+    s.filter = c.settings;
+    s.initial = c.initial;
+    auto allocations_to_smooth = [&](Eigen::Index samples) {
+      s.end_sample = samples;
+      const std::size_t before = allocations;
+      const auto r = smooth(registry.find(c.model), d, s);
+      const std::size_t count = allocations - before;
+      EXPECT_TRUE(r.is_ok()) << r.status().to_string();
+      return count;
+    };
+    EXPECT_EQ(allocations_to_smooth(400), allocations_to_smooth(200)) << c.name;
+  }
+}
 
 }  // namespace
 }  // namespace riccati

@@ -12,6 +12,13 @@
 // At a sample, with G = dg/d[x; theta] at the prior:
 //     S = G P G^T + R,  K = P G^T S^-1,  z += K (y - g),
 //     P = (I - K G) P (I - K G)^T + K R K^T   (Joseph form, or (I - K G) P)
+//
+// For a smoother (FilterSettings::smoothing) the prediction also gives the
+// transition matrix over the step, Phi' = F Phi from Phi(t_k) = I, and with it
+// C_k = Cov(z_k|k, z_k+1|k) = P_k|k Phi^T (the RTS smoother's gain is
+// G_k = C_k P_k+1|k^-1). Its parameter rows stay [0 I], so only the nx rows
+// Phi_x = [Phi_xx Phi_xth] are integrated, with the rest:
+//     Phi_x' = Jx Phi_x + [0 Jth].
 #include <Eigen/Core>
 #include <algorithm>
 #include <string>
@@ -72,6 +79,42 @@ void covariance_derivative(int nx_runtime, int nth, const double* __restrict J, 
 using CovarianceDerivativeFn = void (*)(int, int, const double*, const double*, const double*, const double*,
                                         const double*, double*, double*, double*);
 
+// The derivative of the transition matrix's state rows, Phi_x' = Jx Phi_x +
+// [0 Jth] (see the top), column-major: J = [Jx Jth] and Phi_x, dPhi_x nx x nz.
+// Unrolled per nx as covariance_derivative.
+template <int NX>
+void transition_derivative(int nx_runtime, int nth, const double* __restrict J, const double* __restrict Phi,
+                           double* __restrict dPhi) {
+  const int nx = NX > 0 ? NX : nx_runtime;
+  const int nz = nx + nth;
+  for (int c = 0; c < nz; ++c) {
+    double* d = dPhi + c * nx;
+    if (c < nx) {
+      for (int i = 0; i < nx; ++i) d[i] = 0.0;
+    } else {
+      for (int i = 0; i < nx; ++i) d[i] = J[i + c * nx];  // Jth's column c - nx
+    }
+    for (int k = 0; k < nx; ++k) {
+      const double p = Phi[k + c * nx];
+      for (int i = 0; i < nx; ++i) d[i] += J[i + k * nx] * p;
+    }
+  }
+}
+
+using TransitionDerivativeFn = void (*)(int, int, const double*, const double*, double*);
+
+TransitionDerivativeFn transition_derivative_for(int nx) {
+  switch (nx) {
+    case 1: return &transition_derivative<1>;
+    case 2: return &transition_derivative<2>;
+    case 3: return &transition_derivative<3>;
+    case 4: return &transition_derivative<4>;
+    case 5: return &transition_derivative<5>;
+    case 6: return &transition_derivative<6>;
+    default: return &transition_derivative<0>;
+  }
+}
+
 CovarianceDerivativeFn covariance_derivative_for(int nx) {
   switch (nx) {
     case 1: return &covariance_derivative<1>;
@@ -87,10 +130,15 @@ CovarianceDerivativeFn covariance_derivative_for(int nx) {
 class Ekf final : public KalmanFilter {
  public:
   Ekf(ModelPtr model, const FilterSettings& settings, std::unique_ptr<Integrator> integrator)
-      : KalmanFilter(std::move(model), settings), integrator_(std::move(integrator)), rhs_(this) {
+      : KalmanFilter(std::move(model), settings), integrator_(std::move(integrator)), rhs_(this), smoothing_rhs_(this) {
     const int nx = model_->nx(), nz = model_->nz(), ny = model_->ny();
     const int nth = nz - nx;
-    y_.resize(nx + nx * nx + nx * nth);
+    // [x; Pxx; Pxth], and Phi_x when smoothing.
+    y_.resize(nx + nx * nx + nx * nth + (settings_.smoothing ? nx * nz : 0));
+    if (settings_.smoothing) {
+      transition_derivative_ = transition_derivative_for(nx);
+      P_start_.resize(nz, nz);
+    }
     jac_f_.resize(nx, nz);
     A_.resize(nx, nx);
     Pthth0_.resize(nth, nth);
@@ -117,8 +165,14 @@ class Ekf final : public KalmanFilter {
     Eigen::Map<Eigen::MatrixXd>(y + nx + nx * nx, nx, nth) = P_.topRightCorner(nx, nth);
     Pthth0_ = P_.bottomRightCorner(nth, nth);
     Pthth_ = Pthth0_;
+    double* Phi_x = y + nx + nx * nx + nx * nth;
+    if (settings_.smoothing) {
+      P_start_ = P_;
+      Eigen::Map<Eigen::MatrixXd>(Phi_x, nx, nz).setIdentity();  // Phi_x(t_k) = [I 0]
+    }
     hold_.set_interval(t_, t1, u0, u1);
-    Status s = integrator_->integrate(rhs_, t_, t1, y_);
+    Status s = settings_.smoothing ? integrator_->integrate(smoothing_rhs_, t_, t1, y_)
+                                   : integrator_->integrate(rhs_, t_, t1, y_);
     if (!s.is_ok()) return s.with_context("EKF prediction from t = " + std::to_string(t_));
     z_.head(nx) = Eigen::Map<const Eigen::VectorXd>(y, nx);
     const Eigen::Map<const Eigen::MatrixXd> Pxx(y + nx, nx, nx);
@@ -127,6 +181,13 @@ class Ekf final : public KalmanFilter {
     P_.bottomLeftCorner(nth, nx) = P_.topRightCorner(nx, nth).transpose();
     P_.bottomRightCorner(nth, nth) = Pthth0_ + settings_.Q.bottomRightCorner(nth, nth) * (t1 - t_);
     t_ = t1;
+    if (settings_.smoothing) {
+      // C = P_k|k Phi^T with Phi = [Phi_x; 0 I]: P_k|k Phi_x^T, then P_k|k's parameter columns.
+      prediction_.z = z_;
+      prediction_.P = P_;
+      prediction_.C.leftCols(nx).noalias() = P_start_ * Eigen::Map<const Eigen::MatrixXd>(Phi_x, nx, nz).transpose();
+      prediction_.C.rightCols(nth) = P_start_.rightCols(nth);
+    }
     return check_estimate("EKF prediction");
   }
 
@@ -157,16 +218,22 @@ class Ekf final : public KalmanFilter {
   }
 
  private:
-  // The joint system [x; vec(Pxx); vec(Pxth)] integrated between two samples.
+  // The joint system [x; vec(Pxx); vec(Pxth)] integrated between two samples,
+  // and Phi_x after it with kTransition (smoothing): a system of its own, so
+  // that the filter without it evaluates exactly what it did before.
+  template <bool kTransition>
   class Rhs final : public OdeRhs {
    public:
     explicit Rhs(Ekf* ekf) : ekf_(ekf) {}
-    Status eval(double t, const double* y, double* ydot) override { return ekf_->derivatives(t, y, ydot); }
+    Status eval(double t, const double* y, double* ydot) override {
+      return ekf_->derivatives<kTransition>(t, y, ydot);
+    }
 
    private:
     Ekf* ekf_;
   };
 
+  template <bool kTransition>
   Status derivatives(double t, const double* y, double* ydot) {
     const int nx = model_->nx(), nth = model_->ntheta();
     const double* theta = z_.data() + nx;  // constant over the interval
@@ -176,13 +243,20 @@ class Ekf final : public KalmanFilter {
     const double* Pxth = Pxx + nx * nx;
     covariance_derivative_(nx, nth, jac_f_.data(), Pxx, Pxth, Pthth_.data(), settings_.Q.data(), A_.data(),
                           ydot + nx, ydot + nx + nx * nx);
+    if constexpr (kTransition) {
+      const int offset = nx + nx * nx + nx * nth;
+      transition_derivative_(nx, nth, jac_f_.data(), y + offset, ydot + offset);
+    }
     return Status::ok();
   }
 
   std::unique_ptr<Integrator> integrator_;
-  Rhs rhs_;
+  Rhs<false> rhs_;
+  Rhs<true> smoothing_rhs_;
   bool q_thth_is_zero_ = true;
   CovarianceDerivativeFn covariance_derivative_ = nullptr;
+  TransitionDerivativeFn transition_derivative_ = nullptr;
+  Eigen::MatrixXd P_start_;  // P_k|k, kept over the prediction when smoothing
   // Work space, sized once.
   std::vector<double> y_;
   Eigen::MatrixXd jac_f_, A_, G_, PGt_, IKG_, IKGP_, KR_, Pnew_;

@@ -88,6 +88,11 @@ Filter::Filter(ModelPtr model, FilterSettings settings)
   y_pred_ = Eigen::VectorXd::Zero(ny);
   innovation_ = Eigen::VectorXd::Zero(ny);
   S_ = Eigen::MatrixXd::Zero(ny, ny);
+  if (settings_.smoothing) {
+    prediction_.z = Eigen::VectorXd::Zero(nz);
+    prediction_.P = Eigen::MatrixXd::Zero(nz, nz);
+    prediction_.C = Eigen::MatrixXd::Zero(nz, nz);
+  }
 }
 
 Status Filter::reset(double t, const Eigen::VectorXd& z, const Eigen::MatrixXd& P) {

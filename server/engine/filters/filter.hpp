@@ -75,6 +75,26 @@ struct FilterSettings {
   bool joseph = true;  // EKF: Joseph-form covariance update
   UkfSettings ukf;
   OptimalSettings optimal;
+  // Keep what a fixed-interval smoother needs from every prediction
+  // (Filter::prediction()). Off, a filter does nothing for it; on, the EKF
+  // also integrates its transition matrix over each step (with a fixed-step
+  // integrator its estimate stays the same to the bit; an adaptive one
+  // controls that matrix's error too, so takes other steps). The EKF and the
+  // UKF support it, the optimal filter does not.
+  bool smoothing = false;
+};
+
+// What a prediction from t_k to t_k+1 tells a fixed-interval smoother, in one
+// form for every filter that supports it: the prior and its cross covariance
+// with the estimate it was predicted from, so that the Rauch-Tung-Striebel
+// gain is G_k = C_k P_k+1|k^-1 whatever the filter.
+struct Prediction {
+  Eigen::VectorXd z;  // z_k+1|k [nz]
+  Eigen::MatrixXd P;  // P_k+1|k [nz x nz]
+  // C_k = Cov(z_k|k, z_k+1|k) [nz x nz]: P_k|k Phi_k^T for the EKF (Phi_k the
+  // transition matrix over the step), D_k+1 from the sigma points for the
+  // UKF (Särkkä 2008).
+  Eigen::MatrixXd C;
 };
 
 // Names of the settings' other enums, as the API, the CLI and job files write
@@ -146,6 +166,9 @@ class Filter {
   // p = [u; a] [nu + ndof] and the residuals zeta of the L equations.
   virtual const Eigen::VectorXd& estimated_inputs() const { return kNothing; }
   virtual const Eigen::VectorXd& equation_residuals() const { return kNothing; }
+  // Of the last prediction, with settings().smoothing (empty without): what a
+  // smoother keeps of it. predict() and step() overwrite it.
+  const Prediction& prediction() const { return prediction_; }
 
  protected:
   Filter(ModelPtr model, FilterSettings settings);
@@ -169,6 +192,7 @@ class Filter {
   Eigen::MatrixXd S_;
   double nis_ = 0.0;
   InputHold hold_;  // the inputs over the interval being integrated
+  Prediction prediction_;  // sized at construction with settings_.smoothing
 
  private:
   static const Eigen::VectorXd kNothing;

@@ -361,6 +361,11 @@ class OptimalFilter final : public Filter {
 }  // namespace
 
 Status validate_optimal_filter(const FilterSettings& s, const Model& model) {
+  if (s.smoothing) {
+    return invalid_argument(
+        "the optimal filter does not support smoothing: a fixed-interval smoother runs after "
+        "the EKF or the UKF");
+  }
   if (!model.has_mechanical_form()) {
     return invalid_argument("model " + model.name() +
                             " has no mechanical form (M a + h = H u): the optimal filter needs one");

@@ -11,6 +11,15 @@
 //     C = sum Wc_i (z_i - z-)(Y_i - y^)^T,  K = C S^-1,
 //     z = z- + K (y - y^),  P = P- - K S K^T.
 //
+// For a smoother (FilterSettings::smoothing) the prediction also gives the
+// cross covariance of the estimate and the prior, D_k+1 of Särkkä's (2008)
+// unscented RTS smoother:
+//     D = sum Wc_i (z_i - z)(z_i- - z-)^T
+// from the points before (z_i) and after (z_i-) the integration; as z_i - z
+// is 0 or +- sqrt(n + lambda) s_j, D = sqrt(n + lambda) S (Dplus - Dminus)
+// with Dplus, Dminus the weighted deviations Wc_i (z_i- - z-) of the + and -
+// points.
+//
 // Covariances with zero variances are normal here (states known exactly at
 // the start): the square root comes from a Cholesky factorisation with full
 // pivoting that stops at the numerical rank (as LAPACK's dpstrf), so
@@ -116,6 +125,7 @@ class Ukf final : public KalmanFilter {
     C_.resize(nz, ny);
     Pnew_.resize(nz, nz);
     q_is_zero_ = settings_.Q.isZero(0.0);
+    if (settings_.smoothing) dW_.resize(nz, nz);
   }
 
   Status predict(double t1, const double* u0, const double* u1) override {
@@ -133,6 +143,14 @@ class Ukf final : public KalmanFilter {
     t_ = t1;
     weighted_mean_and_covariance();
     if (!q_is_zero_) P_ += settings_.Q * dt;
+    if (settings_.smoothing) {
+      // D from sqrtP_, still the square root the points were drawn with (see the top).
+      const Eigen::Index nz = model_->nz();
+      prediction_.z = z_;
+      prediction_.P = P_;
+      dW_ = wdX_.middleRows(1, nz) - wdX_.middleRows(1 + nz, nz);
+      prediction_.C.noalias() = spread_ * sqrtP_ * dW_;
+    }
     return check_estimate("UKF prediction");
   }
 
@@ -213,6 +231,7 @@ class Ukf final : public KalmanFilter {
   Eigen::MatrixXd X_, Ypts_, dX_, dY_;
   Eigen::MatrixXd wdX_, wdY_;  // the deviations times the covariance weights Wc
   Eigen::MatrixXd sqrtP_, C_, Pnew_;
+  Eigen::MatrixXd dW_;  // Dplus - Dminus, when smoothing
   Eigen::MatrixXd work_;
   Eigen::VectorXi perm_;
 };
