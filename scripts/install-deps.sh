@@ -17,7 +17,8 @@ packages=(
   libsqlite3-dev                                        # the embedded store
   libpqxx-dev                                           # the PostgreSQL store (libpqxx 6.4, with libpq)
   libssl-dev                                            # SHA-256 (token digests, plugin checksums)
-  prometheus-cpp-dev                                    # metrics in Prometheus text format (/metrics)
+  prometheus-cpp-dev                                    # metrics in Prometheus' model and text format
+  libcpp-httplib-dev                                    # the HTTP endpoint that serves them (/metrics)
   libyaml-cpp-dev                                       # config and job files
   nlohmann-json3-dev                                    # JSON (dataset metadata in tests)
   libgtest-dev libgmock-dev                             # GoogleTest

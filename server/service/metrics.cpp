@@ -1,12 +1,16 @@
 #include "service/metrics.hpp"
 
 #include <prometheus/counter.h>
-#include <prometheus/exposer.h>
 #include <prometheus/family.h>
 #include <prometheus/histogram.h>
 #include <prometheus/registry.h>
+#include <prometheus/text_serializer.h>
+
+#include <httplib.h>
 
 #include <mutex>
+#include <sstream>
+#include <thread>
 
 namespace riccati::service {
 
@@ -143,7 +147,7 @@ Metrics::Metrics() : registry_(std::make_shared<prometheus::Registry>()), scrape
                       .Register(*registry_);
 }
 
-Metrics::~Metrics() = default;
+Metrics::~Metrics() { stop_serving(); }
 
 void Metrics::set_sessions_open(std::function<std::size_t()> count) {
   std::lock_guard lock(scraped_->mu_);
@@ -155,20 +159,65 @@ void Metrics::set_store(Store* store) {
   scraped_->store_ = store;
 }
 
-Result<int> Metrics::serve(const std::string& address) {
-  try {
-    exposer_ = std::make_unique<prometheus::Exposer>(address, 1);
-  } catch (const std::exception& e) {
-    return failed_precondition("cannot serve metrics on " + address + ": " + e.what());
+// The endpoint: cpp-httplib on a small pool of its own threads (ordinary
+// 8 MiB stacks: prometheus-cpp's embedded civetweb runs handlers on ~100 KiB
+// stacks, which glibc's printf overflows once libquadmath, linked in with
+// Ceres, has registered its printf hooks).
+struct Metrics::Endpoint {
+  httplib::Server server;
+  std::thread thread;
+};
+
+namespace {
+
+// "host:port", "[v6]:port"; the host as cpp-httplib binds it.
+Result<std::pair<std::string, int>> split_address(const std::string& address) {
+  const auto colon = address.rfind(':');
+  if (colon == std::string::npos || colon + 1 == address.size()) {
+    return invalid_argument("metrics address '" + address + "' is not HOST:PORT");
   }
-  exposer_->RegisterCollectable(registry_);
-  exposer_->RegisterCollectable(scraped_);
-  const auto ports = exposer_->GetListeningPorts();
-  if (ports.empty()) return failed_precondition("cannot serve metrics on " + address + ": no port bound");
-  return ports.front();
+  std::string host = address.substr(0, colon);
+  if (host.size() >= 2 && host.front() == '[' && host.back() == ']') host = host.substr(1, host.size() - 2);
+  int port = 0;
+  try {
+    std::size_t used = 0;
+    port = std::stoi(address.substr(colon + 1), &used);
+    if (used != address.size() - colon - 1) throw std::invalid_argument("trailing characters");
+  } catch (const std::exception&) {
+    return invalid_argument("metrics address '" + address + "': the port is not a number");
+  }
+  if (port < 0 || port > 65535) return invalid_argument("metrics address '" + address + "': port out of range");
+  return std::pair{host.empty() ? std::string("0.0.0.0") : host, port};
 }
 
-void Metrics::stop_serving() { exposer_.reset(); }
+}  // namespace
+
+Result<int> Metrics::serve(const std::string& address) {
+  RICCATI_ASSIGN_OR_RETURN(auto host_port, split_address(address));
+  auto endpoint = std::make_unique<Endpoint>();
+  endpoint->server.new_task_queue = [] { return new httplib::ThreadPool(2); };
+  endpoint->server.Get("/metrics", [this](const httplib::Request&, httplib::Response& response) {
+    auto families = registry_->Collect();
+    auto scraped = scraped_->Collect();
+    families.insert(families.end(), std::make_move_iterator(scraped.begin()), std::make_move_iterator(scraped.end()));
+    std::ostringstream text;
+    prometheus::TextSerializer().Serialize(text, families);
+    response.set_content(text.str(), "text/plain; version=0.0.4; charset=utf-8");
+  });
+  const auto& [host, port] = host_port;
+  const int bound = port == 0 ? endpoint->server.bind_to_any_port(host) : (endpoint->server.bind_to_port(host, port) ? port : -1);
+  if (bound < 0) return failed_precondition("cannot serve metrics on " + address + ": cannot bind (in use, or no such address)");
+  endpoint->thread = std::thread([server = &endpoint->server] { server->listen_after_bind(); });
+  endpoint_ = std::move(endpoint);
+  return bound;
+}
+
+void Metrics::stop_serving() {
+  if (!endpoint_) return;
+  endpoint_->server.stop();
+  endpoint_->thread.join();
+  endpoint_.reset();
+}
 
 void Metrics::session_snapshot(bool stored) { (stored ? snapshots_stored_ : snapshots_failed_)->Increment(); }
 

@@ -1,6 +1,5 @@
 // Metrics for operators, in Prometheus text format on an HTTP port of their
-// own (--metrics-listen; prometheus-cpp serves them, with its embedded
-// civetweb). What is counted, and where:
+// own (--metrics-listen; prometheus-cpp keeps them, cpp-httplib serves them). What is counted, and where:
 //
 //   riccati_rpc_total{method,code}           every finished call (interceptor)
 //   riccati_measurements_total{outcome}      estimated / refused (sessions)
@@ -27,7 +26,6 @@
 
 namespace prometheus {
 class Counter;
-class Exposer;
 class Histogram;
 class Registry;
 template <typename T>
@@ -64,6 +62,7 @@ class Metrics {
 
  private:
   class Scraped;
+  struct Endpoint;
   std::shared_ptr<prometheus::Registry> registry_;
   std::shared_ptr<Scraped> scraped_;
   prometheus::Family<prometheus::Counter>* rpcs_;
@@ -75,7 +74,7 @@ class Metrics {
   prometheus::Counter* sessions_resumed_;
   prometheus::Family<prometheus::Counter>* jobs_ended_;
   prometheus::Family<prometheus::Histogram>* job_seconds_;
-  std::unique_ptr<prometheus::Exposer> exposer_;
+  std::unique_ptr<Endpoint> endpoint_;
 };
 
 }  // namespace riccati::service

@@ -23,17 +23,22 @@ std::optional<JobState> parse_job_state(const std::string& name) {
   return std::nullopt;
 }
 
+namespace {
+constexpr JobKind kKnownJobKinds[] = {JobKind::kIdentification, JobKind::kValidation, JobKind::kSmoothing};
+}  // namespace
+
 const char* job_kind_name(JobKind kind) {
   switch (kind) {
     case JobKind::kIdentification: return "identification";
     case JobKind::kValidation: return "validation";
+    case JobKind::kSmoothing: return "smoothing";
     case JobKind::kUnknown: break;
   }
   return "unknown";
 }
 
 JobKind parse_job_kind(const std::string& name) {
-  for (JobKind kind : {JobKind::kIdentification, JobKind::kValidation}) {
+  for (JobKind kind : kKnownJobKinds) {
     if (name == job_kind_name(kind)) return kind;
   }
   return JobKind::kUnknown;
@@ -41,7 +46,7 @@ JobKind parse_job_kind(const std::string& name) {
 
 std::string known_job_kinds_sql() {
   std::string list;
-  for (JobKind kind : {JobKind::kIdentification, JobKind::kValidation}) {
+  for (JobKind kind : kKnownJobKinds) {
     list += std::string(list.empty() ? "" : ", ") + "'" + job_kind_name(kind) + "'";
   }
   return list;

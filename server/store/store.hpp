@@ -45,11 +45,11 @@ enum class JobState { kQueued, kRunning, kSucceeded, kFailed, kCancelled };
 
 // What a job does. kUnknown is only ever read: a kind that a newer riccatid
 // sharing the store wrote; this one lists such jobs but never claims them.
-enum class JobKind { kIdentification, kValidation, kUnknown };
+enum class JobKind { kIdentification, kValidation, kSmoothing, kUnknown };
 
-const char* job_kind_name(JobKind kind);  // "identification", "validation"
+const char* job_kind_name(JobKind kind);  // "identification", "validation", "smoothing"
 JobKind parse_job_kind(const std::string& name);  // kUnknown for any other name
-// The kinds this riccatid runs, as an SQL list: 'identification', 'validation'.
+// The kinds this riccatid runs, as an SQL list: 'identification', 'validation', ...
 std::string known_job_kinds_sql();
 
 const char* job_state_name(JobState state);  // "queued", "running", ...

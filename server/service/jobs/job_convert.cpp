@@ -19,6 +19,112 @@ Result<IdentificationSettings> from_proto(const v1::IdentificationSpec& spec, co
   return out;
 }
 
+Result<SmootherSettings> from_proto(const v1::SmoothingSpec& spec, const Model& model) {
+  SmootherSettings out;
+  RICCATI_ASSIGN_OR_RETURN(out.filter, from_proto(spec.filter(), model));
+  RICCATI_ASSIGN_OR_RETURN(out.initial, initial_estimate_from_proto(spec.initial_state(), spec.theta0(), spec.p0(),
+                                                                    spec.filter(), model));
+  out.first_sample = static_cast<Eigen::Index>(spec.first_sample());
+  out.end_sample = spec.end_sample() == 0 ? -1 : static_cast<Eigen::Index>(spec.end_sample());
+  RICCATI_RETURN_IF_ERROR(validate(out, model));
+  return out;
+}
+
+v1::SmoothingResult to_proto(const SmootherResult& r, bool full_covariance) {
+  v1::SmoothingResult out;
+  for (const auto& n : r.names) out.add_names(n);
+  copy_values(r.t, out.mutable_t());
+  *out.mutable_z_filtered() = to_matrix(r.z_filtered);
+  *out.mutable_std_filtered() = to_matrix(r.std_filtered);
+  *out.mutable_z_smoothed() = to_matrix(r.z_smoothed);
+  *out.mutable_std_smoothed() = to_matrix(r.std_smoothed);
+  *out.mutable_y_model() = to_matrix(r.y_model);
+  *out.mutable_innovations() = to_matrix(r.innovations);
+  if (full_covariance) *out.mutable_covariances() = to_matrix(r.P_smoothed);
+  return out;
+}
+
+namespace {
+
+v1::Diagnostics to_proto(const ResidualDiagnostics& d) {
+  v1::Diagnostics out;
+  out.set_samples(static_cast<uint64_t>(d.samples));
+  out.set_lags(static_cast<uint32_t>(d.lags));
+  out.set_band(d.band);
+  *out.mutable_autocorrelation() = to_matrix(d.autocorrelation);
+  copy_values(d.ljung_box, out.mutable_ljung_box());
+  out.set_ljung_box_limit(d.ljung_box_limit);
+  *out.mutable_cross_correlation() = to_matrix(d.cross_correlation);
+  copy_values(d.cross_statistic, out.mutable_cross_statistic());
+  copy_values(d.cross_limit, out.mutable_cross_limit());
+  out.set_nis_mean(d.nis_mean);
+  out.set_nis_lower(d.nis_lower);
+  out.set_nis_upper(d.nis_upper);
+  out.set_white(d.white());
+  out.set_uncorrelated_with_inputs(d.uncorrelated_with_inputs());
+  out.set_nis_consistent(d.nis_consistent());
+  out.set_summary(d.summary());
+  return out;
+}
+
+template <typename Container>
+void copy_flags(const Container& flags, google::protobuf::RepeatedField<bool>* out) {
+  for (bool f : flags) out->Add(f);
+}
+
+}  // namespace
+
+v1::EstimationResult to_proto(const EstimationResult& r, IdentificationMethod method,
+                              const std::vector<std::string>& dataset_ids) {
+  v1::EstimationResult out;
+  out.set_method(static_cast<v1::IdentificationMethod>(
+      enum_to_proto(*v1::IdentificationMethod_descriptor(), identification_method_name(method))));
+  for (const auto& n : r.param_names) out.add_param_names(n);
+  copy_values(r.theta, out.mutable_theta());
+  copy_values(r.theta_std, out.mutable_theta_std());
+  copy_values(r.ci_lower, out.mutable_ci_lower());
+  copy_values(r.ci_upper, out.mutable_ci_upper());
+  copy_flags(r.fixed, out.mutable_fixed());
+  *out.mutable_covariance() = to_matrix(r.covariance);
+  *out.mutable_correlation() = to_matrix(r.correlation);
+  for (const auto& w : r.warnings) out.add_warnings(w);
+  out.set_cost(r.cost);
+  out.set_sigma2(r.sigma2);
+  for (double c : r.cost_history) out.add_cost_history(c);
+  out.set_iterations(static_cast<uint32_t>(r.iterations));
+  out.set_evaluations(static_cast<uint32_t>(r.evaluations));
+  out.set_jacobian_evaluations(static_cast<uint32_t>(r.jacobian_evaluations));
+  out.set_converged(r.converged);
+  out.set_termination(r.termination);
+  out.set_gradient(r.gradient);
+  for (std::size_t e = 0; e < r.experiments.size(); ++e) {
+    const ExperimentResult& x = r.experiments[e];
+    v1::ExperimentFit* fit = out.add_experiments();
+    if (e < dataset_ids.size()) fit->set_dataset_id(dataset_ids[e]);
+    copy_values(x.x0, fit->mutable_x0());
+    copy_values(x.x0_std, fit->mutable_x0_std());
+    copy_flags(x.x0_estimated, fit->mutable_x0_estimated());
+    copy_values(x.t, fit->mutable_t());
+    *fit->mutable_y_measured() = to_matrix(x.y_measured);
+    *fit->mutable_y_model() = to_matrix(x.y_model);
+    *fit->mutable_residuals() = to_matrix(x.residuals);
+    *fit->mutable_mask() = to_matrix(x.mask.matrix());
+    for (const OutputFit& f : x.fits) *fit->add_fits() = to_proto(f);
+    *fit->mutable_diagnostics() = to_proto(x.diagnostics);
+  }
+  return out;
+}
+
+v1::OutputFit to_proto(const OutputFit& f) {
+  v1::OutputFit fit;
+  fit.set_name(f.name);
+  fit.set_rmse(f.rmse);
+  fit.set_fit_percent(f.fit_percent);
+  fit.set_vaf_percent(f.vaf_percent);
+  fit.set_rrse(f.rrse);
+  return fit;
+}
+
 Result<ValidationSettings> from_proto(const v1::ValidationSpec& spec) {
   ValidationSettings out;
   RICCATI_ASSIGN_OR_RETURN(out.simulation.integrator, from_proto(spec.integrator()));
@@ -47,6 +153,7 @@ v1::IdentificationResult to_proto(const IdentificationResult& r) {
   *out.mutable_x_trace() = to_matrix(r.x_trace);
   *out.mutable_y_model() = to_matrix(r.y_model);
   *out.mutable_innovations() = to_matrix(r.innovations);
+  for (const auto& w : r.warnings) out.add_warnings(w);
   return out;
 }
 
@@ -84,14 +191,7 @@ v1::ValidationResult to_proto(const ValidationResult& r, const Eigen::VectorXd& 
   copy_values(r.t, out.mutable_t());
   *out.mutable_y_measured() = to_matrix(r.y_measured);
   *out.mutable_y_simulated() = to_matrix(r.y_simulated);
-  for (const OutputFit& f : r.fits) {
-    v1::OutputFit* fit = out.add_fits();
-    fit->set_name(f.name);
-    fit->set_rmse(f.rmse);
-    fit->set_fit_percent(f.fit_percent);
-    fit->set_vaf_percent(f.vaf_percent);
-    fit->set_rrse(f.rrse);
-  }
+  for (const OutputFit& f : r.fits) *out.add_fits() = to_proto(f);
   return out;
 }
 
@@ -114,6 +214,7 @@ v1::Job to_proto(const JobRecord& job) {
   switch (job.kind) {
     case JobKind::kIdentification: out.mutable_identification()->ParseFromString(job.spec); break;
     case JobKind::kValidation: out.mutable_validation()->ParseFromString(job.spec); break;
+    case JobKind::kSmoothing: out.mutable_smoothing()->ParseFromString(job.spec); break;
     case JobKind::kUnknown: break;  // a newer riccatid's: its spec is not ours to read
   }
   v1::JobProgress* p = out.mutable_progress();

@@ -3,7 +3,9 @@
 // record as the API shows it.
 #pragma once
 
+#include "engine/estimation/estimate.hpp"
 #include "engine/estimation/identification.hpp"
+#include "engine/estimation/smoother.hpp"
 #include "engine/estimation/validation.hpp"
 #include "engine/models/model.hpp"
 #include "riccati/v1/jobs.pb.h"
@@ -19,6 +21,14 @@ v1::IdentificationResult to_proto(const IdentificationResult& r);
 // The inverse of to_proto (a stored result or checkpoint).
 Result<IdentificationResult> from_proto(const v1::IdentificationResult& r);
 v1::ValidationResult to_proto(const ValidationResult& r, const Eigen::VectorXd& theta);
+v1::OutputFit to_proto(const OutputFit& fit);
+
+Result<SmootherSettings> from_proto(const v1::SmoothingSpec& spec, const Model& model);
+v1::SmoothingResult to_proto(const SmootherResult& r, bool full_covariance);
+
+// An output-error or likelihood result; experiment e's dataset is dataset_ids[e].
+v1::EstimationResult to_proto(const EstimationResult& r, IdentificationMethod method,
+                              const std::vector<std::string>& dataset_ids);
 
 v1::JobState to_proto(JobState state);
 // The job as the API shows it (its spec decoded from the store's bytes).

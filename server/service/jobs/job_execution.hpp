@@ -21,6 +21,10 @@ struct JobProgress {
   std::int64_t sample = 0;  // 1-based, within the pass
   std::int64_t samples = 0;
   std::span<const double> theta;  // the estimate now
+  // An optimiser's (output error, likelihood): its iterations and criterion.
+  bool optimizer = false;
+  int iteration = 0;
+  double cost = 0.0;
 };
 
 struct JobExecution {

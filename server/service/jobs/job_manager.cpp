@@ -11,6 +11,7 @@
 #include "service/convert.hpp"
 #include "service/ids.hpp"
 #include "service/jobs/job_convert.hpp"
+#include "service/jobs/identification_job.hpp"
 #include "service/jobs/job_execution.hpp"
 
 namespace riccati::service {
@@ -76,17 +77,42 @@ void JobManager::shutdown() {
 
 Result<JobRecord> JobManager::submit_identification(const std::string& tenant, const v1::IdentificationSpec& spec) {
   RICCATI_ASSIGN_OR_RETURN(const ModelPtr model, models_.get(spec.model()));
-  if (spec.passes() > limits_.max_passes) {
-    return limit_reached("max_passes", limits_.max_passes, "the job asks for " + std::to_string(spec.passes()) + " passes");
+  const uint32_t passes = std::max(spec.passes(), spec.init_passes());
+  if (passes > limits_.max_passes) {
+    return limit_reached("max_passes", limits_.max_passes, "the job asks for " + std::to_string(passes) + " passes");
   }
-  RICCATI_ASSIGN_OR_RETURN(const IdentificationSettings settings, from_proto(spec, *model));
-  RICCATI_ASSIGN_OR_RETURN(const DatasetRecord dataset, store_.get_dataset(tenant, spec.dataset_id()));
+  RICCATI_ASSIGN_OR_RETURN(const IdentificationJob plan, identification_from_proto(spec, *model));
+  std::vector<DatasetRecord> datasets;
+  for (const ExperimentSpec& e : plan.experiments) {
+    RICCATI_ASSIGN_OR_RETURN(DatasetRecord record, store_.get_dataset(tenant, e.dataset_id));
+    datasets.push_back(std::move(record));
+  }
+  RICCATI_RETURN_IF_ERROR(check_against_datasets(plan, datasets, *model));
   JobRecord job;
   job.id = new_id("job");
   job.tenant = tenant;
   job.kind = JobKind::kIdentification;
-  job.passes = settings.passes;
-  job.samples = dataset.samples;
+  job.passes = plan.method == IdentificationMethod::kFilter ? plan.filter.passes : plan.init_passes;
+  job.samples = datasets.front().samples;
+  job.spec = spec.SerializeAsString();
+  return enqueue(std::move(job));
+}
+
+Result<JobRecord> JobManager::submit_smoothing(const std::string& tenant, const v1::SmoothingSpec& spec) {
+  RICCATI_ASSIGN_OR_RETURN(const ModelPtr model, models_.get(spec.model()));
+  RICCATI_ASSIGN_OR_RETURN(const SmootherSettings settings, from_proto(spec, *model));
+  RICCATI_ASSIGN_OR_RETURN(const DatasetRecord dataset, store_.get_dataset(tenant, spec.dataset_id()));
+  const Eigen::Index end = settings.end_sample < 0 ? dataset.samples : settings.end_sample;
+  if (end > dataset.samples || end - settings.first_sample < 2) {
+    return invalid_argument("the sample range [" + std::to_string(settings.first_sample) + ", " + std::to_string(end) +
+                            ") must hold at least two of the dataset's " + std::to_string(dataset.samples) + " samples");
+  }
+  JobRecord job;
+  job.id = new_id("job");
+  job.tenant = tenant;
+  job.kind = JobKind::kSmoothing;
+  job.passes = 2;  // forward and back
+  job.samples = end - settings.first_sample;
   job.spec = spec.SerializeAsString();
   return enqueue(std::move(job));
 }
@@ -102,6 +128,22 @@ Result<JobRecord> JobManager::submit_validation(const std::string& tenant, const
     if (source.kind != JobKind::kIdentification) {
       return invalid_argument("job " + source.id + " is not an identification");
     }
+  }
+  RICCATI_ASSIGN_OR_RETURN(const std::vector<bool> estimated, estimated_states(spec.initial_state(), *model, "initial_state"));
+  const bool any = std::find(estimated.begin(), estimated.end(), true) != estimated.end();
+  if (spec.estimate_x0_samples() > 0 && !any) {
+    return invalid_argument("estimate_x0_samples needs initial_state.estimate to name the states to fit (or all)");
+  }
+  if (spec.estimate_x0_samples() == 0 && any) {
+    return invalid_argument("initial_state.estimate needs estimate_x0_samples: the samples to fit the states on");
+  }
+  if (spec.estimate_x0_samples() > static_cast<uint64_t>(dataset.samples) || spec.estimate_x0_samples() == 1) {
+    return invalid_argument("estimate_x0_samples = " + std::to_string(spec.estimate_x0_samples()) +
+                            ": the initial states are fitted on 2 to " + std::to_string(dataset.samples) + " samples");
+  }
+  if (settings.initial_state == InitialState::kGiven && settings.x0.size() != model->nx()) {
+    return invalid_argument("initial_state.x0 needs " + std::to_string(model->nx()) +
+                            " values (or first_measurement = true)");
   }
   JobRecord job;
   job.id = new_id("job");
@@ -396,12 +438,17 @@ Result<std::string> JobManager::execute(const JobRecord& job, std::stop_token st
   JobExecution run{store_, models_, stop, {}};
   run.progress = [&](const JobProgress& p) {
     const auto now = std::chrono::steady_clock::now();
-    const bool pass_done = p.sample == p.samples;
+    const bool pass_done = !p.optimizer && p.sample == p.samples;
     if (!pass_done && now - last_publish < kProgressInterval) return;
     last_publish = now;
     // Progress is for watchers here; the store gets it at every lease
     // renewal and at the end of each pass (for watchers elsewhere).
     const auto changed = update(job.id, [&](JobRecord& r) {
+      if (p.optimizer) {
+        r.iteration = p.iteration;
+        r.cost = p.cost;
+        return;
+      }
       r.pass = p.pass;
       r.passes = p.passes;
       r.sample = p.sample;

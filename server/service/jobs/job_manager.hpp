@@ -80,6 +80,7 @@ class JobManager {
   // Checks the spec against the model and the dataset, stores the job and queues it.
   Result<JobRecord> submit_identification(const std::string& tenant, const v1::IdentificationSpec& spec);
   Result<JobRecord> submit_validation(const std::string& tenant, const v1::ValidationSpec& spec);
+  Result<JobRecord> submit_smoothing(const std::string& tenant, const v1::SmoothingSpec& spec);
   Result<JobRecord> cancel(const std::string& tenant, const std::string& id);
   Result<JobRecord> get(const std::string& tenant, const std::string& id);
   // The tenant's jobs, oldest first, with the progress of those running here.

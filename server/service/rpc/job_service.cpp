@@ -25,6 +25,14 @@ grpc::Status JobServiceImpl::SubmitValidation(grpc::ServerContext* context, cons
   return grpc::Status::OK;
 }
 
+grpc::Status JobServiceImpl::SubmitSmoothing(grpc::ServerContext* context, const v1::SmoothingSpec* spec,
+                                             v1::Job* response) {
+  auto job = jobs_.submit_smoothing(auth_.tenant(*context), *spec);
+  if (!job.is_ok()) return to_grpc(job.status());
+  *response = to_proto(job.value());
+  return grpc::Status::OK;
+}
+
 grpc::Status JobServiceImpl::WatchJob(grpc::ServerContext* context, const v1::WatchJobRequest* request,
                                       grpc::ServerWriter<v1::Job>* writer) {
   const std::string tenant = auth_.tenant(*context);

@@ -14,6 +14,7 @@ class JobServiceImpl final : public v1::JobService::Service {
   JobServiceImpl(const Authenticator& auth, JobManager& jobs) : auth_(auth), jobs_(jobs) {}
   grpc::Status SubmitIdentification(grpc::ServerContext*, const v1::IdentificationSpec*, v1::Job*) override;
   grpc::Status SubmitValidation(grpc::ServerContext*, const v1::ValidationSpec*, v1::Job*) override;
+  grpc::Status SubmitSmoothing(grpc::ServerContext*, const v1::SmoothingSpec*, v1::Job*) override;
   grpc::Status WatchJob(grpc::ServerContext*, const v1::WatchJobRequest*, grpc::ServerWriter<v1::Job>*) override;
   grpc::Status GetJob(grpc::ServerContext*, const v1::GetJobRequest*, v1::Job*) override;
   grpc::Status ListJobs(grpc::ServerContext*, const v1::ListJobsRequest*, v1::ListJobsResponse*) override;
