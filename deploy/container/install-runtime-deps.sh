@@ -28,7 +28,9 @@ packages=(
   libsqlite3-0                      # the embedded store
   libpqxx-6.4                       # the PostgreSQL store (depends on libpq5)
   libssl3                           # TLS and SHA-256 (libssl, libcrypto)
-  libprometheus-cpp-core1.0 libprometheus-cpp-pull1.0  # the /metrics endpoint
+  libprometheus-cpp-core1.0         # metrics in Prometheus' model and text format
+  libcpp-httplib0.11                # the HTTP server of /metrics
+  libceres3                         # Ceres Solver: output-error and maximum-likelihood identification
   zlib1g                            # checking compressed MAT variables
   libstdc++6 libgcc-s1 libc6        # the C and C++ runtimes
   ca-certificates                   # the system's CAs: riccati --tls, PostgreSQL with sslmode=verify-full

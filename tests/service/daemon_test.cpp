@@ -36,27 +36,19 @@ namespace riccati {
 namespace {
 
 using testing::DaemonProcess;
+using testing::DaemonTest;
+using testing::kWait;
+using testing::read_file;
 using testing::TempDir;
+using testing::two_tank_session;
 
 const std::string kData = RICCATI_TEST_DATA_DIR;
-
-// How long a test waits for the daemon to reach a state it must reach
-// (wait_until); far beyond what it takes, so that only a daemon that never
-// gets there fails, however loaded the machine or slow the build.
-constexpr std::chrono::milliseconds kWait = std::chrono::seconds(testing::kSanitized ? 120 : 30);
 
 // The most passes a job may ask for (the max_passes default): tens of
 // seconds of work (a Hensen pass on two_tank.csv takes about 10 ms here),
 // for a job that must still be running when a test looks, and that the
 // test cancels or a stop interrupts.
 constexpr int kEndlessPasses = 10'000;
-
-std::string read_file(const std::string& path) {
-  std::ifstream in(path, std::ios::binary);
-  std::stringstream ss;
-  ss << in.rdbuf();
-  return ss.str();
-}
 
 // A free loopback TCP port (a tiny race with other processes, acceptable in tests).
 int free_port() {
@@ -109,112 +101,6 @@ double sample_value(const std::string& page, const std::string& series) {
   }
   return std::nan("");
 }
-
-class DaemonTest : public ::testing::Test {
- protected:
-  void SetUp() override {
-    daemon_ = std::make_unique<DaemonProcess>(dir_.path() / "data");
-    daemon_->start();
-    connect();
-  }
-
-  void connect() {
-    models_ = v1::ModelService::NewStub(daemon_->channel());
-    datasets_ = v1::DatasetService::NewStub(daemon_->channel());
-    jobs_ = v1::JobService::NewStub(daemon_->channel());
-    sessions_ = v1::SessionService::NewStub(daemon_->channel());
-  }
-
-  grpc::Status upload(const std::string& name, const std::string& bytes, std::vector<std::string> inputs,
-                      std::vector<std::string> outputs, v1::DatasetInfo* info) {
-    return testing::upload_dataset(*datasets_, name, bytes, inputs, outputs, info);
-  }
-
-  std::string upload_two_tank() {
-    v1::DatasetInfo info;
-    const grpc::Status s = upload("two_tank.csv", read_file(kData + "/two_tank.csv"), {"F1", "F2"}, {"h1", "h2"}, &info);
-    EXPECT_TRUE(s.ok()) << s.error_message();
-    return info.id();
-  }
-
-  static v1::IdentificationSpec hensen(const std::string& dataset_id, int passes = 10) {
-    return testing::hensen_spec(dataset_id, passes);
-  }
-  static v1::CreateSessionRequest two_tank_session() { return testing::two_tank_session(); }
-
-  // Watches a job to its end and returns its last state.
-  v1::Job wait_for(const std::string& id) {
-    grpc::ClientContext ctx;
-    ctx.set_deadline(std::chrono::system_clock::now() + std::chrono::seconds(120));
-    v1::WatchJobRequest request;
-    request.set_id(id);
-    auto reader = jobs_->WatchJob(&ctx, request);
-    v1::Job job;
-    while (reader->Read(&job)) {
-    }
-    const grpc::Status s = reader->Finish();
-    EXPECT_TRUE(s.ok()) << s.error_message();
-    return job;
-  }
-
-  v1::JobResult result_of(const std::string& id) {
-    grpc::ClientContext ctx;
-    v1::GetResultRequest request;
-    request.set_job_id(id);
-    v1::JobResult result;
-    const grpc::Status s = jobs_->GetResult(&ctx, request, &result);
-    EXPECT_TRUE(s.ok()) << s.error_message();
-    return result;
-  }
-
-  v1::Job get_job(const std::string& id) {
-    grpc::ClientContext ctx;
-    v1::GetJobRequest get;
-    get.set_id(id);
-    v1::Job job;
-    const grpc::Status s = jobs_->GetJob(&ctx, get, &job);
-    EXPECT_TRUE(s.ok()) << s.error_message();
-    return job;
-  }
-
-  // Polls job `id` until it runs with at least `passes` passes completed,
-  // or has ended; returns what it saw last (the caller checks the state:
-  // a job that ended is not running).
-  v1::Job wait_running(const std::string& id, std::uint32_t passes = 0) {
-    v1::Job job;
-    const auto seen = [&] {
-      job = get_job(id);
-      return (job.state() == v1::JOB_STATE_RUNNING && job.progress().pass() >= passes) ||
-             job.state() >= v1::JOB_STATE_SUCCEEDED;
-    };
-    EXPECT_TRUE(testing::wait_until(seen, kWait,
-                                    "job " + id + " runs with " + std::to_string(passes) + " passes completed"))
-        << job.ShortDebugString();
-    return job;
-  }
-
-  v1::Job submit(const v1::IdentificationSpec& spec) {
-    grpc::ClientContext ctx;
-    v1::Job job;
-    const grpc::Status s = jobs_->SubmitIdentification(&ctx, spec, &job);
-    EXPECT_TRUE(s.ok()) << s.error_message();
-    return job;
-  }
-
-  void expect_serving() {
-    grpc::ClientContext ctx;
-    v1::ListModelsResponse list;
-    ASSERT_TRUE(models_->ListModels(&ctx, {}, &list).ok());
-    EXPECT_EQ(list.models_size(), 4);
-  }
-
-  TempDir dir_;
-  std::unique_ptr<DaemonProcess> daemon_;
-  std::unique_ptr<v1::ModelService::Stub> models_;
-  std::unique_ptr<v1::DatasetService::Stub> datasets_;
-  std::unique_ptr<v1::JobService::Stub> jobs_;
-  std::unique_ptr<v1::SessionService::Stub> sessions_;
-};
 
 // The same, with the daemon's metrics on a loopback port: there a test
 // sees when the daemon has finished a call (riccati_rpc_total counts each

@@ -35,6 +35,7 @@ namespace riccati {
 namespace {
 
 using testing::DaemonProcess;
+using testing::read_file;
 using testing::PostgresSchema;
 using testing::TempDir;
 
@@ -43,13 +44,6 @@ constexpr int kJobs = testing::kSanitized ? 9 : 30;  // the sanitized build runs
 
 // Passes of job i: three different runs, so results cannot be mixed up.
 int passes_of(int i) { return 12 + 4 * (i % 3); }
-
-std::string read_file(const std::filesystem::path& path) {
-  std::ifstream in(path, std::ios::binary);
-  std::stringstream s;
-  s << in.rdbuf();
-  return s.str();
-}
 
 class Cluster {
  public:

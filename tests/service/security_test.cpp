@@ -23,19 +23,13 @@ namespace riccati {
 namespace {
 
 using testing::DaemonProcess;
+using testing::read_file;
 using testing::TempDir;
 
 const std::string kData = RICCATI_TEST_DATA_DIR;
 const std::string kTls = kData + "/tls";
 const std::string kAlpha = "alpha-7f3c9e2b4d1a";  // tokens of two tenants
 const std::string kBeta = "beta-0c5e8a6f2b9d";
-
-std::string read_file(const std::string& path) {
-  std::ifstream in(path, std::ios::binary);
-  std::stringstream ss;
-  ss << in.rdbuf();
-  return ss.str();
-}
 
 // "sha256:<hex>", computed here independently of the daemon's code.
 std::string digest(const std::string& token) {

@@ -65,6 +65,7 @@ Result<ValidationResult> validate_model(const Model& model, const Dataset& data,
   RICCATI_ASSIGN_OR_RETURN(result.y_simulated,
                            simulate(model, bound.t, bound.u, x0, settings.theta, settings.simulation));
   result.t = bound.t;
+  result.x0 = x0;
   result.y_measured = bound.y;
   RICCATI_ASSIGN_OR_RETURN(result.fits, compare_outputs(bound.y, result.y_simulated, bound.output_names));
   return result;

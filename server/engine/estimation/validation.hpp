@@ -34,6 +34,7 @@ struct ValidationSettings {
 
 struct ValidationResult {
   Eigen::VectorXd t;               // [N]
+  Eigen::VectorXd x0;              // [nx] the initial states simulated from
   Eigen::MatrixXd y_measured;      // [ny x N]
   Eigen::MatrixXd y_simulated;     // [ny x N]
   std::vector<OutputFit> fits;     // one per output

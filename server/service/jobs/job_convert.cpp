@@ -189,6 +189,7 @@ v1::ValidationResult to_proto(const ValidationResult& r, const Eigen::VectorXd& 
   v1::ValidationResult out;
   copy_values(theta, out.mutable_theta());
   copy_values(r.t, out.mutable_t());
+  copy_values(r.x0, out.mutable_x0());
   *out.mutable_y_measured() = to_matrix(r.y_measured);
   *out.mutable_y_simulated() = to_matrix(r.y_simulated);
   for (const OutputFit& f : r.fits) *out.add_fits() = to_proto(f);

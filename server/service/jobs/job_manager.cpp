@@ -128,6 +128,15 @@ Result<JobRecord> JobManager::submit_validation(const std::string& tenant, const
     if (source.kind != JobKind::kIdentification) {
       return invalid_argument("job " + source.id + " is not an identification");
     }
+    v1::IdentificationSpec source_spec;
+    const bool iterated_filter = !source_spec.ParseFromString(source.spec) ||
+                                 source_spec.method() == v1::IDENTIFICATION_METHOD_UNSPECIFIED ||
+                                 source_spec.method() == v1::IDENTIFICATION_METHOD_FILTER;
+    if (spec.estimate() != v1::ESTIMATE_CHOICE_UNSPECIFIED && !iterated_filter) {
+      return invalid_argument("estimate: job " + source.id +
+                              " is an output-error or likelihood identification, with one estimate; the choice between "
+                              "the last pass's mean and its end is the iterated filter's");
+    }
   }
   RICCATI_ASSIGN_OR_RETURN(const std::vector<bool> estimated, estimated_states(spec.initial_state(), *model, "initial_state"));
   const bool any = std::find(estimated.begin(), estimated.end(), true) != estimated.end();
