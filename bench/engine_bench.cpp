@@ -6,13 +6,21 @@
 // substeps) measured over Hensen's 10-pass identification (20,000 steps),
 // through the real plugin path: the reported per_step is the whole
 // identification's time divided by its steps (prediction + update + the
-// bookkeeping of a pass).
+// bookkeeping of a pass). TwoTankOutputError (at the end) identifies the same
+// model by output error; bench/oe_versus_scipy.sh runs it beside scipy.
 #include <benchmark/benchmark.h>
 
 #include <Eigen/Cholesky>
 #include <cmath>
+#include <cstdio>
+#include <fstream>
+#include <nlohmann/json.hpp>
+#include <string>
 
+#include "engine/estimation/binding.hpp"
 #include "engine/estimation/identification.hpp"
+#include "engine/estimation/output_error.hpp"
+#include "engine/estimation/sensitivity.hpp"
 #include "engine/estimation/smoother.hpp"
 #include "engine/models/plugin_loader.hpp"
 #include "support/two_tank_hensen.hpp"
@@ -284,6 +292,88 @@ void HandWrittenTwoTankEkfStep(benchmark::State& state, bool structured) {
 }
 BENCHMARK_CAPTURE(HandWrittenTwoTankEkfStep, structured, true)->Unit(benchmark::kMicrosecond);
 BENCHMARK_CAPTURE(HandWrittenTwoTankEkfStep, full_covariance, false)->Unit(benchmark::kMicrosecond);
+
+}  // namespace
+}  // namespace riccati
+
+namespace riccati {
+namespace {
+
+// Output error on the two-tank record from Hensen's start [20 20 1 1], as
+// OutputError.TwoTankFromHensensStartRecoversTheTruth runs it: the whole
+// output_error() call (Ceres' Levenberg-Marquardt, Jacobians from forward
+// sensitivities, zero-order hold, x0 the first measurement, bounds theta >= 0
+// from the model, the default tolerances; then the covariance and residual
+// diagnostics at the estimate), RK4 with `substeps` per sample (10, the
+// default, is the benchmark; 4 and 2 show what fewer steps buy and cost).
+// bench/oe_versus_scipy.sh runs it beside scipy.optimize.least_squares on the
+// same problem (bench/oe_scipy.py). Counters: the estimate's worst relative
+// error against the truth of two_tank.json, the simulations of the record
+// (evaluations, of which jacobian_evaluations with sensitivities) and the
+// iterations; the label is the estimate.
+void TwoTankOutputError(benchmark::State& state) {
+  static TwoTankFixture fixture;
+  Experiment e;
+  e.data = bind_dataset(*fixture.model, fixture.data).value();
+  e.x0 = e.data.y.col(0);
+  OutputErrorSettings settings;
+  settings.parameters = default_parameters(*fixture.model, Eigen::Vector4d(20, 20, 1, 1));
+  settings.simulation.integrator.kind = IntegratorKind::kRk4;
+  settings.simulation.integrator.substeps = static_cast<int>(state.range(0));
+  const std::vector<Experiment> experiments{e};
+  EstimationResult last;
+  for (auto _ : state) {
+    auto r = output_error(fixture.model, experiments, settings);
+    if (!r.is_ok()) {
+      state.SkipWithError(r.status().to_string().c_str());
+      return;
+    }
+    benchmark::DoNotOptimize(r.value().theta.data());
+    last = std::move(r).value();
+  }
+  std::ifstream in(RICCATI_TEST_DATA_DIR "/two_tank.json");
+  const nlohmann::json meta = nlohmann::json::parse(in);
+  Eigen::VectorXd truth(4);
+  for (int i = 0; i < 4; ++i) {
+    truth[i] = meta["parameters"][meta["parameter_order"][static_cast<std::size_t>(i)].get<std::string>()];
+  }
+  state.counters["worst_rel_error"] = ((last.theta - truth).array() / truth.array()).abs().maxCoeff();
+  state.counters["evaluations"] = last.evaluations;
+  state.counters["jacobian_evaluations"] = last.jacobian_evaluations;
+  state.counters["iterations"] = last.iterations;
+  state.counters["converged"] = last.converged ? 1.0 : 0.0;
+  char label[160];
+  std::snprintf(label, sizeof label, "theta=[%.17g %.17g %.17g %.17g] ", last.theta[0], last.theta[1], last.theta[2],
+                last.theta[3]);
+  state.SetLabel(label + last.termination);
+}
+BENCHMARK(TwoTankOutputError)->ArgName("substeps")->Arg(10)->Arg(4)->Arg(2)->Unit(benchmark::kMillisecond);
+
+// One simulation of the two-tank record at the truth (RK4, 10 substeps, zero-
+// order hold): the states alone (what a trial step of output error costs) and
+// with the forward sensitivities to theta (what a Jacobian costs). Where the
+// time of TwoTankOutputError goes.
+void TwoTankSimulation(benchmark::State& state, bool sensitivities) {
+  static TwoTankFixture fixture;
+  const Dataset data = bind_dataset(*fixture.model, fixture.data).value();
+  auto simulator = SensitivitySimulator::create(fixture.model, SimulationSettings{}, false).value();
+  const Eigen::VectorXd x0 = data.y.col(0);
+  const Eigen::VectorXd theta = Eigen::Vector4d(10, 5, 0.0791, 0.1342);
+  SimulatedRecord record;
+  for (auto _ : state) {
+    const Status s = simulator.simulate(data.t, data.u, x0, theta, sensitivities, &record);
+    if (!s.is_ok()) {
+      state.SkipWithError(s.to_string().c_str());
+      return;
+    }
+    benchmark::DoNotOptimize(record.y.data());
+  }
+  state.counters["per_sample"] = benchmark::Counter(static_cast<double>(data.size()),
+                                                    benchmark::Counter::kIsIterationInvariantRate |
+                                                        benchmark::Counter::kInvert);
+}
+BENCHMARK_CAPTURE(TwoTankSimulation, values, false)->Unit(benchmark::kMillisecond);
+BENCHMARK_CAPTURE(TwoTankSimulation, sensitivities, true)->Unit(benchmark::kMillisecond);
 
 }  // namespace
 }  // namespace riccati
