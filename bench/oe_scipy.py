@@ -31,8 +31,8 @@ Integrators (--integrator):
              that its error at the truth (3e-13 on the outputs) is that of
              riccati's RK4 (2e-13), see --check.
   solve_ivp  scipy.integrate.solve_ivp (DOP853), the same stretches, rtol
-             1e-13, atol 1e-15 (its error at the truth stays near 1e-12: the
-             dense output between its steps limits it).
+             1e-13, atol 1e-15 (its error at the truth is no better than
+             about 1e-12 at any rtol: 1.1e-12 here).
 
 Jacobians (--jacobian):
   2-point      least_squares' default finite differences (4 more simulations
