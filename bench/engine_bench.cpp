@@ -6,13 +6,21 @@
 // substeps) measured over Hensen's 10-pass identification (20,000 steps),
 // through the real plugin path: the reported per_step is the whole
 // identification's time divided by its steps (prediction + update + the
-// bookkeeping of a pass).
+// bookkeeping of a pass). TwoTankOutputError (at the end) identifies the same
+// model by output error; bench/oe_versus_scipy.sh runs it beside scipy.
 #include <benchmark/benchmark.h>
 
 #include <Eigen/Cholesky>
 #include <cmath>
+#include <cstdio>
+#include <fstream>
+#include <nlohmann/json.hpp>
+#include <string>
 
+#include "engine/estimation/binding.hpp"
 #include "engine/estimation/identification.hpp"
+#include "engine/estimation/output_error.hpp"
+#include "engine/estimation/sensitivity.hpp"
 #include "engine/estimation/smoother.hpp"
 #include "engine/models/plugin_loader.hpp"
 #include "support/two_tank_hensen.hpp"
@@ -284,6 +292,143 @@ void HandWrittenTwoTankEkfStep(benchmark::State& state, bool structured) {
 }
 BENCHMARK_CAPTURE(HandWrittenTwoTankEkfStep, structured, true)->Unit(benchmark::kMicrosecond);
 BENCHMARK_CAPTURE(HandWrittenTwoTankEkfStep, full_covariance, false)->Unit(benchmark::kMicrosecond);
+
+}  // namespace
+}  // namespace riccati
+
+namespace riccati {
+namespace {
+
+// Output error on the two-tank record from Hensen's start [20 20 1 1], as
+// OutputError.TwoTankFromHensensStartRecoversTheTruth runs it: the whole
+// output_error() call (Ceres' Levenberg-Marquardt, Jacobians from forward
+// sensitivities, zero-order hold, x0 the first measurement, bounds theta >= 0
+// from the model, the default tolerances; then the covariance and residual
+// diagnostics at the estimate), RK4 with `substeps` per sample (10, the
+// default, is the benchmark; 4 and 2 show what fewer steps buy and cost).
+// bench/oe_versus_scipy.sh runs it beside scipy.optimize.least_squares on the
+// same problem (bench/oe_scipy.py). Counters: the estimate's worst relative
+// error against the truth of two_tank.json, the simulations of the record
+// (evaluations, of which jacobian_evaluations with sensitivities) and the
+// iterations; the label is the estimate.
+void TwoTankOutputError(benchmark::State& state) {
+  static TwoTankFixture fixture;
+  Experiment e;
+  e.data = bind_dataset(*fixture.model, fixture.data).value();
+  e.x0 = e.data.y.col(0);
+  OutputErrorSettings settings;
+  settings.parameters = default_parameters(*fixture.model, Eigen::Vector4d(20, 20, 1, 1));
+  settings.simulation.integrator.kind = IntegratorKind::kRk4;
+  settings.simulation.integrator.substeps = static_cast<int>(state.range(0));
+  const std::vector<Experiment> experiments{e};
+  EstimationResult last;
+  for (auto _ : state) {
+    auto r = output_error(fixture.model, experiments, settings);
+    if (!r.is_ok()) {
+      state.SkipWithError(r.status().to_string().c_str());
+      return;
+    }
+    benchmark::DoNotOptimize(r.value().theta.data());
+    last = std::move(r).value();
+  }
+  std::ifstream in(RICCATI_TEST_DATA_DIR "/two_tank.json");
+  const nlohmann::json meta = nlohmann::json::parse(in);
+  Eigen::VectorXd truth(4);
+  for (int i = 0; i < 4; ++i) {
+    truth[i] = meta["parameters"][meta["parameter_order"][static_cast<std::size_t>(i)].get<std::string>()];
+  }
+  state.counters["worst_rel_error"] = ((last.theta - truth).array() / truth.array()).abs().maxCoeff();
+  state.counters["evaluations"] = last.evaluations;
+  state.counters["jacobian_evaluations"] = last.jacobian_evaluations;
+  state.counters["iterations"] = last.iterations;
+  state.counters["converged"] = last.converged ? 1.0 : 0.0;
+  char label[160];
+  std::snprintf(label, sizeof label, "theta=[%.17g %.17g %.17g %.17g] ", last.theta[0], last.theta[1], last.theta[2],
+                last.theta[3]);
+  state.SetLabel(label + last.termination);
+}
+BENCHMARK(TwoTankOutputError)->ArgName("substeps")->Arg(10)->Arg(4)->Arg(2)->Unit(benchmark::kMillisecond);
+
+// One simulation of the two-tank record at the truth (RK4, 10 substeps, zero-
+// order hold): the states alone (what a trial step of output error costs) and
+// with the forward sensitivities to theta (what a Jacobian costs). Where the
+// time of TwoTankOutputError goes.
+void TwoTankSimulation(benchmark::State& state, bool sensitivities) {
+  static TwoTankFixture fixture;
+  const Dataset data = bind_dataset(*fixture.model, fixture.data).value();
+  auto simulator = SensitivitySimulator::create(fixture.model, SimulationSettings{}, false).value();
+  const Eigen::VectorXd x0 = data.y.col(0);
+  const Eigen::VectorXd theta = Eigen::Vector4d(10, 5, 0.0791, 0.1342);
+  SimulatedRecord record;
+  for (auto _ : state) {
+    const Status s = simulator.simulate(data.t, data.u, x0, theta, sensitivities, &record);
+    if (!s.is_ok()) {
+      state.SkipWithError(s.to_string().c_str());
+      return;
+    }
+    benchmark::DoNotOptimize(record.y.data());
+  }
+  state.counters["per_sample"] = benchmark::Counter(static_cast<double>(data.size()),
+                                                    benchmark::Counter::kIsIterationInvariantRate |
+                                                        benchmark::Counter::kInvert);
+}
+BENCHMARK_CAPTURE(TwoTankSimulation, values, false)->Unit(benchmark::kMillisecond);
+BENCHMARK_CAPTURE(TwoTankSimulation, sensitivities, true)->Unit(benchmark::kMillisecond);
+
+// The same simulation written by hand for the two-tank model only: fixed
+// sizes, analytic Jacobians, no plugin, no checks; RK4 with 10 substeps, the
+// sensitivities S' = f_x S + f_theta (2 x 4) beside the states. What a
+// simulation of the record costs at least with this integrator: the floor
+// for TwoTankSimulation.
+struct HandWrittenTwoTank {
+  static void rhs(const double* z, const double* th, double F1, double F2, double* d, bool sensitivities) {
+    const double h1 = z[0], h2 = z[1], A1 = th[0], A2 = th[1], k1 = th[2], k2 = th[3];
+    const double r1 = h1 > 0.0 ? std::sqrt(h1) : 0.0, r2 = h2 > 0.0 ? std::sqrt(h2) : 0.0;
+    const double f1 = (F1 - k1 * r1) / A1, f2 = (F2 + k1 * r1 - k2 * r2) / A2;
+    d[0] = f1;
+    d[1] = f2;
+    if (!sensitivities) return;
+    const double d1 = h1 > 0.0 ? 0.5 / r1 : 0.0, d2 = h2 > 0.0 ? 0.5 / r2 : 0.0;
+    const double a11 = -k1 * d1 / A1, a21 = k1 * d1 / A2, a22 = -k2 * d2 / A2;  // f_x, a12 = 0
+    const double ft[8] = {-f1 / A1, 0.0, -r1 / A1, 0.0, 0.0, -f2 / A2, r1 / A2, -r2 / A2};  // f_theta, row-major
+    const double* S = z + 2;  // row-major 2 x 4
+    for (int j = 0; j < 4; ++j) {
+      d[2 + j] = a11 * S[j] + ft[j];
+      d[6 + j] = a21 * S[j] + a22 * S[4 + j] + ft[4 + j];
+    }
+  }
+};
+
+void HandWrittenTwoTankSimulation(benchmark::State& state, bool sensitivities) {
+  static TwoTankFixture fixture;
+  const Dataset& d = fixture.data;
+  const double theta[4] = {10, 5, 0.0791, 0.1342};
+  const int n = sensitivities ? 10 : 2;
+  Eigen::MatrixXd y(2, d.size());
+  for (auto _ : state) {
+    double z[10] = {d.y(0, 0), d.y(1, 0), 0, 0, 0, 0, 0, 0, 0, 0};
+    y.col(0) << z[0], z[1];
+    for (Eigen::Index k = 1; k < d.size(); ++k) {
+      const double h = (d.t[k] - d.t[k - 1]) / 10.0, F1 = d.u(0, k - 1), F2 = d.u(1, k - 1);
+      for (int s = 0; s < 10; ++s) {
+        double k1[10], k2[10], k3[10], k4[10], tmp[10];
+        HandWrittenTwoTank::rhs(z, theta, F1, F2, k1, sensitivities);
+        for (int i = 0; i < n; ++i) tmp[i] = z[i] + 0.5 * h * k1[i];
+        HandWrittenTwoTank::rhs(tmp, theta, F1, F2, k2, sensitivities);
+        for (int i = 0; i < n; ++i) tmp[i] = z[i] + 0.5 * h * k2[i];
+        HandWrittenTwoTank::rhs(tmp, theta, F1, F2, k3, sensitivities);
+        for (int i = 0; i < n; ++i) tmp[i] = z[i] + h * k3[i];
+        HandWrittenTwoTank::rhs(tmp, theta, F1, F2, k4, sensitivities);
+        for (int i = 0; i < n; ++i) z[i] += h / 6.0 * (k1[i] + 2.0 * (k2[i] + k3[i]) + k4[i]);
+      }
+      y.col(k) << z[0], z[1];
+      benchmark::DoNotOptimize(z);
+    }
+    benchmark::DoNotOptimize(y.data());
+  }
+}
+BENCHMARK_CAPTURE(HandWrittenTwoTankSimulation, values, false)->Unit(benchmark::kMillisecond);
+BENCHMARK_CAPTURE(HandWrittenTwoTankSimulation, sensitivities, true)->Unit(benchmark::kMillisecond);
 
 }  // namespace
 }  // namespace riccati
