@@ -125,6 +125,9 @@ Status Daemon::start() {
   for (const auto& m : models_.models()) {
     spdlog::info("model loaded name={} version={} path={} sha256={}", m->name(), m->version(), m->origin(),
                  models_.sha256(*m));
+    for (const std::string& d : models_.jacobian_check(*m).disagreements) {
+      spdlog::warn("model Jacobian disagrees with finite differences name={} detail=\"{}\"", m->name(), d);
+    }
   }
   for (const auto& r : models_.refused()) spdlog::warn("model refused path={} reason=\"{}\"", r.path, r.reason);
 

@@ -14,6 +14,7 @@
 #include <vector>
 
 #include "engine/bad_plugins/pendulum_table.hpp"
+#include "engine/models/jacobian_check.hpp"
 #include "engine/models/model.hpp"
 #include "engine/models/plugin_loader.hpp"
 
@@ -153,6 +154,101 @@ TEST(PluginLoaderTest, MissingJacobiansFallBackToFiniteDifferences) {
 }
 
 // ---------------------------------------------------------------------------
+// Jacobian check
+
+// A sign error in one entry of df/dz (bad_plugins/wrong_jacobian.cpp): found
+// at every generic point, named by its row and column, with both values; the
+// right g Jacobian is not reported. The scaled error of a flipped sign is
+// |2 k cos(angle)| / |k cos(angle)| = 2.
+TEST(JacobianCheckTest, WrongSignIsFoundAndNamed) {
+  const ModelPtr m = load_or_fail(bad_plugin("wrong_jacobian.so"));
+  ASSERT_NE(m, nullptr);
+  const Result<JacobianCheck> check = check_jacobians(*m, generic_points(*m));
+  ASSERT_TRUE(check.is_ok()) << check.status().to_string();
+  EXPECT_TRUE(check->checked);
+  EXPECT_EQ(check->points, 3);
+  EXPECT_FALSE(check->agrees());
+  EXPECT_NEAR(check->max_error, 2.0, 1e-6);
+  ASSERT_EQ(check->disagreements.size(), 1u);
+  const std::string& d = check->disagreements.front();
+  EXPECT_NE(d.find("df/d[x; theta]: d velocity' / d angle"), std::string::npos) << d;
+  EXPECT_NE(d.find("finite differences give"), std::string::npos) << d;
+  EXPECT_NE(d.find("theta = [9, 0.5]"), std::string::npos) << d;
+}
+
+// The pendulum table with hand-written Jacobians, one entry (d velocity' /
+// d c = -velocity) scaled by kScale: the check's tolerance in both directions.
+double g_scale = 1.0;
+
+int scaled_f_jac(double t, const double* u, const double* x, const double* theta, double* out, double* jac,
+                 char* err, size_t err_len) {
+  bad_plugin::pendulum_f(1, 1, t, u, x, theta, out, err, err_len);
+  const double angle = x[0], velocity = x[1], k = theta[0], c = theta[1];
+  const double exact[2 * 4] = {0.0, -k * std::cos(angle), 1.0, -c, 0.0, -std::sin(angle), 0.0, -velocity * g_scale};
+  std::copy(exact, exact + 8, jac);
+  return 0;
+}
+
+TEST(JacobianCheckTest, ToleranceSeparatesRoundingFromErrors) {
+  riccati_model_v1 t = bad_plugin::pendulum_table("pendulum");
+  t.f_jac = &scaled_f_jac;
+  auto m = Model::create(&t, nullptr, "pendulum (in-process)");
+  ASSERT_TRUE(m.is_ok()) << m.status().to_string();
+  struct Case {
+    double scale;
+    bool agrees;
+  };
+  // 1e-8 relative: far below the tolerance, far above the oracle's error;
+  // 1e-3: a term wrong by a tenth of a percent is reported.
+  for (const Case c : {Case{1.0, true}, Case{1.0 + 1e-8, true}, Case{1.0 + 1e-3, false}, Case{0.0, false}}) {
+    g_scale = c.scale;
+    const Result<JacobianCheck> check = check_jacobians(*m.value(), generic_points(*m.value()));
+    ASSERT_TRUE(check.is_ok()) << check.status().to_string();
+    EXPECT_EQ(check->agrees(), c.agrees) << "scale " << c.scale << ": " << check->detail;
+    if (!c.agrees) {
+      ASSERT_EQ(check->disagreements.size(), 1u);
+      EXPECT_NE(check->disagreements.front().find("d velocity' / d c"), std::string::npos)
+          << check->disagreements.front();
+    }
+  }
+  g_scale = 1.0;
+}
+
+TEST(JacobianCheckTest, ModelWithoutJacobiansIsNotChecked) {
+  const ModelPtr m = load_or_fail(bad_plugin("no_jacobians.so"));
+  ASSERT_NE(m, nullptr);
+  const Result<JacobianCheck> check = check_jacobians(*m, generic_points(*m));
+  ASSERT_TRUE(check.is_ok());
+  EXPECT_FALSE(check->checked);
+  EXPECT_NE(check->detail.find("no Jacobians"), std::string::npos) << check->detail;
+}
+
+// The four shipped models (dual numbers through the SDK, and the
+// manipulator's mechanical form) agree, at their loaded check and at a
+// point of the caller's.
+TEST(JacobianCheckTest, ShippedModelsAgree) {
+  auto registry = ModelRegistry::load_directory(RICCATI_TEST_PLUGIN_DIR);
+  ASSERT_TRUE(registry.is_ok()) << registry.status().to_string();
+  ASSERT_EQ(registry->models().size(), 4u);
+  for (const ModelPtr& m : registry->models()) {
+    const JacobianCheck& check = registry->jacobian_check(*m);
+    EXPECT_TRUE(check.checked) << m->name() << ": " << check.detail;
+    EXPECT_TRUE(check.agrees()) << m->name() << ": " << (check.agrees() ? "" : check.disagreements.front());
+    EXPECT_LT(check.max_error, 1e-8) << m->name();  // measured: 3e-12 to 3e-10
+  }
+  const ModelPtr tank = registry->find("two_tank");
+  ASSERT_NE(tank, nullptr);
+  JacobianPoint p{0.0, Eigen::Vector2d(0.1, 0.03), Eigen::Vector2d(0.4, 0.15), tank->theta_default()};
+  const Result<JacobianCheck> at = check_jacobians(*tank, {p});
+  ASSERT_TRUE(at.is_ok());
+  EXPECT_TRUE(at->agrees());
+  EXPECT_EQ(at->points, 1);
+  EXPECT_FALSE(check_jacobians(*tank, {JacobianPoint{0.0, Eigen::Vector2d(0.1, 0.03), Eigen::Vector3d::Ones(),
+                                                      tank->theta_default()}}).is_ok())
+      << "a point of the wrong size is an error";
+}
+
+// ---------------------------------------------------------------------------
 // Directories
 
 // The table only grows (model_abi.h): a plugin built before the mechanical
@@ -199,7 +295,12 @@ TEST(ModelRegistryTest, BadDirectoryLoadsTheValidAndListsTheRefused) {
 
   std::set<std::string> loaded;
   for (const ModelPtr& m : registry->models()) loaded.insert(m->name());
-  EXPECT_EQ(loaded, (std::set<std::string>{"nan_f", "no_jacobians", "throwing_f"}));
+  EXPECT_EQ(loaded, (std::set<std::string>{"nan_f", "no_jacobians", "throwing_f", "wrong_jacobian"}));
+  // Loaded, but its Jacobian check says what is wrong with it.
+  const ModelPtr wrong = registry->find("wrong_jacobian");
+  ASSERT_NE(wrong, nullptr);
+  EXPECT_TRUE(registry->jacobian_check(*wrong).checked);
+  EXPECT_FALSE(registry->jacobian_check(*wrong).agrees());
 
   std::set<std::string> refused_files;
   for (const RefusedPlugin& r : registry->refused()) {

@@ -146,6 +146,9 @@ TEST_F(DaemonTest, ListsTheBuiltInModels) {
   ASSERT_TRUE(models_->GetModel(&ctx2, get, &info).ok());
   EXPECT_EQ(info.param_names_size(), 4);
   EXPECT_TRUE(info.exact_f_jacobian());
+  EXPECT_TRUE(info.jacobian_check().checked()) << info.jacobian_check().detail();
+  EXPECT_TRUE(info.jacobian_check().agrees()) << info.jacobian_check().detail();
+  EXPECT_EQ(info.jacobian_check().disagreements_size(), 0);
 }
 
 TEST_F(DaemonTest, IdentificationJobEqualsTheEngineInProcess) {
@@ -779,6 +782,96 @@ TEST(DaemonFaults, AFailingModelEndsOnlyItsOwnSessionAndJob) {
   EXPECT_TRUE(response.results(0).has_estimate());
   good->WritesDone();
   EXPECT_TRUE(good->Finish().ok());
+}
+
+// A model whose hand-written Jacobian has a sign wrong
+// (bad_plugins/wrong_jacobian.cpp) loads and runs, as it must: only the check
+// can tell. GetModel says which entry disagrees, and an identification job
+// on it carries the same warning at its own start point.
+TEST(DaemonFaults, AWrongJacobianIsReportedByTheModelAndAtJobStart) {
+  TempDir dir;
+  const auto models = dir.path() / "models";
+  std::filesystem::create_directories(models);
+  std::filesystem::copy_file(std::string(RICCATI_TEST_BAD_PLUGIN_DIR) + "/wrong_jacobian.so", models / "wrong_jacobian.so");
+  DaemonProcess daemon(dir.path() / "data", {"--models-dir", models.string()});
+  daemon.start();
+  auto model_service = v1::ModelService::NewStub(daemon.channel());
+  auto datasets = v1::DatasetService::NewStub(daemon.channel());
+  auto jobs = v1::JobService::NewStub(daemon.channel());
+
+  v1::ModelInfo info;
+  {
+    grpc::ClientContext ctx;
+    v1::GetModelRequest get;
+    get.set_name("wrong_jacobian");
+    ASSERT_TRUE(model_service->GetModel(&ctx, get, &info).ok());
+  }
+  const v1::JacobianCheck& check = info.jacobian_check();
+  EXPECT_TRUE(check.checked());
+  EXPECT_FALSE(check.agrees());
+  ASSERT_EQ(check.disagreements_size(), 1) << check.detail();
+  EXPECT_NE(check.disagreements(0).find("d velocity' / d angle"), std::string::npos) << check.disagreements(0);
+
+  // A short swing of the pendulum, simulated by the daemon (f itself is right).
+  v1::SimulateRequest sim;
+  sim.set_model("wrong_jacobian");
+  for (double x : {0.5, 0.0}) sim.add_x0(x);
+  std::string csv = "t,torque,angle\n";
+  for (int k = 0; k < 40; ++k) sim.add_t(0.05 * k);
+  sim.mutable_u()->set_rows(1);
+  sim.mutable_u()->set_cols(40);
+  for (int k = 0; k < 40; ++k) sim.mutable_u()->add_values(0.0);
+  v1::SimulateResponse simulated;
+  {
+    grpc::ClientContext ctx;
+    ASSERT_TRUE(model_service->Simulate(&ctx, sim, &simulated).ok());
+  }
+  for (int k = 0; k < 40; ++k) csv += std::to_string(0.05 * k) + ",0," + std::to_string(simulated.y().values(k)) + "\n";
+  v1::DatasetInfo uploaded;
+  {
+    grpc::ClientContext ctx;
+    auto writer = datasets->UploadDataset(&ctx, &uploaded);
+    writer->Write(testing::upload_header("swing.csv", {"torque"}, {"angle"}));
+    v1::UploadDatasetRequest part;
+    part.set_chunk(csv);
+    writer->Write(part);
+    writer->WritesDone();
+    ASSERT_TRUE(writer->Finish().ok());
+  }
+  v1::IdentificationSpec spec;
+  spec.set_model("wrong_jacobian");
+  spec.set_dataset_id(uploaded.id());
+  spec.mutable_filter()->mutable_r()->mutable_diagonal()->add_values(1e-4);
+  for (double p : {1e-4, 1e-4, 1e-2, 1e-2}) spec.mutable_p0()->mutable_diagonal()->add_values(p);
+  for (double x : {0.5, 0.0}) spec.mutable_initial_state()->add_x0(x);
+  spec.set_passes(1);
+  v1::Job job;
+  {
+    grpc::ClientContext ctx;
+    ASSERT_TRUE(jobs->SubmitIdentification(&ctx, spec, &job).ok());
+  }
+  {
+    grpc::ClientContext ctx;
+    v1::WatchJobRequest watch;
+    watch.set_id(job.id());
+    auto reader = jobs->WatchJob(&ctx, watch);
+    while (reader->Read(&job)) {
+    }
+  }
+  ASSERT_EQ(job.state(), v1::JOB_STATE_SUCCEEDED) << job.error().message();
+  v1::JobResult result;
+  {
+    grpc::ClientContext ctx;
+    v1::GetResultRequest get;
+    get.set_job_id(job.id());
+    ASSERT_TRUE(jobs->GetResult(&ctx, get, &result).ok());
+  }
+  ASSERT_TRUE(result.has_identification());
+  ASSERT_GE(result.identification().warnings_size(), 1);
+  const std::string& warning = result.identification().warnings(0);
+  EXPECT_NE(warning.find("Jacobian disagrees with finite differences at the start"), std::string::npos) << warning;
+  EXPECT_NE(warning.find("d velocity' / d angle"), std::string::npos) << warning;
+  EXPECT_NE(warning.find("x = [0.5, 0]"), std::string::npos) << warning;
 }
 
 TEST_F(DaemonTest, CancelStopsARunningJob) {

@@ -34,6 +34,16 @@ int models_show(Client& c, const std::string& name) {
               join(info.input_names()).c_str(), join(info.output_names()).c_str());
   std::printf("  Jacobians: f %s, g %s\n", info.exact_f_jacobian() ? "exact" : "finite differences",
               info.exact_g_jacobian() ? "exact" : "finite differences");
+  const v1::JacobianCheck& check = info.jacobian_check();
+  if (!check.checked()) {
+    std::printf("    not checked: %s\n", check.detail().c_str());
+  } else if (check.agrees()) {
+    std::printf("    agree with finite differences (%s)\n", check.detail().c_str());
+  } else {
+    // Loud: estimates made with a wrong Jacobian are wrong without any other sign.
+    std::printf("    WRONG: they disagree with finite differences (%s):\n", check.detail().c_str());
+    for (const std::string& d : check.disagreements()) std::printf("      %s\n", d.c_str());
+  }
   std::printf("  %-10s %12s %12s %12s\n", "parameter", "default", "lower", "upper");
   for (int i = 0; i < info.param_names_size(); ++i) {
     std::printf("  %-10s %12.6g %12.6g %12.6g\n", info.param_names(i).c_str(), info.theta_default(i),

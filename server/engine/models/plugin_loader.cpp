@@ -107,6 +107,8 @@ Result<ModelRegistry> ModelRegistry::load_directory(const std::string& dir) {
     }
     registry.models_.push_back(std::move(model));
     registry.sha256_.push_back(std::move(checksum).value());
+    Result<JacobianCheck> jacobians = check_jacobians(*registry.models_.back(), generic_points(*registry.models_.back()));
+    registry.jacobian_checks_.push_back(jacobians.is_ok() ? std::move(jacobians).value() : JacobianCheck{});
   }
   return registry;
 }
@@ -115,6 +117,14 @@ const std::string& ModelRegistry::sha256(const Model& model) const {
   static const std::string kNone;
   for (std::size_t i = 0; i < models_.size(); ++i) {
     if (models_[i].get() == &model) return sha256_[i];
+  }
+  return kNone;
+}
+
+const JacobianCheck& ModelRegistry::jacobian_check(const Model& model) const {
+  static const JacobianCheck kNone{false, "not loaded by this registry", 0, 0.0, {}};
+  for (std::size_t i = 0; i < models_.size(); ++i) {
+    if (models_[i].get() == &model) return jacobian_checks_[i];
   }
   return kNone;
 }

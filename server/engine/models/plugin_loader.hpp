@@ -5,6 +5,7 @@
 #include <string_view>
 #include <vector>
 
+#include "engine/models/jacobian_check.hpp"
 #include "engine/models/model.hpp"
 #include "engine/status.hpp"
 
@@ -40,10 +41,14 @@ class ModelRegistry {
   const std::vector<RefusedPlugin>& refused() const { return refused_; }
   // SHA-256 of the file a loaded model came from (64 hex digits).
   const std::string& sha256(const Model& model) const;
+  // Its exact Jacobians against finite differences at generic_points(),
+  // checked when it was loaded.
+  const JacobianCheck& jacobian_check(const Model& model) const;
 
  private:
   std::vector<ModelPtr> models_;
   std::vector<std::string> sha256_;  // of models_[i]'s file
+  std::vector<JacobianCheck> jacobian_checks_;  // of models_[i]
   std::vector<RefusedPlugin> refused_;
 };
 

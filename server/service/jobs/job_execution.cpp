@@ -12,6 +12,7 @@
 #include "engine/estimation/identification.hpp"
 #include "engine/estimation/smoother.hpp"
 #include "engine/estimation/validation.hpp"
+#include "engine/models/jacobian_check.hpp"
 #include "riccati/enum_names.hpp"
 #include "service/convert.hpp"
 #include "service/jobs/identification_job.hpp"
@@ -120,12 +121,32 @@ void warn_outside_bounds(const ParameterSettings& p, IdentificationResult* r) {
   }
 }
 
+// The model's Jacobians at the job's own start (the first sample's time and
+// inputs, x0, theta0): a warning per Jacobian that disagrees with finite
+// differences, which the result carries and the log says.
+std::vector<std::string> check_jacobians_at_start(const JobRecord& job, const IdentificationJob& plan,
+                                                  const Dataset& first, const Model& model) {
+  const Result<Experiment> start = make_experiment(plan.experiments.front(), first, model);
+  if (!start.is_ok() || first.size() == 0) return {};  // the run itself says what is wrong
+  JacobianPoint p{first.t[0], first.u.col(0), start->x0, plan.parameters.theta0};
+  const Result<JacobianCheck> check = check_jacobians(model, {p});
+  if (!check.is_ok()) return {};
+  std::vector<std::string> warnings;
+  for (const std::string& d : check->disagreements) {
+    spdlog::warn("job model Jacobian disagrees with finite differences id={} model={} detail=\"{}\"", job.id,
+                 model.name(), d);
+    warnings.push_back("the model's Jacobian disagrees with finite differences at the start: " + d);
+  }
+  return warnings;
+}
+
 Result<std::string> execute_identification(const JobRecord& job, const JobExecution& run) {
   v1::IdentificationSpec spec;
   if (!spec.ParseFromString(job.spec)) return internal_error("job " + job.id + ": stored spec is unreadable");
   RICCATI_ASSIGN_OR_RETURN(const ModelPtr model, run.models.get(spec.model()));
   RICCATI_ASSIGN_OR_RETURN(IdentificationJob plan, identification_from_proto(spec, *model));
   RICCATI_ASSIGN_OR_RETURN(const Dataset first, load_bound(run, job.tenant, plan.experiments.front().dataset_id, *model));
+  const std::vector<std::string> jacobian_warnings = check_jacobians_at_start(job, plan, first, *model);
   v1::JobResult result;
   result.set_job_id(job.id);
 
@@ -137,6 +158,7 @@ Result<std::string> execute_identification(const JobRecord& job, const JobExecut
     RICCATI_ASSIGN_OR_RETURN(passes, identify(model, first, plan.filter, hooks->hooks));
     if (plan.method == IdentificationMethod::kFilter) {
       warn_outside_bounds(plan.parameters, &*passes);
+      passes->warnings.insert(passes->warnings.begin(), jacobian_warnings.begin(), jacobian_warnings.end());
       *result.mutable_identification() = to_proto(*passes);
       return result.SerializeAsString();
     }
@@ -188,6 +210,7 @@ Result<std::string> execute_identification(const JobRecord& job, const JobExecut
     copy_values(r.noise.r_std, out->mutable_measurement_noise_std());
   }
   if (passes) *out->mutable_init_passes() = to_proto(*passes);
+  for (const std::string& w : jacobian_warnings) out->add_warnings(w);
   return result.SerializeAsString();
 }
 

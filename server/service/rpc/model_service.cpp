@@ -38,7 +38,7 @@ Result<Simulation> simulation_from_proto(const v1::SimulateRequest& request, con
 
 }  // namespace
 
-v1::ModelInfo to_proto(const Model& model) {
+v1::ModelInfo to_proto(const Model& model, const JacobianCheck& jacobians) {
   v1::ModelInfo info;
   info.set_name(model.name());
   info.set_version(model.version());
@@ -53,12 +53,18 @@ v1::ModelInfo to_proto(const Model& model) {
   info.set_exact_f_jacobian(model.has_f_jacobian());
   info.set_exact_g_jacobian(model.has_g_jacobian());
   info.set_ndof(static_cast<uint32_t>(model.ndof()));
+  v1::JacobianCheck* check = info.mutable_jacobian_check();
+  check->set_checked(jacobians.checked);
+  check->set_agrees(jacobians.checked && jacobians.agrees());
+  check->set_max_error(jacobians.max_error);
+  check->set_detail(jacobians.detail);
+  for (const std::string& d : jacobians.disagreements) check->add_disagreements(d);
   return info;
 }
 
 grpc::Status ModelServiceImpl::ListModels(grpc::ServerContext*, const v1::ListModelsRequest*,
                                           v1::ListModelsResponse* response) {
-  for (const auto& m : models_.models()) *response->add_models() = to_proto(*m);
+  for (const auto& m : models_.models()) *response->add_models() = to_proto(*m, models_.jacobian_check(*m));
   return grpc::Status::OK;
 }
 
@@ -66,7 +72,7 @@ grpc::Status ModelServiceImpl::GetModel(grpc::ServerContext*, const v1::GetModel
                                         v1::ModelInfo* response) {
   const Result<ModelPtr> m = models_.get(request->name());
   if (!m.is_ok()) return to_grpc(m.status());
-  *response = to_proto(*m.value());
+  *response = to_proto(*m.value(), models_.jacobian_check(*m.value()));
   return grpc::Status::OK;
 }
 

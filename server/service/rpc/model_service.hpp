@@ -19,6 +19,6 @@ class ModelServiceImpl final : public v1::ModelService::Service {
   const ModelRegistry& models_;
 };
 
-v1::ModelInfo to_proto(const Model& model);
+v1::ModelInfo to_proto(const Model& model, const JacobianCheck& jacobians);
 
 }  // namespace riccati::service
