@@ -147,6 +147,10 @@ int main(int argc, char** argv) {
   sigaddset(&signals, SIGTERM);
   sigaddset(&signals, SIGINT);
   pthread_sigmask(SIG_BLOCK, &signals, nullptr);
+  // A write past a file size limit (ulimit -f, systemd's LimitFSIZE) would
+  // kill the daemon with SIGXFSZ, logging nothing; ignored, the write fails
+  // with EFBIG, which the store reports like a full disk.
+  std::signal(SIGXFSZ, SIG_IGN);
 
   riccati::service::Daemon daemon(config);
   const auto started = daemon.start();

@@ -1,6 +1,12 @@
 // The SQLite store: one database file, WAL journal, versioned migrations.
+#include <spdlog/spdlog.h>
 #include <sqlite3.h>
 
+#include <sys/resource.h>
+#include <sys/statvfs.h>
+
+#include <cerrno>
+#include <filesystem>
 #include <chrono>
 #include <cstring>
 #include <memory>
@@ -283,8 +289,7 @@ class SqliteStore final : public Store {
 
   Status put_dataset(const DatasetRecord& r, const Dataset& data) override {
     std::lock_guard lock(mu_);
-    RICCATI_RETURN_IF_ERROR(exec("BEGIN IMMEDIATE"));
-    Status s = [&]() -> Status {
+    return in_transaction("storing dataset " + r.id, [&]() -> Status {
       Statement insert(db_.get(),
                        "INSERT INTO datasets (id, tenant, name, format, input_names, output_names, samples, t_start, "
                        "t_end, size_bytes, created_ms) VALUES (?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?)");
@@ -298,12 +303,7 @@ class SqliteStore final : public Store {
           .blob(to_blob(data.u.data(), static_cast<std::size_t>(data.u.size())))
           .blob(to_blob(data.y.data(), static_cast<std::size_t>(data.y.size())));
       return done(samples, "storing the samples of dataset " + r.id);
-    }();
-    if (!s.is_ok()) {
-      (void)exec("ROLLBACK");
-      return s;
-    }
-    return exec("COMMIT");
+    });
   }
 
   Result<DatasetRecord> get_dataset(const std::string& tenant, const std::string& id) override {
@@ -420,7 +420,7 @@ class SqliteStore final : public Store {
   // the transactions make each one all or nothing.
   Result<std::optional<JobRecord>> claim_job(const std::string& owner, std::int64_t lease_ms) override {
     std::lock_guard lock(mu_);
-    return in_transaction([&]() -> Result<std::optional<JobRecord>> {
+    return in_transaction("claiming a job", [&]() -> Result<std::optional<JobRecord>> {
       const std::int64_t now = wall_clock_ms();
       Statement q(db_.get(), (std::string("SELECT ") + kJobColumns +
                               " FROM jobs WHERE (state = 'queued' OR (state = 'running' AND lease_until_ms < ?)) "
@@ -461,7 +461,7 @@ class SqliteStore final : public Store {
 
   Status finish_job(const JobRecord& j, const std::string& owner, const std::string* result) override {
     std::lock_guard lock(mu_);
-    return in_transaction([&]() -> Status {
+    return in_transaction("ending job " + j.id, [&]() -> Status {
       Statement q(db_.get(),
                   "UPDATE jobs SET state = ?, pass = ?, passes = ?, sample = ?, samples = ?, theta = ?, error_code = ?, "
                   "error_message = ?, finished_ms = ?, lease_until_ms = 0, iteration = ?, cost = ? WHERE id = ? AND "
@@ -553,7 +553,7 @@ class SqliteStore final : public Store {
                               std::int64_t lease_ms, const std::string& snapshot) override {
     std::lock_guard lock(mu_);
     const std::string doing = "storing the snapshot of session " + session_id;
-    return in_transaction([&]() -> Status {
+    return in_transaction(doing, [&]() -> Status {
       const std::int64_t now = wall_clock_ms();
       Statement q(db_.get(), "SELECT tenant, owner, lease_until_ms FROM session_snapshots WHERE session_id = ?");
       q.text(session_id);
@@ -577,7 +577,7 @@ class SqliteStore final : public Store {
                                              const std::string& owner, std::int64_t lease_ms) override {
     std::lock_guard lock(mu_);
     const std::string doing = "claiming session " + session_id;
-    return in_transaction([&]() -> Result<std::string> {
+    return in_transaction(doing, [&]() -> Result<std::string> {
       const std::int64_t now = wall_clock_ms();
       Statement q(db_.get(),
                   "SELECT owner, lease_until_ms, snapshot FROM session_snapshots WHERE session_id = ? AND tenant = ?");
@@ -618,7 +618,7 @@ class SqliteStore final : public Store {
                                  const std::string& owner) override {
     std::lock_guard lock(mu_);
     const std::string doing = "deleting the snapshot of session " + session_id;
-    return in_transaction([&]() -> Status {
+    return in_transaction(doing, [&]() -> Status {
       Statement q(db_.get(), "SELECT owner, lease_until_ms FROM session_snapshots WHERE session_id = ? AND tenant = ?");
       q.text(session_id).text(tenant);
       const int rc = q.step();
@@ -657,14 +657,17 @@ class SqliteStore final : public Store {
   // Runs `body` in a write transaction (mu_ held by the caller): committed if
   // it returns ok, rolled back otherwise.
   template <typename F>
-  auto in_transaction(F&& body) -> std::invoke_result_t<F&> {
-    RICCATI_RETURN_IF_ERROR(exec("BEGIN IMMEDIATE"));
+  auto in_transaction(const std::string& doing, F&& body) -> std::invoke_result_t<F&> {
+    if (sqlite3_exec(db_.get(), "BEGIN IMMEDIATE", nullptr, nullptr, nullptr) != SQLITE_OK) return error(doing);
     auto out = body();
-    if (!out.is_ok()) {
-      (void)exec("ROLLBACK");
-      return out;
+    Status ended = Status::ok();
+    if (out.is_ok() && sqlite3_exec(db_.get(), "COMMIT", nullptr, nullptr, nullptr) != SQLITE_OK) ended = error(doing);
+    if (!out.is_ok() || !ended.is_ok()) {
+      // A failed COMMIT may leave the transaction open: end it either way.
+      if (sqlite3_get_autocommit(db_.get()) == 0) (void)sqlite3_exec(db_.get(), "ROLLBACK", nullptr, nullptr, nullptr);
+      make_room();
     }
-    RICCATI_RETURN_IF_ERROR(exec("COMMIT"));
+    if (!ended.is_ok()) return ended;
     return out;
   }
 
@@ -672,15 +675,76 @@ class SqliteStore final : public Store {
   Status exec(const std::string& sql) {
     char* message = nullptr;
     if (sqlite3_exec(db_.get(), sql.c_str(), nullptr, nullptr, &message) != SQLITE_OK) {
-      std::string what = message != nullptr ? message : sqlite3_errmsg(db_.get());
+      const std::string what = message != nullptr ? message : sqlite3_errmsg(db_.get());
       sqlite3_free(message);
-      return internal_error("database " + path_ + ": " + what);
+      return failure("running " + sql.substr(0, sql.find_first_of(" \n")), what);
     }
     return Status::ok();
   }
 
-  Status error(const std::string& doing) const {
-    return internal_error("database " + path_ + ", " + doing + ": " + sqlite3_errmsg(db_.get()));
+  Status error(const std::string& doing) { return failure(doing, sqlite3_errmsg(db_.get())); }
+
+  // What a failed call means to the caller. A store that cannot grow (a full
+  // disk or quota, or a file at the daemon's file size limit) is
+  // RESOURCE_EXHAUSTED: the client can free room (delete datasets or jobs)
+  // and try again. Anything else is INTERNAL. Either way the database's path
+  // stays in the daemon's log and out of what clients see.
+  Status failure(const std::string& doing, const std::string& what) {
+    const int code = sqlite3_extended_errcode(db_.get());
+    const int primary = code & 0xff;
+    std::string cause;
+    if (primary == SQLITE_FULL || primary == SQLITE_IOERR) cause = no_room_cause();
+    if (primary == SQLITE_FULL && cause.empty()) cause = "database or disk is full";
+    spdlog::error("store failed database={} doing=\"{}\" error=\"{}\" sqlite_code={}{}", path_, doing, what, code,
+                  cause.empty() ? "" : " cause=\"" + cause + "\"");
+    if (cause.empty()) {
+      return internal_error("the store failed " + doing + ": " + what + " (the daemon's log has the details)");
+    }
+    room_needed_ = true;
+    make_room();
+    return {StatusCode::kResourceExhausted,
+            "the store is full (" + cause + ") " + doing + ": delete datasets or jobs, or give the data directory room"};
+  }
+
+  // Why a write failed, when it can be told (SQLite keeps no errno for a
+  // failed write): the file system has no room left, or a database file is at
+  // the process's file size limit. Empty when neither.
+  std::string no_room_cause() const {
+    constexpr std::uintmax_t kSlack = 1 << 20;  // a transaction's pages, a frame written in part
+    const std::filesystem::path db(path_);
+    struct statvfs fs {};
+    if (statvfs(db.parent_path().c_str(), &fs) == 0 && std::uintmax_t(fs.f_bavail) * fs.f_frsize < kSlack) {
+      return "no space left on the device";
+    }
+    rlimit limit{};
+    if (getrlimit(RLIMIT_FSIZE, &limit) == 0 && limit.rlim_cur != RLIM_INFINITY) {
+      for (const char* suffix : {"", "-wal", "-journal"}) {
+        std::error_code ec;
+        const std::uintmax_t size = std::filesystem::file_size(path_ + suffix, ec);
+        if (!ec && size + kSlack >= limit.rlim_cur) {
+          return std::string(*suffix == '\0' ? "the database" : "its write-ahead log") +
+                 " reached the daemon's file size limit, " + std::to_string(limit.rlim_cur) + " bytes";
+        }
+      }
+    }
+    return {};
+  }
+
+  // After a write that found no room, and once no transaction is open: the
+  // write-ahead log is copied into the database and truncated. The log only
+  // grows until a checkpoint, which SQLite runs after a commit that takes it
+  // past 1000 pages, so a log stopped short of that by a full disk or a size
+  // limit would otherwise stay full and refuse even the deletions that make
+  // room.
+  void make_room() {
+    if (!room_needed_ || sqlite3_get_autocommit(db_.get()) == 0) return;
+    room_needed_ = false;
+    const int rc = sqlite3_wal_checkpoint_v2(db_.get(), nullptr, SQLITE_CHECKPOINT_TRUNCATE, nullptr, nullptr);
+    if (rc == SQLITE_OK) {
+      spdlog::info("store log checkpointed and truncated after a failed write database={}", path_);
+    } else {
+      spdlog::warn("store log checkpoint failed database={} error=\"{}\"", path_, sqlite3_errmsg(db_.get()));
+    }
   }
 
   // Runs a statement that returns no rows.
@@ -706,6 +770,7 @@ class SqliteStore final : public Store {
   std::mutex mu_;  // one connection, one statement at a time
   std::unique_ptr<sqlite3, CloseDb> db_;
   const std::string path_;
+  bool room_needed_ = false;  // a write found no room: make_room() once no transaction is open
 };
 
 }  // namespace

@@ -7,6 +7,7 @@
 #include <grpcpp/grpcpp.h>
 #include <gtest/gtest.h>
 #include <signal.h>
+#include <sys/resource.h>
 #include <sys/wait.h>
 #include <unistd.h>
 
@@ -96,6 +97,10 @@ class DaemonProcess {
         const int fd = ::open(log_file_.c_str(), O_WRONLY | O_CREAT | O_APPEND, 0644);
         if (fd >= 0) dup2(fd, STDERR_FILENO);
       }
+      if (file_size_limit_ > 0) {
+        const rlimit limit{file_size_limit_, file_size_limit_};
+        setrlimit(RLIMIT_FSIZE, &limit);
+      }
       std::vector<char*> argv;
       for (auto& a : args) argv.push_back(a.data());
       argv.push_back(nullptr);
@@ -128,6 +133,9 @@ class DaemonProcess {
   // The daemon's log (its standard error) goes to this file, appended, from
   // the next start() on; empty: the test's own standard error.
   void set_log_file(std::filesystem::path path) { log_file_ = std::move(path); }
+  // The largest file the daemon may write (RLIMIT_FSIZE, as `ulimit -f` or
+  // systemd's LimitFSIZE set it), from the next start(); 0: no limit.
+  void set_file_size_limit(std::uint64_t bytes) { file_size_limit_ = bytes; }
 
   // SIGTERM, then wait up to kStopDeadline (then SIGKILL); returns the exit
   // status: 0 for a clean stop, 128 + the signal for a death by signal (a
@@ -234,6 +242,7 @@ class DaemonProcess {
   std::filesystem::path data_dir_;
   std::vector<std::string> extra_args_;
   std::filesystem::path log_file_;
+  std::uint64_t file_size_limit_ = 0;
   std::uintmax_t log_start_ = 0;  // the log file's size at the last start(): this run's log follows
   pid_t pid_ = -1;
   pid_t last_pid_ = -1;

@@ -310,18 +310,32 @@ std::optional<JobRecord> JobManager::update(const std::string& id, Change&& chan
 }
 
 void JobManager::worker_loop() {
+  // A store that fails (a full disk, a database gone) is asked again after
+  // a pause that doubles up to kClaimBackoffMax, and said in the log when it
+  // starts failing and when it recovers, not at every try.
+  constexpr auto kClaimBackoffMax = std::chrono::seconds(30);
+  int failures = 0;
   for (;;) {
     {
       std::lock_guard lock(mu_);
       if (stopping_) return;
     }
     auto claimed = store_.claim_job(instance_, queue_.lease.count());
+    if (claimed.is_ok() && failures > 0) {
+      spdlog::info("jobs are claimed again after {} failed tries", failures);
+      failures = 0;
+    }
     if (claimed.is_ok() && claimed.value().has_value()) {
       run(std::move(*claimed.value()));
       continue;
     }
-    if (!claimed.is_ok()) spdlog::warn("no job claimed error=\"{}\"", claimed.status().message());
     std::unique_lock lock(mu_);
+    if (!claimed.is_ok()) {
+      if (failures++ == 0) spdlog::warn("no job claimed, retrying with back-off error=\"{}\"", claimed.status().message());
+      const auto pause = std::min<std::chrono::milliseconds>(queue_.poll * (1 << std::min(failures, 6)), kClaimBackoffMax);
+      work_ready_.wait_for(lock, pause, [&] { return stopping_; });
+      continue;
+    }
     work_ready_.wait_for(lock, queue_.poll, [&] { return stopping_ || submitted_ > 0; });
     if (submitted_ > 0) --submitted_;
   }

@@ -1,0 +1,91 @@
+// Storage failures of a real riccatid on real files: a store that cannot
+// grow answers RESOURCE_EXHAUSTED, saying what to do and not where its files
+// are, and the daemon goes on serving (and deleting).
+#include <gtest/gtest.h>
+#include <grpcpp/grpcpp.h>
+
+#include <cstdio>
+#include <random>
+#include <string>
+
+#include "riccati/v1/datasets.grpc.pb.h"
+#include "riccati/v1/models.grpc.pb.h"
+#include "service/daemon_fixture.hpp"
+
+namespace riccati {
+namespace {
+
+using testing::DaemonProcess;
+using testing::TempDir;
+
+// A CSV of `samples` rows, t,F1,F2,h1,h2, with values that do not compress
+// into a few pages.
+std::string random_csv(int samples, unsigned seed) {
+  std::mt19937 rng(seed);
+  std::uniform_real_distribution<double> value(0.0, 1.0);
+  std::string csv = "t,F1,F2,h1,h2\n";
+  char row[160];
+  for (int k = 0; k < samples; ++k) {
+    std::snprintf(row, sizeof row, "%d,%.17g,%.17g,%.17g,%.17g\n", k, value(rng), value(rng), value(rng), value(rng));
+    csv += row;
+  }
+  return csv;
+}
+
+// A file size limit (ulimit -f) on the daemon: the write past it used to
+// kill riccatid with SIGXFSZ, logging nothing. Now it fails like a full
+// disk: RESOURCE_EXHAUSTED naming the cause, nothing else lost, the daemon
+// serving, and room made by deleting is used again.
+TEST(Storage, AFileSizeLimitIsAFullStoreNotADeadDaemon) {
+  TempDir dir;
+  DaemonProcess daemon(dir.path() / "data");
+  constexpr std::uint64_t kLimit = 3 << 20;  // 3 MiB; each upload stores about 0.5 MiB
+  daemon.set_file_size_limit(kLimit);
+  daemon.start();
+  auto datasets = v1::DatasetService::NewStub(daemon.channel());
+
+  std::vector<std::string> stored;
+  grpc::Status refused;
+  for (unsigned i = 0; i < 20 && refused.ok(); ++i) {
+    v1::DatasetInfo info;
+    refused = testing::upload_dataset(*datasets, "big" + std::to_string(i) + ".csv", random_csv(12'000, i),
+                                      {"F1", "F2"}, {"h1", "h2"}, &info);
+    if (refused.ok()) stored.push_back(info.id());
+  }
+  ASSERT_FALSE(refused.ok()) << "20 uploads of 0.5 MiB fitted under a 3 MiB file size limit";
+  EXPECT_GE(stored.size(), 2u);
+  EXPECT_EQ(refused.error_code(), grpc::StatusCode::RESOURCE_EXHAUSTED) << refused.error_message();
+  EXPECT_NE(refused.error_message().find("the store is full (its write-ahead log reached the daemon's file size limit"),
+            std::string::npos)
+      << refused.error_message();
+  EXPECT_NE(refused.error_message().find("storing dataset ds-"), std::string::npos) << refused.error_message();
+  EXPECT_NE(refused.error_message().find("delete datasets or jobs"), std::string::npos) << refused.error_message();
+  EXPECT_EQ(refused.error_message().find(dir.path().string()), std::string::npos)
+      << "a client is told where the daemon's files are: " << refused.error_message();
+
+  // Still serving: what was stored is all there, and deleting works.
+  {
+    grpc::ClientContext ctx;
+    v1::ListDatasetsResponse list;
+    ASSERT_TRUE(datasets->ListDatasets(&ctx, {}, &list).ok());
+    EXPECT_EQ(list.datasets_size(), static_cast<int>(stored.size()));
+  }
+  for (int i = 0; i < 2; ++i) {
+    grpc::ClientContext ctx;
+    v1::DeleteDatasetRequest del;
+    del.set_id(stored[static_cast<std::size_t>(i)]);
+    v1::DeleteDatasetResponse deleted;
+    const grpc::Status s = datasets->DeleteDataset(&ctx, del, &deleted);
+    EXPECT_TRUE(s.ok()) << s.error_message();
+  }
+  // The room two deletions made takes a new upload.
+  v1::DatasetInfo again;
+  const grpc::Status s = testing::upload_dataset(*datasets, "again.csv", random_csv(12'000, 99), {"F1", "F2"},
+                                                 {"h1", "h2"}, &again);
+  EXPECT_TRUE(s.ok()) << s.error_message();
+  datasets.reset();  // an open channel would hold the stop for its grace period
+  EXPECT_EQ(daemon.stop(), 0) << "riccatid did not live through it: " << daemon.exit_report();
+}
+
+}  // namespace
+}  // namespace riccati
