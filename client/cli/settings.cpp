@@ -769,7 +769,10 @@ bool check_identification(const RunSettings& s, std::string* error) {
     if (span.experiment <= experiments) continue;
     *error = "--exclude " + std::to_string(span.experiment) + "@" + std::to_string(span.first) + ":" +
              std::to_string(span.end) + ": there is no experiment " + std::to_string(span.experiment) + " (1 is --data" +
-             (experiments > 1 ? ", 2 to " + std::to_string(experiments) + " the --experiment records" : "") + ")";
+             (experiments == 2   ? ", 2 the --experiment record"
+              : experiments > 2 ? ", 2 to " + std::to_string(experiments) + " the --experiment records"
+                                : "") +
+             ")";
     return false;
   }
   return true;

@@ -475,7 +475,10 @@ TEST(EstimationFlags, ErrorsNameTheFlagAndWhatIsWrong) {
   std::string error;
   ASSERT_TRUE(from_flags(Command::kIdentify, "--experiment ds-2 --exclude 3@0:10", &s, &error)) << error;
   EXPECT_FALSE(check_identification(s, &error));
-  EXPECT_EQ(error, "--exclude 3@0:10: there is no experiment 3 (1 is --data, 2 to 2 the --experiment records)");
+  EXPECT_EQ(error, "--exclude 3@0:10: there is no experiment 3 (1 is --data, 2 the --experiment record)");
+  ASSERT_TRUE(from_flags(Command::kIdentify, "--experiment ds-2,ds-3 --exclude 5@0:10", &s, &error)) << error;
+  EXPECT_FALSE(check_identification(s, &error));
+  EXPECT_EQ(error, "--exclude 5@0:10: there is no experiment 5 (1 is --data, 2 to 3 the --experiment records)");
 
   // The job file: the key and its line.
   RunSettings file;
