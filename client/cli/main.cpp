@@ -74,7 +74,9 @@ int main(int argc, char** argv) {
 
   std::string config;
   bool no_wait = false;
-  auto* identify_cmd = app.add_subcommand("identify", "Multi-pass identification (waits and prints the parameters)");
+  auto* identify_cmd = app.add_subcommand(
+      "identify", "Identify the parameters: the iterated filter, output error or maximum likelihood (--method); "
+                  "waits and prints the result");
   identify_cmd->add_option("--config", config, "YAML job file (flags override it)");
   identify_cmd->add_flag("--no-wait", no_wait, "Print the job id and return at once");
   const RunFlags id_flags(identify_cmd, Command::kIdentify);
@@ -122,6 +124,23 @@ int main(int argc, char** argv) {
       ->check(CLI::IsMember({"auto", "always", "never"}))
       ->capture_default_str();
   const RunFlags st_flags(stream_cmd, Command::kStream);
+
+  SmoothOptions sm;
+  std::string sm_config;
+  auto* smooth_cmd = app.add_subcommand(
+      "smooth", "States and parameters given all the samples: the EKF or UKF forward, then the smoother back "
+                "(waits and prints the smoothing table)");
+  smooth_cmd->add_option("--config", sm_config, "YAML job file (flags override it)");
+  smooth_cmd->add_option("--params", sm.params,
+                         "Parameters to smooth with: an identification job id, a YAML file (theta: [...]) or a list "
+                         "(default: theta0 of --config, else the model's)");
+  smooth_cmd->add_option("--format", sm.format, "table, json or csv (every sample: smoothed, filtered, std)")
+      ->check(CLI::IsMember({"table", "json", "csv"}))
+      ->capture_default_str();
+  smooth_cmd->add_option("--output,-o", sm.output, "Write to this file");
+  smooth_cmd->add_flag("--full-covariance", sm.full_covariance,
+                       "Also the smoothed covariances at every sample (in the JSON; large)");
+  const RunFlags sm_flags(smooth_cmd, Command::kSmooth);
 
   SimulateOptions sim;
   auto* simulate_cmd = app.add_subcommand("simulate", "Model outputs for given inputs (CSV out)");
@@ -179,6 +198,10 @@ int main(int argc, char** argv) {
   if (*stream_cmd) {
     if (!settings_from(st_config, st_flags, &st.settings)) return kExitUsage;
     return stream(client, st);
+  }
+  if (*smooth_cmd) {
+    if (!settings_from(sm_config, sm_flags, &sm.settings)) return kExitUsage;
+    return smooth(client, sm);
   }
   if (*simulate_cmd) {
     if (!settings_from("", sim_flags, &sim.settings)) return kExitUsage;

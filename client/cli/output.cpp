@@ -30,6 +30,12 @@ std::string join(const google::protobuf::RepeatedPtrField<std::string>& names) {
   return out;
 }
 
+std::string values_list(const google::protobuf::RepeatedField<double>& values) {
+  std::string out;
+  for (double v : values) out += (out.empty() ? "" : ", ") + format("%.6g", v);
+  return "[" + out + "]";
+}
+
 double element(const v1::Matrix& m, uint32_t i, uint32_t j) { return m.values(static_cast<int>(i + j * m.rows())); }
 
 std::string state_name(v1::JobState state) {
@@ -37,16 +43,25 @@ std::string state_name(v1::JobState state) {
   return value != nullptr ? api::enum_value_name(*value) : "unknown";
 }
 
+std::string job_kind(const v1::Job& j) {
+  if (j.has_smoothing()) return "smoothing";
+  return j.has_validation() ? "validation" : "identification";
+}
+
+std::string progress_text(const v1::JobProgress& p) {
+  // OE and ML report the optimiser's iterations once it runs (passes first, with --init-passes).
+  if (p.iteration() > 0) return "iteration " + std::to_string(p.iteration()) + ", cost " + format("%.6g", p.cost());
+  if (p.passes() > 0) return "pass " + std::to_string(p.pass()) + "/" + std::to_string(p.passes());
+  return "";
+}
+
 std::string job_line(const v1::Job& j) {
-  const std::string kind = j.has_identification() ? "identification" : "validation";
-  const std::string& model = j.has_identification() ? j.identification().model() : j.validation().model();
-  std::string progress;
-  if (j.progress().passes() > 0) {
-    progress = "pass " + std::to_string(j.progress().pass()) + "/" + std::to_string(j.progress().passes());
-  }
+  const std::string& model = j.has_smoothing()    ? j.smoothing().model()
+                             : j.has_validation() ? j.validation().model()
+                                                  : j.identification().model();
   char line[256];
-  std::snprintf(line, sizeof line, "%-22s %-15s %-10s %-20s %s", j.id().c_str(), kind.c_str(),
-                state_name(j.state()).c_str(), model.c_str(), progress.c_str());
+  std::snprintf(line, sizeof line, "%-22s %-15s %-10s %-20s %s", j.id().c_str(), job_kind(j).c_str(),
+                state_name(j.state()).c_str(), model.c_str(), progress_text(j.progress()).c_str());
   return line;
 }
 
@@ -79,23 +94,33 @@ std::string parameter_table(const v1::IdentificationResult& r, const std::vector
   return out;
 }
 
-std::string fit_table(const v1::ValidationResult& r) {
+std::string fit_table(const google::protobuf::RepeatedPtrField<v1::OutputFit>& fits, const std::string& indent) {
   std::string out;
   char line[256];
-  std::snprintf(line, sizeof line, "%-12s %12s %10s %10s %12s\n", "output", "RMSE", "fit %", "VAF %", "RRSE");
+  std::snprintf(line, sizeof line, "%s%-12s %12s %10s %10s %12s\n", indent.c_str(), "output", "RMSE", "fit %", "VAF %",
+                "RRSE");
   out += line;
-  for (const auto& f : r.fits()) {
-    std::snprintf(line, sizeof line, "%-12s %12.4g %10.3f %10.3f %12.4g\n", f.name().c_str(), f.rmse(),
-                  f.fit_percent(), f.vaf_percent(), f.rrse());
+  for (const auto& f : fits) {
+    std::snprintf(line, sizeof line, "%s%-12s %12.4g %10.3f %10.3f %12.4g\n", indent.c_str(), f.name().c_str(),
+                  f.rmse(), f.fit_percent(), f.vaf_percent(), f.rrse());
     out += line;
   }
   return out;
 }
 
-std::string result_table(const v1::JobResult& r, const v1::Job& job, const std::vector<double>& truth) {
+std::string fit_table(const v1::ValidationResult& r) {
+  std::string out;
+  // Where the parameters and initial states came from (a job's estimate, fitted x0), when riccatid says.
+  if (!r.parameters_from().empty()) out += "parameters: " + r.parameters_from() + " " + values_list(r.theta()) + "\n";
+  if (!r.x0_from().empty()) out += "x0: " + r.x0_from() + " " + values_list(r.x0()) + "\n";
+  return out + fit_table(r.fits());
+}
+
+std::string result_table(const v1::JobResult& r, const std::vector<double>& initial, const std::vector<double>& truth,
+                         const ModelNames& names) {
+  if (r.has_estimation()) return estimation_table(r.estimation(), initial, truth, names);
+  if (r.has_smoothing()) return smoothing_table(r.smoothing());
   if (!r.has_identification()) return fit_table(r.validation());
-  const auto& spec = job.identification();
-  const std::vector<double> initial(spec.theta0().begin(), spec.theta0().end());
   std::string text = parameter_table(r.identification(), initial, truth);
   const auto& last = r.identification().passes(r.identification().passes_size() - 1);
   std::string rms;
@@ -103,7 +128,9 @@ std::string result_table(const v1::JobResult& r, const v1::Job& job, const std::
   return text + "innovation RMS (last pass):" + rms + "; mean NIS " + format("%.3g", last.nis_mean()) + "\n";
 }
 
-std::string result_csv(const v1::JobResult& r) {
+std::string result_csv(const v1::JobResult& r, const ModelNames& names) {
+  if (r.has_estimation()) return estimation_csv(r.estimation(), names);
+  if (r.has_smoothing()) return smoothing_csv(r.smoothing(), names);
   std::ostringstream csv;
   csv.precision(17);
   if (r.has_identification()) {

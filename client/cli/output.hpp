@@ -1,5 +1,6 @@
 // What the commands print, apart from the commands: JSON, the tables of
-// jobs, parameters and fits, the CSV of a result.
+// jobs, parameters and fits, the CSV of a result (the tables of output
+// error, likelihood and smoothing results are in estimation_output.hpp).
 #pragma once
 
 #include <google/protobuf/message.h>
@@ -8,6 +9,7 @@
 #include <string>
 #include <vector>
 
+#include "estimation_output.hpp"
 #include "riccati/v1/jobs.pb.h"
 
 namespace riccati::cli {
@@ -17,10 +19,17 @@ std::string to_json(const google::protobuf::Message& m);
 std::string format(const char* fmt, double v);
 // "a, b, c"
 std::string join(const google::protobuf::RepeatedPtrField<std::string>& names);
+// "[0.4, 0.15]" (6 digits)
+std::string values_list(const google::protobuf::RepeatedField<double>& values);
 double element(const v1::Matrix& m, uint32_t i, uint32_t j);
 
 // "queued", "running", ... (the API's names).
 std::string state_name(v1::JobState state);
+// "identification", "validation" or "smoothing".
+std::string job_kind(const v1::Job& job);
+// How far a job is: "pass 3/10", or the optimiser's "iteration 12, cost
+// 0.0153" (OE and ML); empty before it starts.
+std::string progress_text(const v1::JobProgress& p);
 // id, kind, state, model and progress on one line of `riccati jobs`.
 std::string job_line(const v1::Job& job);
 
@@ -28,12 +37,18 @@ std::string job_line(const v1::Job& job);
 // error against `truth`, when it has one value per parameter).
 std::string parameter_table(const v1::IdentificationResult& r, const std::vector<double>& initial,
                             const std::vector<double>& truth);
+// Per output: RMSE, fit %, VAF %, RRSE; each line after `indent`.
+std::string fit_table(const google::protobuf::RepeatedPtrField<v1::OutputFit>& fits, const std::string& indent = "");
+// A validation: where its parameters and initial states came from, and the fits.
 std::string fit_table(const v1::ValidationResult& r);
 // `riccati result --format table`: the parameter table and the innovations
-// of the last pass, or the fit table.
-std::string result_table(const v1::JobResult& r, const v1::Job& job, const std::vector<double>& truth);
+// of the last pass, the fit table, the estimation table (OE, ML) or the
+// smoothing table. `initial`: the parameters the job started from.
+std::string result_table(const v1::JobResult& r, const std::vector<double>& initial, const std::vector<double>& truth,
+                         const ModelNames& names);
 // `riccati result --format csv`: the traces, model outputs and innovations
-// of an identification, or the measured and simulated outputs of a validation.
-std::string result_csv(const v1::JobResult& r);
+// of an identification, the measured and simulated outputs of a validation,
+// estimation_csv or smoothing_csv.
+std::string result_csv(const v1::JobResult& r, const ModelNames& names);
 
 }  // namespace riccati::cli

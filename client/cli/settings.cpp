@@ -24,7 +24,9 @@ using Names = std::vector<std::string> RunSettings::*;
 // Where a setting goes in RunSettings; its type says how the value is read.
 // (int: an enum's number, with the enum's descriptor in the setting.)
 using Target = std::variant<Member<std::string>, Member<int>, Member<double>, Member<std::uint64_t>, Member<bool>,
-                            Member<std::vector<double>>, Member<v1::Covariance>, Member<v1::InitialState>, Names>;
+                            Member<std::vector<double>>, Member<v1::Covariance>, Member<v1::InitialState>, Names,
+                            Member<std::vector<NamedRange>>, Member<std::vector<NamedValue>>,
+                            Member<std::vector<SampleSpan>>>;
 
 struct Setting {
   std::string key;                   // in the job file; "integrator.kind" is kind: under integrator:
@@ -35,38 +37,44 @@ struct Setting {
   Target target;
   const EnumDescriptor* choices = nullptr;  // enum settings: the API enum
   bool flag_value = true;                   // bool settings: what the flag sets
+  std::string form;      // how a value is written, for --help ("NAME=LO:HI"); empty: its type's name
+  std::string implicit;  // lists of names: the value of the flag given alone ("all"); empty: it needs one
 };
 
 constexpr unsigned bit(Command c) { return static_cast<unsigned>(c); }
 constexpr unsigned kIdentify = bit(Command::kIdentify);
-constexpr unsigned kFilter = kIdentify | bit(Command::kStream);    // runs of a filter
-constexpr unsigned kColumns = kFilter | bit(Command::kValidate);   // runs on measured data
+constexpr unsigned kValidate = bit(Command::kValidate);
+constexpr unsigned kSmooth = bit(Command::kSmooth);
+constexpr unsigned kFilter = kIdentify | bit(Command::kStream);    // runs of a filter from theta0, any kind
+constexpr unsigned kKalman = kFilter | kSmooth;                    // runs of a filter (smooth: the EKF or UKF)
+constexpr unsigned kColumns = kKalman | kValidate;                 // runs on measured data
 constexpr unsigned kSimulation = kColumns | bit(Command::kSimulate);  // runs that integrate the model
+constexpr unsigned kParams = kValidate | bit(Command::kSimulate) | kSmooth;  // commands with --params
 
 // Every setting, once. The job-file reader and the flags are made from it.
 const std::vector<Setting>& settings() {
   static const std::vector<Setting> table = {
       {.key = "model", .flag = "--model,-m", .commands = kSimulation, .help = "Model name",
        .target = &RunSettings::model},
-      {.key = "data", .flag = "--data,-d", .commands = kIdentify | bit(Command::kValidate),
+      {.key = "data", .flag = "--data,-d", .commands = kIdentify | kValidate | kSmooth,
        .help = "Dataset id, or a local CSV/MAT file to upload", .target = &RunSettings::data},
       {.key = "inputs", .flag = "--inputs", .commands = kColumns, .help = "Input columns, in the model's order",
        .target = &RunSettings::inputs},
       {.key = "outputs", .flag = "--outputs", .commands = kColumns, .help = "Output columns, in the model's order",
        .target = &RunSettings::outputs},
-      {.key = "filter", .flag = "--filter", .commands = kFilter, .help = "Filter kind", .target = &RunSettings::filter,
-       .choices = v1::FilterKind_descriptor()},
+      {.key = "filter", .flag = "--filter", .commands = kKalman, .help = "Filter kind (default ekf)",
+       .target = &RunSettings::filter, .choices = v1::FilterKind_descriptor()},
       {.key = "passes", .flag = "--passes", .commands = kIdentify, .help = "Passes over the data",
        .target = &RunSettings::passes},
       {.key = "x0", .flag = "--x0", .commands = kColumns,
        .help = "Initial state: first (the first measurement, the default) or a list", .target = &RunSettings::x0},
       {.key = "theta0", .flag = "--theta0", .commands = kFilter, .help = "Initial parameters (default: the model's)",
        .target = &RunSettings::theta0},
-      {.key = "P0", .aliases = {"p0"}, .flag = "--p0", .commands = kFilter,
+      {.key = "P0", .aliases = {"p0"}, .flag = "--p0", .commands = kKalman,
        .help = "Initial variances of [x; theta] (one value: all)", .target = &RunSettings::p0},
-      {.key = "Q", .aliases = {"q"}, .flag = "--q", .commands = kFilter,
+      {.key = "Q", .aliases = {"q"}, .flag = "--q", .commands = kKalman,
        .help = "Process noise intensities of [x; theta] (one value: all)", .target = &RunSettings::q},
-      {.key = "R", .aliases = {"r"}, .flag = "--r", .commands = kFilter,
+      {.key = "R", .aliases = {"r"}, .flag = "--r", .commands = kKalman,
        .help = "Measurement noise variances (one value: all)", .target = &RunSettings::r},
       {.key = "hold", .flag = "--hold", .commands = kSimulation, .help = "Input hold", .target = &RunSettings::hold,
        .choices = v1::HoldOrder_descriptor()},
@@ -78,17 +86,17 @@ const std::vector<Setting>& settings() {
        .help = "Adaptive integrators: relative tolerance", .target = &RunSettings::rtol},
       {.key = "integrator.atol", .flag = "--atol", .commands = kSimulation,
        .help = "Adaptive integrators: absolute tolerance", .target = &RunSettings::atol},
-      {.key = "inversion", .flag = "--inversion", .commands = kFilter, .help = "Gain solve",
+      {.key = "inversion", .flag = "--inversion", .commands = kKalman, .help = "Gain solve",
        .target = &RunSettings::inversion, .choices = v1::GainInversion_descriptor()},
-      {.key = "joseph", .flag = "--no-joseph", .commands = kFilter, .help = "EKF: short covariance update",
+      {.key = "joseph", .flag = "--no-joseph", .commands = kKalman, .help = "EKF: short covariance update",
        .target = &RunSettings::joseph, .flag_value = false},
-      {.key = "ukf.weights", .flag = "--weights", .commands = kFilter, .help = "UKF weights",
+      {.key = "ukf.weights", .flag = "--weights", .commands = kKalman, .help = "UKF weights",
        .target = &RunSettings::weights, .choices = v1::SigmaWeights_descriptor()},
-      {.key = "ukf.alpha", .flag = "--alpha", .commands = kFilter, .help = "UKF scaled weights: alpha",
+      {.key = "ukf.alpha", .flag = "--alpha", .commands = kKalman, .help = "UKF scaled weights: alpha",
        .target = &RunSettings::alpha},
-      {.key = "ukf.beta", .flag = "--beta", .commands = kFilter, .help = "UKF scaled weights: beta",
+      {.key = "ukf.beta", .flag = "--beta", .commands = kKalman, .help = "UKF scaled weights: beta",
        .target = &RunSettings::beta},
-      {.key = "ukf.kappa", .flag = "--kappa", .commands = kFilter, .help = "UKF kappa", .target = &RunSettings::kappa},
+      {.key = "ukf.kappa", .flag = "--kappa", .commands = kKalman, .help = "UKF kappa", .target = &RunSettings::kappa},
       {.key = "optimal.V", .aliases = {"optimal.v"}, .flag = "--v", .commands = kFilter,
        .help = "Optimal filter: weights of the equations of motion, inputs, outputs", .target = &RunSettings::v},
       {.key = "optimal.W", .aliases = {"optimal.w"}, .flag = "--w", .commands = kFilter,
@@ -99,12 +107,81 @@ const std::vector<Setting>& settings() {
        .target = &RunSettings::form, .choices = v1::OptimalForm_descriptor()},
       {.key = "optimal.hold_outputs", .flag = "--hold-outputs", .commands = kFilter,
        .help = "Optimal filter: hold outputs over a step (strict real time)", .target = &RunSettings::hold_outputs},
-      {.key = "first_sample", .flag = "--first-sample", .commands = kIdentify, .help = "Trial: first sample (0-based)",
+      {.key = "first_sample", .flag = "--first-sample", .commands = kIdentify | kSmooth,
+       .help = "First sample used, 0-based (identify: a trial on a slice of the data; default 0)",
        .target = &RunSettings::first_sample},
-      {.key = "end_sample", .flag = "--end-sample", .commands = kIdentify, .help = "Trial: end sample (0: to the end)",
-       .target = &RunSettings::end_sample},
+      {.key = "end_sample", .flag = "--end-sample", .commands = kIdentify | kSmooth,
+       .help = "Sample after the last used, 0-based (default 0: to the end)", .target = &RunSettings::end_sample},
       {.key = "truth", .flag = "--truth", .commands = kIdentify, .help = "True parameters, to print the error",
        .target = &RunSettings::truth},
+      // Output error and maximum likelihood.
+      {.key = "method", .flag = "--method", .commands = kIdentify,
+       .help = "How the parameters are found: the iterated filter's passes (the default), output error (the "
+               "simulated outputs' squared errors) or maximum likelihood (the EKF's or UKF's innovations)",
+       .target = &RunSettings::method, .choices = v1::IdentificationMethod_descriptor()},
+      {.key = "init_passes", .flag = "--init-passes", .commands = kIdentify,
+       .help = "oe, ml: passes of the iterated filter (--filter, --p0, --q, --r) first; their estimate (the mean "
+               "over the last pass, within the bounds) starts the optimiser (default 0: it starts at --theta0)",
+       .target = &RunSettings::init_passes},
+      {.key = "bounds", .flag = "--bound", .commands = kIdentify,
+       .help = "A parameter's bounds, in its unit; LO or HI may be left empty (the model's bound stays). "
+               "Repeatable. The filter method holds its estimate within them",
+       .target = &RunSettings::bounds, .form = "NAME=LO:HI"},
+      {.key = "fixed", .flag = "--fix", .commands = kIdentify,
+       .help = "Hold a parameter fixed: at its --theta0 (NAME) or at VALUE. Repeatable",
+       .target = &RunSettings::fixed, .form = "NAME[=VALUE]"},
+      {.key = "log_scale", .flag = "--log-scale", .commands = kIdentify,
+       .help = "oe, ml: estimate these parameters as log(theta), for positive ones spanning decades (each needs "
+               "a positive lower bound). Names, comma-separated or repeated",
+       .target = &RunSettings::log_scale, .form = "NAME"},
+      {.key = "estimate_x0", .flag = "--estimate-x0", .commands = kIdentify,
+       .help = "oe, ml: estimate these initial states, starting from --x0, in every experiment: names, "
+               "comma-separated, or all (the flag alone: all)",
+       .target = &RunSettings::estimate_x0, .form = "[STATE,...|all]", .implicit = "all"},
+      {.key = "experiments", .flag = "--experiment", .commands = kIdentify,
+       .help = "oe, ml: another record of the system, a dataset id or a local file (uploaded with --inputs and "
+               "--outputs), with the same parameters and its own initial state (as --x0 and --estimate-x0 say). "
+               "Repeatable: experiments 2, 3, ... in order; --data is experiment 1",
+       .target = &RunSettings::experiments, .form = "DATA"},
+      {.key = "exclude", .flag = "--exclude", .commands = kIdentify,
+       .help = "Leave samples FIRST to END-1 (0-based) of experiment E out (E: 1, the default, is --data; 2, 3, ... "
+               "the --experiment records). Repeatable",
+       .target = &RunSettings::exclude, .form = "[E@]FIRST:END"},
+      {.key = "output_limits", .flag = "--output-limit", .commands = kIdentify,
+       .help = "An output's saturation, in its unit: samples where it is at or below LO, or at or above HI, are "
+               "left out, in every experiment; LO or HI may be left empty. Repeatable",
+       .target = &RunSettings::output_limits, .form = "OUTPUT=LO:HI"},
+      {.key = "estimation.output_sigma", .flag = "--output-sigma", .commands = kIdentify,
+       .help = "oe: each output's noise standard deviation, in its unit, when known: the residuals are weighted by "
+               "1/sigma and the covariance is absolute (default: every output weighted 1, the covariance scaled "
+               "by the residuals' variance)",
+       .target = &RunSettings::output_sigma},
+      {.key = "estimation.estimate_q", .flag = "--estimate-q", .commands = kIdentify,
+       .help = "ml: also estimate the diagonal of the states' process noise Q, from --q (positive for every state)",
+       .target = &RunSettings::estimate_q},
+      {.key = "estimation.estimate_r", .flag = "--estimate-r", .commands = kIdentify,
+       .help = "ml: also estimate the diagonal of the measurement noise R, from --r",
+       .target = &RunSettings::estimate_r},
+      {.key = "estimation.max_iterations", .flag = "--max-iterations", .commands = kIdentify,
+       .help = "oe, ml: the optimiser's iterations at most (default 200)", .target = &RunSettings::max_iterations},
+      {.key = "estimation.function_tolerance", .flag = "--function-tolerance", .commands = kIdentify,
+       .help = "oe, ml: stop when an iteration changes the criterion by less than this, relatively (default 1e-14)",
+       .target = &RunSettings::function_tolerance},
+      {.key = "estimation.gradient_tolerance", .flag = "--gradient-tolerance", .commands = kIdentify,
+       .help = "oe, ml: stop when the largest gradient entry is below this, relatively (default 1e-14)",
+       .target = &RunSettings::gradient_tolerance},
+      {.key = "estimation.parameter_tolerance", .flag = "--parameter-tolerance", .commands = kIdentify,
+       .help = "oe, ml: stop when an iteration changes the unknowns by less than this, relatively (default 1e-12)",
+       .target = &RunSettings::parameter_tolerance},
+      // Which estimate --params takes, and validate's fitted initial states.
+      {.key = "estimate", .flag = "--estimate", .commands = kParams,
+       .help = "Which estimate of an iterated-filter job --params takes: the mean over its last pass (the default, "
+               "as the 1999 toolbox reports) or the estimate at its end; oe and ml jobs have one",
+       .target = &RunSettings::estimate, .choices = v1::EstimateChoice_descriptor()},
+      {.key = "estimate_x0_samples", .flag = "--estimate-x0", .commands = kValidate,
+       .help = "Fit every initial state (from --x0) by output error on the first M samples, the parameters held, "
+               "then simulate the whole record from them (default: x0 as given)",
+       .target = &RunSettings::x0_samples, .form = "M"},
   };
   return table;
 }
@@ -132,10 +209,18 @@ std::string group_keys(std::string_view group) {
 }
 
 // How --help shows the value a flag takes.
-const char* type_name(const Target& target) {
-  if (std::holds_alternative<Member<double>>(target)) return "FLOAT";
-  if (std::holds_alternative<Member<std::uint64_t>>(target)) return "UINT";
+std::string type_name(const Setting& setting) {
+  if (!setting.form.empty()) return setting.form;
+  if (std::holds_alternative<Member<double>>(setting.target)) return "FLOAT";
+  if (std::holds_alternative<Member<std::uint64_t>>(setting.target)) return "UINT";
   return "TEXT";
+}
+
+// Settings whose flag is repeated (or given a comma-separated list), one item each.
+bool takes_items(const Target& target) {
+  return std::holds_alternative<Names>(target) || std::holds_alternative<Member<std::vector<NamedRange>>>(target) ||
+         std::holds_alternative<Member<std::vector<NamedValue>>>(target) ||
+         std::holds_alternative<Member<std::vector<SampleSpan>>>(target);
 }
 
 std::string help_of(const Setting& setting) {
@@ -299,6 +384,121 @@ bool read(const YAML::Node& node, std::vector<std::string>* out, std::string* er
   return false;
 }
 
+// ------------------------------------------------------------ items: NAME=LO:HI, NAME[=VALUE], [E@]FIRST:END
+
+// A name before '=' or alone: not empty, and with no ':' or '=' in it (a
+// mistyped separator is then an error here, not an unknown name there).
+bool read_name(std::string_view item, std::string_view name, std::string* out, std::string* error) {
+  name = trim(name);
+  if (name.empty()) {
+    *error = in_quotes(item) + ": a name is missing before '='";
+    return false;
+  }
+  if (name.find_first_of(":=") != std::string_view::npos) return false;
+  *out = std::string(name);
+  return true;
+}
+
+// One side of LO:HI: empty is none.
+bool read_side(std::string_view item, std::string_view side, std::optional<double>* out, std::string* error) {
+  side = trim(side);
+  if (side.empty()) return true;
+  double v = 0.0;
+  if (!parse_number(side, &v)) {
+    *error = in_quotes(item) + ": " + in_quotes(side) + " is not a number";
+    return false;
+  }
+  *out = v;
+  return true;
+}
+
+bool read_item(std::string_view item, NamedRange* out, std::string* error) {
+  const auto not_the_form = [&] {
+    *error = in_quotes(item) + " is not NAME=LO:HI (LO or HI may be left empty)";
+    return false;
+  };
+  const std::size_t eq = item.find('=');
+  if (eq == std::string_view::npos) return not_the_form();
+  error->clear();
+  if (!read_name(item, item.substr(0, eq), &out->name, error)) return error->empty() ? not_the_form() : false;
+  const std::string_view range = item.substr(eq + 1);
+  const std::size_t colon = range.find(':');
+  if (colon == std::string_view::npos || range.find(':', colon + 1) != std::string_view::npos) return not_the_form();
+  if (!read_side(item, range.substr(0, colon), &out->lower, error) ||
+      !read_side(item, range.substr(colon + 1), &out->upper, error)) {
+    return false;
+  }
+  if (!out->lower && !out->upper) {
+    *error = in_quotes(item) + " gives neither LO nor HI";
+    return false;
+  }
+  return true;
+}
+
+bool read_item(std::string_view item, NamedValue* out, std::string* error) {
+  const auto not_the_form = [&] {
+    *error = in_quotes(item) + " is not NAME or NAME=VALUE";
+    return false;
+  };
+  const std::size_t eq = item.find('=');
+  error->clear();
+  if (!read_name(item, item.substr(0, eq), &out->name, error)) return error->empty() ? not_the_form() : false;
+  if (eq == std::string_view::npos) return true;
+  const std::string_view value = trim(item.substr(eq + 1));
+  double v = 0.0;
+  if (!parse_number(value, &v)) {
+    *error = in_quotes(item) + ": " + in_quotes(value) + " is not a number";
+    return false;
+  }
+  out->value = v;
+  return true;
+}
+
+bool read_item(std::string_view item, SampleSpan* out, std::string* error) {
+  const auto not_the_form = [&] {
+    *error = in_quotes(item) + " is not [E@]FIRST:END (samples FIRST to END-1, 0-based, of experiment E)";
+    return false;
+  };
+  std::string_view range = item;
+  if (const std::size_t at = item.find('@'); at != std::string_view::npos) {
+    if (!parse_number(item.substr(0, at), &out->experiment)) return not_the_form();
+    if (out->experiment == 0) {
+      *error = in_quotes(item) + ": experiments count from 1 (1 is --data)";
+      return false;
+    }
+    range = item.substr(at + 1);
+  }
+  const std::size_t colon = range.find(':');
+  if (colon == std::string_view::npos || !parse_number(range.substr(0, colon), &out->first) ||
+      !parse_number(range.substr(colon + 1), &out->end)) {
+    return not_the_form();
+  }
+  return true;
+}
+
+// One item, or a list of them, each as its flag takes it.
+template <typename Item>
+bool read(const YAML::Node& node, std::vector<Item>* out, std::string* error) {
+  out->clear();
+  const auto one = [&](const YAML::Node& item) {
+    if (!item.IsScalar()) {
+      *error = "expected a list of texts as the flag takes them";
+      return false;
+    }
+    out->emplace_back();
+    return read_item(item.Scalar(), &out->back(), error);
+  };
+  if (node.IsScalar()) return one(node);
+  if (!node.IsSequence()) {
+    *error = "expected a list of texts as the flag takes them";
+    return false;
+  }
+  for (const YAML::Node& item : node) {
+    if (!one(item)) return false;
+  }
+  return true;
+}
+
 bool read_value(const Setting& setting, const YAML::Node& node, RunSettings* s, std::string* error) {
   return std::visit(
       [&](auto member) {
@@ -399,10 +599,15 @@ RunFlags::RunFlags(CLI::App* cmd, Command command) {
     Flag& flag = flags_.emplace_back(Flag{&setting});
     if (std::holds_alternative<Member<bool>>(setting.target)) {
       flag.option = cmd->add_flag(setting.flag, flag.on, help_of(setting));
-    } else if (std::holds_alternative<Names>(setting.target)) {
-      flag.option = cmd->add_option(setting.flag, flag.names, help_of(setting))->delimiter(',');
+    } else if (takes_items(setting.target)) {
+      // One item per occurrence (or a comma-separated list); never the next word.
+      flag.option = cmd->add_option(setting.flag, flag.names, help_of(setting))
+                        ->delimiter(',')
+                        ->allow_extra_args(false)
+                        ->type_name(type_name(setting));
+      if (!setting.implicit.empty()) flag.option->expected(0, 1);
     } else {
-      flag.option = cmd->add_option(setting.flag, flag.text, help_of(setting))->type_name(type_name(setting.target));
+      flag.option = cmd->add_option(setting.flag, flag.text, help_of(setting))->type_name(type_name(setting));
     }
   }
 }
@@ -416,7 +621,17 @@ bool RunFlags::apply(RunSettings* s, std::string* error) const {
     if (const auto* member = std::get_if<Member<bool>>(&setting.target)) {
       s->**member = setting.flag_value;
     } else if (const auto* names = std::get_if<Names>(&setting.target)) {
-      s->**names = flag.names;
+      // The flag without a value (CLI11 gives one empty text).
+      const bool alone = !setting.implicit.empty() &&
+                         std::all_of(flag.names.begin(), flag.names.end(), [](const std::string& n) { return n.empty(); });
+      s->**names = alone ? std::vector<std::string>{setting.implicit} : flag.names;
+    } else if (takes_items(setting.target)) {
+      YAML::Node items(YAML::NodeType::Sequence);
+      for (const std::string& item : flag.names) items.push_back(item);
+      if (!read_value(setting, items, s, error)) {
+        *error = flag.option->get_name() + ": " + *error;
+        return false;
+      }
     } else if (!read_value(setting, written(setting, flag.text), s, error)) {
       *error = flag.option->get_name() + ": " + *error;
       return false;
@@ -510,13 +725,97 @@ void fill_run(const RunSettings& s, Request* out) {
   if (s.p0) *out->mutable_p0() = *s.p0;
 }
 
+// Experiment `experiment`'s (1-based) mask: the output limits (every
+// experiment's) and its excluded ranges.
+v1::SampleMask sample_mask(const RunSettings& s, std::uint64_t experiment) {
+  v1::SampleMask out;
+  for (const NamedRange& limit : s.output_limits.value_or(std::vector<NamedRange>{})) {
+    v1::OutputLimit* l = out.add_limits();
+    l->set_output(limit.name);
+    if (limit.lower) l->set_lower(*limit.lower);
+    if (limit.upper) l->set_upper(*limit.upper);
+  }
+  for (const SampleSpan& span : s.exclude.value_or(std::vector<SampleSpan>{})) {
+    if (span.experiment != experiment) continue;
+    v1::SampleRange* range = out.add_excluded();
+    range->set_first(span.first);
+    range->set_end(span.end);
+  }
+  return out;
+}
+
+// Only what was given: riccatid refuses estimation settings for the filter method.
+std::optional<v1::EstimationSettings> estimation_settings(const RunSettings& s) {
+  if (!s.output_sigma && !s.estimate_q && !s.estimate_r && !s.max_iterations && !s.function_tolerance &&
+      !s.gradient_tolerance && !s.parameter_tolerance) {
+    return std::nullopt;
+  }
+  v1::EstimationSettings out;
+  if (s.output_sigma) out.mutable_output_sigma()->Add(s.output_sigma->begin(), s.output_sigma->end());
+  if (s.estimate_q) out.set_estimate_process_noise(*s.estimate_q);
+  if (s.estimate_r) out.set_estimate_measurement_noise(*s.estimate_r);
+  if (s.max_iterations) out.set_max_iterations(saturated(*s.max_iterations));
+  if (s.function_tolerance) out.set_function_tolerance(*s.function_tolerance);
+  if (s.gradient_tolerance) out.set_gradient_tolerance(*s.gradient_tolerance);
+  if (s.parameter_tolerance) out.set_parameter_tolerance(*s.parameter_tolerance);
+  return out;
+}
+
 }  // namespace
 
-v1::IdentificationSpec to_identification_spec(const RunSettings& s, const std::string& dataset_id) {
+bool check_identification(const RunSettings& s, std::string* error) {
+  const std::uint64_t experiments = 1 + s.experiments.size();
+  for (const SampleSpan& span : s.exclude.value_or(std::vector<SampleSpan>{})) {
+    if (span.experiment <= experiments) continue;
+    *error = "--exclude " + std::to_string(span.experiment) + "@" + std::to_string(span.first) + ":" +
+             std::to_string(span.end) + ": there is no experiment " + std::to_string(span.experiment) + " (1 is --data" +
+             (experiments == 2   ? ", 2 the --experiment record"
+              : experiments > 2 ? ", 2 to " + std::to_string(experiments) + " the --experiment records"
+                                : "") +
+             ")";
+    return false;
+  }
+  return true;
+}
+
+v1::IdentificationSpec to_identification_spec(const RunSettings& s, const std::string& dataset_id,
+                                              const std::vector<std::string>& more_datasets) {
   v1::IdentificationSpec out;
   fill_run(s, &out);
   out.set_dataset_id(dataset_id);
   if (s.passes) out.set_passes(saturated(*s.passes));
+  if (s.first_sample) out.set_first_sample(*s.first_sample);
+  if (s.end_sample) out.set_end_sample(*s.end_sample);
+  if (s.method) out.set_method(static_cast<v1::IdentificationMethod>(*s.method));
+  if (s.init_passes) out.set_init_passes(saturated(*s.init_passes));
+  for (const NamedRange& b : s.bounds.value_or(std::vector<NamedRange>{})) {
+    v1::ParameterBound* bound = out.add_bounds();
+    bound->set_name(b.name);
+    if (b.lower) bound->set_lower(*b.lower);
+    if (b.upper) bound->set_upper(*b.upper);
+  }
+  for (const NamedValue& f : s.fixed.value_or(std::vector<NamedValue>{})) {
+    v1::FixedParameter* fixed = out.add_fixed();
+    fixed->set_name(f.name);
+    if (f.value) fixed->set_value(*f.value);
+  }
+  for (const std::string& name : s.log_scale) out.add_log_scale(name);
+  for (const std::string& state : s.estimate_x0) out.mutable_initial_state()->add_estimate(state);
+  if (const v1::SampleMask mask = sample_mask(s, 1); mask.ByteSizeLong() > 0) *out.mutable_mask() = mask;
+  for (std::size_t e = 0; e < more_datasets.size(); ++e) {
+    v1::Experiment* experiment = out.add_experiments();
+    experiment->set_dataset_id(more_datasets[e]);
+    *experiment->mutable_initial_state() = out.initial_state();
+    if (const v1::SampleMask mask = sample_mask(s, e + 2); mask.ByteSizeLong() > 0) *experiment->mutable_mask() = mask;
+  }
+  if (auto estimation = estimation_settings(s)) *out.mutable_estimation() = *estimation;
+  return out;
+}
+
+v1::SmoothingSpec to_smoothing_spec(const RunSettings& s, const std::string& dataset_id) {
+  v1::SmoothingSpec out;
+  fill_run(s, &out);
+  out.set_dataset_id(dataset_id);
   if (s.first_sample) out.set_first_sample(*s.first_sample);
   if (s.end_sample) out.set_end_sample(*s.end_sample);
   return out;
@@ -535,6 +834,11 @@ v1::ValidationSpec to_validation_spec(const RunSettings& s, const std::string& d
   *out.mutable_initial_state() = initial_state(s);
   if (s.hold) out.set_hold(static_cast<v1::HoldOrder>(*s.hold));
   if (auto integrator = to_integrator(s)) *out.mutable_integrator() = *integrator;
+  if (s.estimate) out.set_estimate(static_cast<v1::EstimateChoice>(*s.estimate));
+  if (s.x0_samples) {
+    out.set_estimate_x0_samples(*s.x0_samples);
+    out.mutable_initial_state()->add_estimate("all");
+  }
   return out;
 }
 

@@ -1,16 +1,17 @@
-// Run settings of `riccati identify`, `stream`, `validate` and `simulate`:
-// from a YAML job file (identify and stream), then from flags (flags win),
-// turned into API requests. Each setting is declared once, in the table in
-// settings.cpp, which gives its job-file key, its flag, its help and its
-// type; the job-file reader and the flags are made from it.
+// Run settings of `riccati identify`, `stream`, `validate`, `simulate` and
+// `smooth`: from a YAML job file (identify, stream and smooth), then from
+// flags (flags win), turned into API requests. Each setting is declared once,
+// in the table in settings.cpp, which gives its job-file key, its flag, its
+// help and its type; the job-file reader and the flags are made from it.
 //
 // The requests carry what the user gave and nothing more: riccatid checks
-// sizes (a single value is Covariance.scalar, whatever the model's size) and
-// which settings apply to which filter, and its defaults stand for what was
-// left out. The choices of enum settings (filter, hold, integrator.kind,
-// inversion, ukf.weights, optimal.form) come from the API's enums
-// (riccati/enum_names.hpp, in the proto library): `riccati identify --help`
-// lists them.
+// sizes (a single value is Covariance.scalar, whatever the model's size),
+// names (parameters, states, outputs), bounds and which settings apply to
+// which filter and method, and its defaults stand for what was left out. The
+// CLI checks only its own syntax. The choices of enum settings (filter, hold,
+// integrator.kind, inversion, ukf.weights, optimal.form, method, estimate)
+// come from the API's enums (riccati/enum_names.hpp, in the proto library):
+// `riccati identify --help` lists them.
 //
 // Job file keys (all optional; the flag of the same name overrides each):
 //
@@ -39,6 +40,25 @@
 //   first_sample: 0
 //   end_sample: 0
 //   truth: [10, 5, 0.0791, 0.1342]     (printed beside the estimates)
+//
+// Output error and maximum likelihood (identify --method oe|ml); the lists
+// take the flags' own texts:
+//
+//   method: oe                         (filter, the default; oe; ml)
+//   init_passes: 2                     (passes of the iterated filter first: the optimiser's start)
+//   bounds: [A1=1:100, "k1=0.01:"]     (NAME=LO:HI, either side empty: the model's bound)
+//   fixed: [A2, k2=0.1342]             (NAME: at its theta0; NAME=VALUE)
+//   log_scale: [k1, k2]
+//   estimate_x0: all                   (or [h1, h2])
+//   experiments: [ds-..., other.csv]   (more records: experiment 2, 3, ...)
+//   exclude: ["100:200", "2@0:50"]     ([EXPERIMENT@]FIRST:END: samples FIRST .. END-1 left out)
+//   output_limits: ["h1=:0.6"]         (NAME=LO:HI: samples at or beyond a limit left out)
+//   estimation: {output_sigma: [0.005, 0.005], estimate_q: false, estimate_r: true, max_iterations: 200,
+//                function_tolerance: 1e-14, gradient_tolerance: 1e-14, parameter_tolerance: 1e-12}
+//
+// smooth: which estimate of an iterated-filter job --params takes:
+//
+//   estimate: last-pass-mean           (or final)
 #pragma once
 
 #include <google/protobuf/descriptor.h>
@@ -58,6 +78,28 @@
 
 namespace riccati::cli {
 
+// NAME=LO:HI, a parameter's bounds or an output's limits; an empty side is
+// none given.
+struct NamedRange {
+  std::string name;
+  std::optional<double> lower, upper;
+  bool operator==(const NamedRange&) const = default;
+};
+
+// NAME or NAME=VALUE: a parameter held at its theta0, or at VALUE.
+struct NamedValue {
+  std::string name;
+  std::optional<double> value;
+  bool operator==(const NamedValue&) const = default;
+};
+
+// [EXPERIMENT@]FIRST:END: samples FIRST .. END-1 (0-based) of experiment
+// EXPERIMENT (1-based: 1 is --data, 2 on the --experiment datasets in order).
+struct SampleSpan {
+  std::uint64_t experiment = 1, first = 0, end = 0;
+  bool operator==(const SampleSpan&) const = default;
+};
+
 // What was given; empty: not given. Enum settings hold the API enum's number.
 struct RunSettings {
   std::optional<std::string> model, data;
@@ -70,13 +112,27 @@ struct RunSettings {
   std::optional<bool> joseph, hold_outputs;
   std::optional<std::uint64_t> passes, substeps, first_sample, end_sample;
   std::optional<double> rtol, atol, alpha, beta, kappa;
+  // Output error and maximum likelihood (identify --method oe|ml).
+  std::optional<int> method;  // IdentificationMethod
+  std::optional<std::uint64_t> init_passes, max_iterations;
+  std::optional<std::vector<NamedRange>> bounds, output_limits;
+  std::optional<std::vector<NamedValue>> fixed;
+  std::optional<std::vector<SampleSpan>> exclude;
+  std::vector<std::string> log_scale, estimate_x0, experiments;  // experiments: dataset ids or local files
+  std::optional<std::vector<double>> output_sigma;
+  std::optional<bool> estimate_q, estimate_r;
+  std::optional<double> function_tolerance, gradient_tolerance, parameter_tolerance;
+  // Which estimate of an identification job --params takes (EstimateChoice),
+  // and the samples validate fits every initial state on.
+  std::optional<int> estimate;
+  std::optional<std::uint64_t> x0_samples;
 };
 
 // Reads a job file into `out`; errors name the file, the key and its line.
 bool load_job_file(const std::string& path, RunSettings* out, std::string* error);
 
 // The commands whose flags the settings table makes.
-enum class Command : unsigned { kIdentify = 1, kStream = 2, kValidate = 4, kSimulate = 8 };
+enum class Command : unsigned { kIdentify = 1, kStream = 2, kValidate = 4, kSimulate = 8, kSmooth = 16 };
 
 // The flags of the settings that `command` takes, on `cmd`.
 class RunFlags {
@@ -100,8 +156,16 @@ class RunFlags {
 // Parses "1,2,3" (a flag's list).
 bool parse_list(const std::string& text, std::vector<double>* out, std::string* error);
 
+// What the flags' syntax cannot say alone: an --exclude of an experiment
+// that is not given. Everything else is riccatid's to check.
+bool check_identification(const RunSettings& s, std::string* error);
+
 // Requests: the settings given, and x0 "first" when it was not.
-v1::IdentificationSpec to_identification_spec(const RunSettings& s, const std::string& dataset_id);
+// `more_datasets`: the ids of the experiments after the first (s.experiments
+// uploaded where they are files), in order.
+v1::IdentificationSpec to_identification_spec(const RunSettings& s, const std::string& dataset_id,
+                                              const std::vector<std::string>& more_datasets = {});
+v1::SmoothingSpec to_smoothing_spec(const RunSettings& s, const std::string& dataset_id);
 v1::CreateSessionRequest to_session_request(const RunSettings& s);
 v1::ValidationSpec to_validation_spec(const RunSettings& s, const std::string& dataset_id);
 v1::FilterSettings to_filter_settings(const RunSettings& s);

@@ -5,9 +5,11 @@
 #include <google/protobuf/util/message_differencer.h>
 
 #include <array>
+#include <cmath>
 #include <cstdio>
 #include <filesystem>
 #include <fstream>
+#include <limits>
 #include <map>
 #include <optional>
 #include <sstream>
@@ -15,6 +17,7 @@
 
 #include "commands/commands.hpp"
 #include "connection.hpp"
+#include "estimation_output.hpp"
 #include "riccati/enum_names.hpp"
 #include "output.hpp"
 #include "settings.hpp"
@@ -73,6 +76,8 @@ TEST(EnumChoices, DerivedFromTheValueNamesOrTheirShortName) {
   EXPECT_EQ(api::enum_choice_names(*v1::GainInversion_descriptor()), (Names{"cholesky", "pinv"}));
   EXPECT_EQ(api::enum_choice_names(*v1::SigmaWeights_descriptor()), (Names{"julier", "scaled"}));
   EXPECT_EQ(api::enum_choice_names(*v1::OptimalForm_descriptor()), (Names{"continuous", "split-step"}));
+  EXPECT_EQ(api::enum_choice_names(*v1::IdentificationMethod_descriptor()), (Names{"filter", "oe", "ml"}));
+  EXPECT_EQ(api::enum_choice_names(*v1::EstimateChoice_descriptor()), (Names{"last-pass-mean", "final"}));
 }
 
 TEST(EnumChoices, NamesReadBackAsTheirValues) {
@@ -145,11 +150,24 @@ TEST(EnumChoices, HelpAndErrorsListTheValuesOfTheDescriptor) {
   const CliRun help = riccati("identify --help");
   ASSERT_EQ(help.exit_code, 0) << help.out;
   for (const auto& [flag, type] : {std::pair{"--filter ", v1::FilterKind_descriptor()},
-                                   std::pair{"--integrator ", v1::IntegratorKind_descriptor()}}) {
+                                   std::pair{"--integrator ", v1::IntegratorKind_descriptor()},
+                                   std::pair{"--method ", v1::IdentificationMethod_descriptor()}}) {
     const std::vector<std::string> offered = listed_after(help.out, flag);
     EXPECT_EQ(offered, values_of(*type)) << help.out;
     EXPECT_EQ(offered.size(), static_cast<std::size_t>(type->value_count() - 1));
   }
+  // smooth runs the EKF or the UKF, and says which estimate of a job --params takes.
+  const CliRun smooth_help = riccati("smooth --help");
+  ASSERT_EQ(smooth_help.exit_code, 0) << smooth_help.out;
+  EXPECT_EQ(listed_after(smooth_help.out, "--filter "), values_of(*v1::FilterKind_descriptor())) << smooth_help.out;
+  EXPECT_EQ(listed_after(smooth_help.out, "--estimate "), values_of(*v1::EstimateChoice_descriptor()))
+      << smooth_help.out;
+
+  CliRun method = riccati("identify --model two_tank --data ds-1 --method newton");
+  EXPECT_EQ(method.exit_code, 2) << method.out;
+  EXPECT_EQ(listed_after(method.out, "--method: \"newton\" is unknown"),
+            values_of(*v1::IdentificationMethod_descriptor()))
+      << method.out;
 
   CliRun refused = riccati("identify --model two_tank --data ds-1 --filter nosuch");
   EXPECT_EQ(refused.exit_code, 2) << refused.out;
@@ -334,6 +352,467 @@ TEST(JobFile, ErrorsNameTheKeyAndItsLine) {
   EXPECT_NE(error.find("key \"optimal.form\" (line 2): \"split_step\" is unknown (continuous, split-step)"),
             std::string::npos)
       << error;
+}
+
+// ------------------------------------------------------------ output error and maximum likelihood
+
+// Every OE/ML flag, as riccati identify --help shows it, into the spec's fields.
+TEST(EstimationFlags, FillTheIdentificationSpec) {
+  RunSettings s;
+  std::string error;
+  ASSERT_TRUE(from_flags(Command::kIdentify,
+                         "-m two_tank -d ds-1 --method oe --theta0 20,20,1,1 --bound A1=1:100 --bound k1=0.01: "
+                         "--bound A2=:50 --fix A2 --fix k2=0.1342 --log-scale k1 --estimate-x0 h1 --init-passes 2 "
+                         "--experiment ds-2 --experiment ds-3 --exclude 100:200 --exclude 3@0:50 "
+                         "--output-limit h1=:0.6 --output-sigma 0.005,0.006 --max-iterations 50 "
+                         "--function-tolerance 1e-10 --gradient-tolerance 1e-9 --parameter-tolerance 1e-8",
+                         &s, &error))
+      << error;
+  ASSERT_TRUE(check_identification(s, &error)) << error;
+  EXPECT_EQ(s.experiments, (std::vector<std::string>{"ds-2", "ds-3"}));  // uploaded first where they are files
+  EXPECT_TRUE(SameMessage(to_identification_spec(s, "ds-1", {"ds-2", "ds-3"}), parse_text<v1::IdentificationSpec>(R"pb(
+    model: "two_tank"
+    dataset_id: "ds-1"
+    filter {}
+    initial_state { first_measurement: true estimate: "h1" }
+    theta0: [ 20, 20, 1, 1 ]
+    method: IDENTIFICATION_METHOD_OE
+    init_passes: 2
+    bounds { name: "A1" lower: 1 upper: 100 }
+    bounds { name: "k1" lower: 0.01 }
+    bounds { name: "A2" upper: 50 }
+    fixed { name: "A2" }
+    fixed { name: "k2" value: 0.1342 }
+    log_scale: "k1"
+    mask {
+      limits { output: "h1" upper: 0.6 }
+      excluded { first: 100 end: 200 }
+    }
+    experiments {
+      dataset_id: "ds-2"
+      initial_state { first_measurement: true estimate: "h1" }
+      mask { limits { output: "h1" upper: 0.6 } }
+    }
+    experiments {
+      dataset_id: "ds-3"
+      initial_state { first_measurement: true estimate: "h1" }
+      mask {
+        limits { output: "h1" upper: 0.6 }
+        excluded { first: 0 end: 50 }
+      }
+    }
+    estimation {
+      output_sigma: [ 0.005, 0.006 ]
+      max_iterations: 50
+      function_tolerance: 1e-10
+      gradient_tolerance: 1e-9
+      parameter_tolerance: 1e-8
+    }
+  )pb")));
+}
+
+TEST(EstimationFlags, TheJobFileKeysGiveWhatTheFlagsGive) {
+  const RunSettings file = from_job_file(
+      "riccati-job-ml.yaml",
+      "model: two_tank\nmethod: ml\nR: 1e-4\ninit_passes: 1\nbounds: [A1=1:100, 'k1=0.01:']\nfixed: [A2, k2=0.1342]\n"
+      "log_scale: k1\nestimate_x0: all\nexperiments: [ds-2]\nexclude: ['2@5:10']\noutput_limits: ['h2=0.01:']\n"
+      "estimation:\n  estimate_q: true\n  estimate_r: true\n  max_iterations: 20\n");
+  RunSettings flags;
+  std::string error;
+  ASSERT_TRUE(from_flags(Command::kIdentify,
+                         "-m two_tank --method ml --r 1e-4 --init-passes 1 --bound A1=1:100,k1=0.01: --fix A2,k2=0.1342 "
+                         "--log-scale k1 --estimate-x0 --experiment ds-2 --exclude 2@5:10 --output-limit h2=0.01: "
+                         "--estimate-q --estimate-r --max-iterations 20",
+                         &flags, &error))
+      << error;
+  const v1::IdentificationSpec spec = to_identification_spec(flags, "ds-1", {"ds-2"});
+  EXPECT_TRUE(SameMessage(spec, to_identification_spec(file, "ds-1", {"ds-2"})));
+  EXPECT_EQ(spec.method(), v1::IDENTIFICATION_METHOD_ML);
+  EXPECT_EQ(spec.initial_state().estimate(0), "all");  // --estimate-x0 alone
+  EXPECT_TRUE(spec.estimation().estimate_process_noise());
+  EXPECT_TRUE(spec.estimation().estimate_measurement_noise());
+  EXPECT_EQ(spec.estimation().max_iterations(), 20u);
+  EXPECT_EQ(spec.experiments(0).mask().excluded(0).first(), 5u);
+  EXPECT_FALSE(spec.mask().excluded_size() > 0) << "an exclusion of experiment 2 went to experiment 1";
+}
+
+// The filter method is sent nothing it did not ask for: riccatid refuses
+// estimation settings for it, so none may be made up here.
+TEST(EstimationFlags, NothingOfTheMethodsIsSentUnasked) {
+  RunSettings s;
+  std::string error;
+  ASSERT_TRUE(from_flags(Command::kIdentify, "-m two_tank --passes 3", &s, &error)) << error;
+  const v1::IdentificationSpec spec = to_identification_spec(s, "ds-1");
+  EXPECT_FALSE(spec.has_estimation());
+  EXPECT_FALSE(spec.has_mask());
+  EXPECT_EQ(spec.method(), v1::IDENTIFICATION_METHOD_UNSPECIFIED);
+  EXPECT_EQ(spec.experiments_size(), 0);
+}
+
+TEST(EstimationFlags, ErrorsNameTheFlagAndWhatIsWrong) {
+  const auto error_of = [](const std::string& args) {
+    RunSettings s;
+    std::string error;
+    EXPECT_FALSE(from_flags(Command::kIdentify, args, &s, &error)) << args;
+    return error;
+  };
+  EXPECT_EQ(error_of("--bound A1"), "--bound: \"A1\" is not NAME=LO:HI (LO or HI may be left empty)");
+  EXPECT_EQ(error_of("--bound A1=x:1"), "--bound: \"A1=x:1\": \"x\" is not a number");
+  EXPECT_EQ(error_of("--bound A1=:"), "--bound: \"A1=:\" gives neither LO nor HI");
+  EXPECT_EQ(error_of("--bound =1:2"), "--bound: \"=1:2\": a name is missing before '='");
+  EXPECT_EQ(error_of("--bound A1=1:2:3"), "--bound: \"A1=1:2:3\" is not NAME=LO:HI (LO or HI may be left empty)");
+  EXPECT_EQ(error_of("--fix k2=abc"), "--fix: \"k2=abc\": \"abc\" is not a number");
+  EXPECT_EQ(error_of("--fix k2:1"), "--fix: \"k2:1\" is not NAME or NAME=VALUE");
+  EXPECT_EQ(error_of("--exclude 5"),
+            "--exclude: \"5\" is not [E@]FIRST:END (samples FIRST to END-1, 0-based, of experiment E)");
+  EXPECT_EQ(error_of("--exclude 0@1:2"), "--exclude: \"0@1:2\": experiments count from 1 (1 is --data)");
+  EXPECT_EQ(error_of("--output-limit h1=low:"), "--output-limit: \"h1=low:\": \"low\" is not a number");
+  EXPECT_EQ(error_of("--max-iterations -5"), "--max-iterations: \"-5\" is not a whole number (0 or more)");
+  EXPECT_EQ(error_of("--output-sigma 0.1,x"), "--output-sigma: \"x\" is not a number");
+
+  // An exclusion of an experiment that was not given: the flag, the experiment and what there is.
+  RunSettings s;
+  std::string error;
+  ASSERT_TRUE(from_flags(Command::kIdentify, "--experiment ds-2 --exclude 3@0:10", &s, &error)) << error;
+  EXPECT_FALSE(check_identification(s, &error));
+  EXPECT_EQ(error, "--exclude 3@0:10: there is no experiment 3 (1 is --data, 2 the --experiment record)");
+  ASSERT_TRUE(from_flags(Command::kIdentify, "--experiment ds-2,ds-3 --exclude 5@0:10", &s, &error)) << error;
+  EXPECT_FALSE(check_identification(s, &error));
+  EXPECT_EQ(error, "--exclude 5@0:10: there is no experiment 5 (1 is --data, 2 to 3 the --experiment records)");
+
+  // The job file: the key and its line.
+  RunSettings file;
+  EXPECT_FALSE(load_job_file(write("riccati-job-bounds.yaml", "model: two_tank\nbounds: [A1=1]\n"), &file, &error));
+  EXPECT_NE(error.find("key \"bounds\" (line 2): \"A1=1\" is not NAME=LO:HI"), std::string::npos) << error;
+  EXPECT_FALSE(load_job_file(write("riccati-job-est.yaml", "estimation:\n  max_iters: 3\n"), &file, &error));
+  EXPECT_NE(error.find("unknown key \"estimation.max_iters\" (line 2) (expected output_sigma, estimate_q, estimate_r, "
+                       "max_iterations, function_tolerance, gradient_tolerance, parameter_tolerance)"),
+            std::string::npos)
+      << error;
+}
+
+// What riccati says before anything is sent (no daemon here: it would exit 3).
+TEST(EstimationFlags, TheCommandRefusesBadFlagsWithExitTwo) {
+  CliRun r = riccati("identify --model two_tank --data ds-1 --method oe --bound A1=1");
+  EXPECT_EQ(r.exit_code, 2) << r.out;
+  EXPECT_NE(r.out.find("riccati: --bound: \"A1=1\" is not NAME=LO:HI"), std::string::npos) << r.out;
+  r = riccati("identify --model two_tank --data ds-1 --method oe --exclude 2@0:10");
+  EXPECT_EQ(r.exit_code, 2) << r.out;
+  EXPECT_NE(r.out.find("riccati: --exclude 2@0:10: there is no experiment 2 (1 is --data)"), std::string::npos)
+      << r.out;
+  r = riccati("validate --model two_tank --data ds-1 --params 10,5,0.0791,0.1342 --estimate final");
+  EXPECT_EQ(r.exit_code, 2) << r.out;
+  EXPECT_NE(r.out.find("--estimate chooses among an identification job's estimates; --params 10,5,0.0791,0.1342 is "
+                       "not a job"),
+            std::string::npos)
+      << r.out;
+  r = riccati("smooth --model two_tank");
+  EXPECT_EQ(r.exit_code, 2) << r.out;
+  EXPECT_NE(r.out.find("smooth needs --model and --data"), std::string::npos) << r.out;
+}
+
+TEST(ValidationFlags, TheEstimateAndTheSamplesTheInitialStatesAreFittedOn) {
+  RunSettings s;
+  std::string error;
+  ASSERT_TRUE(from_flags(Command::kValidate, "-m two_tank -d ds-1 --x0 0.2,0.5 --estimate final --estimate-x0 100", &s,
+                         &error))
+      << error;
+  EXPECT_TRUE(SameMessage(to_validation_spec(s, "ds-1"), parse_text<v1::ValidationSpec>(R"pb(
+    model: "two_tank"
+    dataset_id: "ds-1"
+    initial_state { x0: [ 0.2, 0.5 ] estimate: "all" }
+    estimate: ESTIMATE_CHOICE_FINAL
+    estimate_x0_samples: 100
+  )pb")));
+  EXPECT_FALSE(from_flags(Command::kValidate, "--estimate-x0 all", &s, &error));
+  EXPECT_EQ(error, "--estimate-x0: \"all\" is not a whole number (0 or more)");
+  EXPECT_FALSE(from_flags(Command::kValidate, "--estimate best", &s, &error));
+  EXPECT_EQ(error, "--estimate: \"best\" is unknown (last-pass-mean, final)");
+}
+
+TEST(SmoothingFlags, TheFilterAndTheRangeGoIntoTheSpec) {
+  const RunSettings file = from_job_file("riccati-job-smooth.yaml",
+                                         "model: two_tank\ndata: ds-1\nfilter: ukf\nR: 2.5e-5\nQ: [1e-8, 1e-8, 0, 0, 0, 0]\n"
+                                         "x0: [0.4, 0.15]\ntheta0: [10, 5, 0.0791, 0.1342]\nP0: 1e-4\n"
+                                         "first_sample: 10\nend_sample: 500\n");
+  EXPECT_TRUE(SameMessage(to_smoothing_spec(file, "ds-1"), parse_text<v1::SmoothingSpec>(R"pb(
+    model: "two_tank"
+    dataset_id: "ds-1"
+    filter {
+      kind: FILTER_KIND_UKF
+      q { diagonal { values: [ 1e-8, 1e-8, 0, 0, 0, 0 ] } }
+      r { scalar: 2.5e-5 }
+    }
+    initial_state { x0: [ 0.4, 0.15 ] }
+    theta0: [ 10, 5, 0.0791, 0.1342 ]
+    p0 { scalar: 1e-4 }
+    first_sample: 10
+    end_sample: 500
+  )pb")));
+  RunSettings flags;
+  std::string error;
+  ASSERT_TRUE(from_flags(Command::kSmooth,
+                         "-m two_tank -d ds-1 --filter ukf --r 2.5e-5 --q 1e-8,1e-8,0,0,0,0 --x0 0.4,0.15 --p0 1e-4 "
+                         "--first-sample 10 --end-sample 500",
+                         &flags, &error))
+      << error;
+  flags.theta0 = file.theta0;  // smooth takes its parameters from --params
+  EXPECT_TRUE(SameMessage(to_smoothing_spec(flags, "ds-1"), to_smoothing_spec(file, "ds-1")));
+  // Neither passes nor the optimal filter's weights: a smoother runs the EKF or the UKF once.
+  EXPECT_THROW(from_flags(Command::kSmooth, "--passes 3", &flags, &error), CLI::ExtrasError);
+  EXPECT_THROW(from_flags(Command::kSmooth, "--v 1", &flags, &error), CLI::ExtrasError);
+}
+
+// ------------------------------------------------------------ estimation tables
+
+// An OE result of two_tank as riccatid makes one: A2 fixed, A1 and k1
+// nearly indistinguishable (r = -0.97), one experiment with its fit.
+v1::EstimationResult two_tank_estimate() {
+  return parse_text<v1::EstimationResult>(R"pb(
+    method: IDENTIFICATION_METHOD_OE
+    param_names: [ "A1", "A2", "k1", "k2" ]
+    theta: [ 10.02, 5, 0.0791, 0.1342 ]
+    theta_std: [ 0.01, 0, 2e-5, 4e-5 ]
+    ci_lower: [ 10.0004, 5, 0.07906, 0.13412 ]
+    ci_upper: [ 10.0396, 5, 0.07914, 0.13428 ]
+    fixed: [ false, true, false, false ]
+    correlation { rows: 4 cols: 4 values: [ 1, 0, -0.97, 0.2, 0, 1, 0, 0, -0.97, 0, 1, 0.1, 0.2, 0, 0.1, 1 ] }
+    warnings: "A1 and k1 are strongly correlated"
+    cost: 0.0125
+    sigma2: 2.5e-5
+    iterations: 12
+    evaluations: 30
+    jacobian_evaluations: 13
+    converged: true
+    termination: "Function tolerance reached"
+    gradient: "exact"
+    experiments {
+      dataset_id: "ds-1"
+      x0: [ 0.4, 0.15 ]
+      x0_std: [ 0.001, 0 ]
+      x0_estimated: [ true, false ]
+      t: [ 0, 1 ]
+      y_measured { rows: 2 cols: 2 values: [ 0.4, 0.15, 0.41, 0.16 ] }
+      y_model { rows: 2 cols: 2 values: [ 0.401, 0.149, 0.409, 0.161 ] }
+      residuals { rows: 2 cols: 2 values: [ -0.2, 0.2, 0.2, -0.2 ] }
+      mask { rows: 2 cols: 2 values: [ 1, 1, 0, 1 ] }
+      fits { name: "h1" rmse: 0.001 fit_percent: 99.5 vaf_percent: 99.9 rrse: 0.005 }
+      fits { name: "h2" rmse: 0.002 fit_percent: 98.25 vaf_percent: 99.8 rrse: 0.0175 }
+    }
+  )pb");
+}
+
+// The line of `text` that starts with `start`.
+std::string line_of(const std::string& text, const std::string& start) {
+  std::istringstream lines(text);
+  for (std::string line; std::getline(lines, line);) {
+    if (line.rfind(start, 0) == 0) return line;
+  }
+  return "";
+}
+
+TEST(EstimationTables, TheParameterTableHasStdIntervalsInitialAndTruth) {
+  const std::string table =
+      estimation_table(two_tank_estimate(), {20, 20, 1, 1}, {10, 5, 0.0791, 0.1342}, ModelNames{{"h1", "h2"}, {}, {}});
+  EXPECT_NE(table.find("method oe: converged after 12 iterations (Function tolerance reached); cost 0.0125"),
+            std::string::npos)
+      << table;
+  EXPECT_NE(table.find("residual variance 2.5e-05 (scales the covariance)"), std::string::npos) << table;
+  std::istringstream a1(line_of(table, "A1 "));
+  std::string name, initial, estimate, std_error, lower, upper, relative, percent, truth, error;
+  a1 >> name >> initial >> estimate >> std_error >> lower >> upper >> relative >> percent >> truth >> error;
+  EXPECT_EQ(initial, "20");
+  EXPECT_EQ(estimate, "10.02");
+  EXPECT_EQ(std_error, "0.01");
+  EXPECT_EQ(lower + " " + upper, "[10.0004, 10.0396]");
+  EXPECT_EQ(relative + " " + percent, "0.0998 %");  // 0.01 / 10.02
+  EXPECT_EQ(truth, "10");
+  EXPECT_EQ(error, "0.2");  // (10.02 - 10) / 10 in %
+  // The truth outside the interval is said; inside, nothing.
+  EXPECT_NE(line_of(table, "A1 ").find("(outside the interval)"), std::string::npos) << table;
+  EXPECT_EQ(line_of(table, "k1 ").find("(outside the interval)"), std::string::npos) << table;
+  // A fixed parameter has neither std nor interval.
+  const std::string a2 = line_of(table, "A2 ");
+  EXPECT_NE(a2.find("fixed"), std::string::npos) << a2;
+  EXPECT_EQ(a2.find('['), std::string::npos) << a2;
+  EXPECT_NE(table.find("warnings:\n  A1 and k1 are strongly correlated\n"), std::string::npos) << table;
+  // The experiment: x0 estimated (with its std) or given, and the fit per output.
+  EXPECT_NE(table.find("experiment 1 (ds-1): 2 samples\n  x0: h1 = 0.4 (std 0.001), h2 = 0.15 (given)\n"),
+            std::string::npos)
+      << table;
+  std::istringstream h2(line_of(table, "  h2 "));
+  double rmse = 0, fit = 0;
+  h2 >> name >> rmse >> fit;
+  EXPECT_EQ(fit, 98.25);
+  // Without a truth or a start, their columns are not there.
+  const std::string bare = estimation_table(two_tank_estimate(), {}, {}, {});
+  EXPECT_EQ(bare.find("true"), std::string::npos) << bare;
+  EXPECT_EQ(line_of(bare, "A1 ").find("20"), std::string::npos) << bare;
+}
+
+TEST(EstimationTables, CorrelationsMarkTheHighOnesAndLeaveTheFixedOut) {
+  const std::string table = correlation_table(two_tank_estimate());
+  EXPECT_EQ(line_of(table, "A2"), "") << "a fixed parameter in the correlations:\n" << table;
+  // Rows k1 and k2 against A1 (and k1): the lower triangle of A1, k1, k2.
+  EXPECT_EQ(line_of(table, "k1 "), "k1          -0.970*") << table;
+  EXPECT_EQ(line_of(table, "k2 "), "k2           0.200    0.100 ") << table;
+  EXPECT_NE(table.find("(|r| near 1:"), std::string::npos) << table;
+  v1::EstimationResult apart = two_tank_estimate();
+  apart.mutable_correlation()->set_values(2, -0.5);
+  apart.mutable_correlation()->set_values(8, -0.5);
+  EXPECT_EQ(line_of(correlation_table(apart), "k1 "), "k1          -0.500 ") << correlation_table(apart);
+  // One free parameter: nothing to correlate.
+  apart.mutable_fixed()->Set(0, true);
+  apart.mutable_fixed()->Set(3, true);
+  EXPECT_EQ(correlation_table(apart), "");
+}
+
+TEST(EstimationTables, ChiSquareTailsAndDegreesOfFreedom) {
+  // References: Boost.Math's chi-squared distribution (what riccatid's limits come from).
+  EXPECT_NEAR(chi_square_p_value(3.8414588206941245, 1), 0.05, 1e-12);
+  EXPECT_NEAR(chi_square_p_value(31.410432844230922, 20), 0.05, 1e-12);
+  EXPECT_NEAR(chi_square_p_value(2.0, 2), std::exp(-1.0), 1e-14);
+  EXPECT_NEAR(chi_square_p_value(25.0, 20), 0.20143110494553576, 1e-12);  // the series (x / 2 below a + 1)
+  EXPECT_NEAR(chi_square_p_value(60.0, 41), 0.027940952432154165, 1e-12);  // the continued fraction
+  EXPECT_EQ(chi_square_p_value(0.0, 3), 1.0);
+  EXPECT_EQ(chi_square_dof(31.410432844230922, 41), 20);
+  EXPECT_EQ(chi_square_dof(56.942387146824096, 41), 41);
+  EXPECT_EQ(chi_square_dof(0.0, 41), 0);
+}
+
+TEST(EstimationTables, DiagnosticsGiveEachTestItsStatisticPValueAndVerdict) {
+  const auto d = parse_text<v1::Diagnostics>(R"pb(
+    samples: 2000 lags: 20 band: 0.0438
+    ljung_box: [ 25.0, 40.0 ] ljung_box_limit: 31.410432844230922
+    cross_statistic: [ 10, 50 ] cross_limit: [ 32.670573340917301, 32.670573340917301 ]
+    nis_mean: 2.3 nis_lower: 1.91 nis_upper: 2.09 nis_consistent: false
+  )pb");
+  const std::string table = diagnostics_table(d, ModelNames{{}, {"F1"}, {"h1", "h2"}});
+  const auto words = [&](const std::string& start) {
+    std::istringstream in(line_of(table, start));
+    std::vector<std::string> out;
+    for (std::string w; in >> w;) out.push_back(w);
+    return out;
+  };
+  std::vector<std::string> h1 = words("    white h1");
+  ASSERT_EQ(h1.size(), 6u) << table;
+  EXPECT_EQ(h1[5], "pass");
+  EXPECT_EQ(h1[4], "0.201");
+  EXPECT_EQ(words("    white h2").back(), "FAIL");
+  // One input, two outputs: h1 against F1, h2 against F1 (lags 0..h: 21 degrees of freedom, the limit's).
+  EXPECT_EQ(words("    h1 independent of F1").back(), "pass");
+  const std::vector<std::string> cross = words("    h2 independent of F1");
+  ASSERT_EQ(cross.size(), 8u) << table;
+  EXPECT_EQ(cross[7], "FAIL");
+  EXPECT_EQ(cross[6], "0.000365");
+  EXPECT_NE(line_of(table, "    mean NIS in its band").find("FAIL (band [1.91, 2.09])"), std::string::npos) << table;
+  // No NIS (output error): no line for it.
+  v1::Diagnostics oe = d;
+  oe.set_nis_mean(std::numeric_limits<double>::quiet_NaN());
+  EXPECT_EQ(diagnostics_table(oe, {}).find("NIS"), std::string::npos);
+}
+
+TEST(EstimationTables, TheNoiseLevelsOfMaximumLikelihood) {
+  v1::EstimationResult ml = two_tank_estimate();
+  ml.set_method(v1::IDENTIFICATION_METHOD_ML);
+  for (double r : {2.4e-5, 2.6e-5}) ml.add_measurement_noise(r);
+  for (double s : {1e-6, 1.2e-6}) ml.add_measurement_noise_std(s);
+  for (double q : {0.0, 0.0}) ml.add_process_noise(q);
+  for (double s : {0.0, 0.0}) ml.add_process_noise_std(s);
+  const std::string table = estimation_table(ml, {}, {}, ModelNames{{"h1", "h2"}, {"F1", "F2"}, {"h1", "h2"}});
+  EXPECT_NE(table.find("method ml:"), std::string::npos) << table;
+  EXPECT_NE(table.find("measurement noise R (diagonal): h1 2.4e-05 (std 1e-06), h2 2.6e-05 (std 1.2e-06)\n"),
+            std::string::npos)
+      << table;
+  EXPECT_NE(table.find("process noise Q (states' diagonal): h1 0, h2 0 (given)\n"), std::string::npos) << table;
+}
+
+TEST(EstimationTables, TheCsvHasEverySampleOfEveryExperiment) {
+  v1::EstimationResult r = two_tank_estimate();
+  *r.add_experiments() = r.experiments(0);
+  r.mutable_experiments(1)->set_t(1, 5.0);
+  const std::string csv = estimation_csv(r, {});
+  std::istringstream lines(csv);
+  std::vector<std::string> rows;
+  for (std::string line; std::getline(lines, line);) rows.push_back(line);
+  ASSERT_EQ(rows.size(), 5u) << csv;
+  EXPECT_EQ(rows[0], "experiment,t,h1,h2,model_h1,model_h2,residual_h1,residual_h2,used_h1,used_h2");
+  // 17 digits: the doubles exactly.
+  EXPECT_EQ(rows[2],
+            "1,1,0.40999999999999998,0.16,0.40899999999999997,0.161,0.20000000000000001,-0.20000000000000001,0,1");
+  EXPECT_EQ(rows[4].substr(0, 4), "2,5,");
+}
+
+v1::SmoothingResult smoothed() {
+  return parse_text<v1::SmoothingResult>(R"pb(
+    names: [ "h1", "A1" ]
+    t: [ 0, 1, 2 ]
+    z_filtered { rows: 2 cols: 3 values: [ 0.4, 10, 0.41, 10.5, 0.42, 10.2 ] }
+    std_filtered { rows: 2 cols: 3 values: [ 0.01, 1, 0.008, 0.5, 0.006, 0.3 ] }
+    z_smoothed { rows: 2 cols: 3 values: [ 0.401, 10.1, 0.411, 10.15, 0.419, 10.2 ] }
+    std_smoothed { rows: 2 cols: 3 values: [ 0.005, 0.3, 0.004, 0.3, 0.006, 0.3 ] }
+    y_model { rows: 1 cols: 3 values: [ 0.401, 0.411, 0.419 ] }
+    innovations { rows: 1 cols: 3 values: [ 0, 0.001, -0.002 ] }
+  )pb");
+}
+
+TEST(SmoothingTables, StartEndAndTheMeanStdFilteredAndSmoothed) {
+  const std::string table = smoothing_table(smoothed());
+  EXPECT_NE(table.find("smoothed over 3 samples, t = 0 to 2\n"), std::string::npos) << table;
+  std::istringstream a1(line_of(table, "A1 "));
+  std::string name;
+  double start = 0, start_std = 0, end = 0, end_std = 0, filtered = 0, smooth = 0;
+  a1 >> name >> start >> start_std >> end >> end_std >> filtered >> smooth;
+  EXPECT_EQ(start, 10.1);
+  EXPECT_EQ(end_std, 0.3);
+  EXPECT_NEAR(filtered, 0.6, 1e-12);  // (1 + 0.5 + 0.3) / 3
+  EXPECT_NEAR(smooth, 0.3, 1e-12);
+
+  const std::string csv = smoothing_csv(smoothed(), ModelNames{{}, {}, {"h1"}});
+  std::istringstream lines(csv);
+  std::string header, first;
+  std::getline(lines, header);
+  std::getline(lines, first);
+  EXPECT_EQ(header,
+            "t,h1,A1,std_h1,std_A1,filtered_h1,filtered_A1,std_filtered_h1,std_filtered_A1,model_h1,innovation_h1");
+  EXPECT_EQ(first, "0,0.40100000000000002,10.1,0.0050000000000000001,0.29999999999999999,0.40000000000000002,10,"
+                   "0.01,1,0.40100000000000002,0");
+}
+
+// `riccati result` and `riccati jobs` for the new kinds of job.
+TEST(ResultTables, EachKindOfResultHasItsTableAndJobsTheirProgress) {
+  v1::JobResult estimation;
+  *estimation.mutable_estimation() = two_tank_estimate();
+  EXPECT_EQ(result_table(estimation, {20, 20, 1, 1}, {}, {}), estimation_table(two_tank_estimate(), {20, 20, 1, 1}, {}, {}));
+  EXPECT_EQ(result_csv(estimation, {}), estimation_csv(two_tank_estimate(), {}));
+  v1::JobResult smoothing;
+  *smoothing.mutable_smoothing() = smoothed();
+  EXPECT_EQ(result_table(smoothing, {}, {}, {}), smoothing_table(smoothed()));
+
+  v1::Job job = parse_text<v1::Job>(R"pb(
+    id: "job-1" state: JOB_STATE_RUNNING identification { model: "two_tank" method: IDENTIFICATION_METHOD_ML }
+    progress { pass: 2 passes: 2 sample: 2000 samples: 2000 iteration: 7 cost: -4779.23 }
+  )pb");
+  EXPECT_NE(job_line(job).find("identification  running    two_tank             iteration 7, cost -4779.23"),
+            std::string::npos)
+      << job_line(job);
+  job = parse_text<v1::Job>(R"pb(
+    id: "job-2" state: JOB_STATE_QUEUED smoothing { model: "rotating_arm" } progress { pass: 1 passes: 2 }
+  )pb");
+  EXPECT_NE(job_line(job).find("smoothing       queued     rotating_arm         pass 1/2"), std::string::npos)
+      << job_line(job);
+
+  // A validation says where its parameters and initial states came from.
+  const auto validation = parse_text<v1::ValidationResult>(R"pb(
+    theta: [ 10, 5 ] x0: [ 0.4, 0.15 ] parameters_from: "job job-1: its oe estimate"
+    x0_from: "fitted by output error on the first 100 samples"
+    fits { name: "h1" rmse: 0.001 fit_percent: 99.5 vaf_percent: 99.9 rrse: 0.005 }
+  )pb");
+  const std::string fits = fit_table(validation);
+  EXPECT_EQ(fits.substr(0, fits.find("output  ")),
+            "parameters: job job-1: its oe estimate [10, 5]\nx0: fitted by output error on the first 100 samples "
+            "[0.4, 0.15]\n");
+  EXPECT_NE(line_of(fits, "h1 ").find("99.500"), std::string::npos) << fits;
 }
 
 TEST(Lists, ParseNumbersStrictly) {

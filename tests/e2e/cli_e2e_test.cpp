@@ -3,8 +3,10 @@
 #include <gtest/gtest.h>
 
 #include <array>
+#include <cmath>
 #include <cstdio>
 #include <fstream>
+#include <random>
 #include <sstream>
 #include <nlohmann/json.hpp>
 
@@ -121,6 +123,230 @@ TEST_F(CliTest, ExitCodesAndMessagesForBadInput) {
   // No daemon there: unreachable (3).
   const std::string command = std::string(RICCATI_CLI_BIN) + " --server 127.0.0.1:1 --timeout 2 models 2>/dev/null";
   EXPECT_EQ(WEXITSTATUS(std::system(command.c_str())), 3);
+}
+
+// ------------------------------------------------------------ output error, likelihood, smoothing
+
+// The dataset's truth, in the model's order (two_tank.json).
+std::vector<double> truth_of(const std::string& json_file) {
+  std::ifstream in(json_file);
+  const auto j = nlohmann::json::parse(in);
+  std::vector<double> truth;
+  for (const auto& name : j["parameter_order"]) truth.push_back(j["parameters"][name.get<std::string>()].get<double>());
+  return truth;
+}
+
+// The job id a waiting command prints on stderr ("job job-...").
+std::string job_id_in(const std::string& err) {
+  const auto at = err.find("job job-");
+  return at == std::string::npos ? "" : err.substr(at + 4, err.find('\n', at) - at - 4);
+}
+
+// The words of the line of `text` that starts with `start`.
+std::vector<std::string> words_of_line(const std::string& text, const std::string& start) {
+  std::istringstream lines(text);
+  for (std::string line; std::getline(lines, line);) {
+    if (line.rfind(start, 0) != 0) continue;
+    std::istringstream in(line);
+    std::vector<std::string> words;
+    for (std::string w; in >> w;) words.push_back(w);
+    return words;
+  }
+  return {};
+}
+
+std::vector<std::vector<double>> csv_rows(const std::filesystem::path& file, std::string* header) {
+  std::ifstream in(file);
+  std::getline(in, *header);
+  std::vector<std::vector<double>> rows;
+  for (std::string line; std::getline(in, line);) {
+    std::istringstream fields(line);
+    std::vector<double> v;
+    for (std::string cell; std::getline(fields, cell, ',');) v.push_back(std::stod(cell));
+    rows.push_back(v);
+  }
+  return rows;
+}
+
+// Output error from Hensen's start (2 to 13 times the truth) on the
+// noise-free record finds the truth; the job's estimate then validates, and
+// the iterated filter's choice of estimate is refused for it.
+TEST_F(CliTest, IdentifyByOutputErrorFindsTheTwoTankTruth) {
+  const std::vector<double> truth = truth_of(kData + "/two_tank.json");
+  ASSERT_EQ(truth.size(), 4u);
+  const CliRun r = riccati("--json identify --method oe --model two_tank --data " + kData +
+                           "/two_tank.csv --inputs F1,F2 --outputs h1,h2 --theta0 20,20,1,1");
+  ASSERT_EQ(r.exit_code, 0) << last_stderr();
+  const std::string err = last_stderr();
+  const std::string job = job_id_in(err);
+  ASSERT_FALSE(job.empty()) << err;
+  const auto result = nlohmann::json::parse(r.out);
+  const auto& e = result["estimation"];
+  EXPECT_EQ(e["method"], "IDENTIFICATION_METHOD_OE");
+  ASSERT_EQ(e["theta"].size(), 4u) << r.out;
+  for (std::size_t i = 0; i < 4; ++i) {
+    EXPECT_NEAR(e["theta"][i].get<double>(), truth[i], 1e-6 * truth[i]) << e["param_names"][i];
+  }
+  EXPECT_TRUE(e["converged"].get<bool>()) << e["termination"];
+
+  // The same job as a table, with the truth beside it.
+  const CliRun table = riccati("result " + job + " --truth 10,5,0.0791,0.1342");
+  ASSERT_EQ(table.exit_code, 0) << last_stderr();
+  EXPECT_NE(table.out.find("method oe: converged after "), std::string::npos) << table.out;
+  for (const char* name : {"A1", "A2", "k1", "k2"}) {
+    // name, initial, estimate, std. error, [lo, hi], rel. std %, true, error %
+    const std::vector<std::string> row = words_of_line(table.out, std::string(name) + " ");
+    ASSERT_GE(row.size(), 10u) << table.out;
+    EXPECT_TRUE(row[1] == "20" || row[1] == "1") << row[1];
+    EXPECT_EQ(row[4].front(), '[');
+    EXPECT_LT(std::abs(std::stod(row[9])), 1e-4) << name << " error %";
+  }
+  EXPECT_NE(table.out.find("experiment 1 (ds-"), std::string::npos) << table.out;
+  EXPECT_NE(table.out.find("residual diagnostics"), std::string::npos) << table.out;
+  // The job's last progress: the optimiser's iteration and cost.
+  const CliRun jobs = riccati("jobs");
+  EXPECT_NE(jobs.out.find("iteration "), std::string::npos) << jobs.out;
+
+  // Validation with the job's estimate: the record as simulated from the truth.
+  const std::string dataset = e["experiments"][0]["dataset_id"];
+  CliRun v = riccati("validate --model two_tank --data " + dataset + " --params " + job);
+  ASSERT_EQ(v.exit_code, 0) << last_stderr();
+  EXPECT_NE(v.out.find("parameters: job " + job), std::string::npos) << v.out;
+  EXPECT_GT(std::stod(words_of_line(v.out, "h1 ").at(2)), 99.999) << v.out;
+  v = riccati("validate --model two_tank --data " + dataset + " --params " + job + " --estimate final");
+  EXPECT_EQ(v.exit_code, 1);
+  EXPECT_NE(last_stderr().find("submitting the validation: estimate: job " + job + " is an output-error"),
+            std::string::npos)
+      << last_stderr();
+
+  // --estimate final is the iterated filter's: the estimate at the end of its last pass.
+  const CliRun filter = riccati("--json identify --model two_tank --data " + dataset +
+                                " --theta0 20,20,1,1 --p0 0,0,10,10,10,10 --r 1e-3 --passes 2");
+  ASSERT_EQ(filter.exit_code, 0) << last_stderr();
+  const auto identified = nlohmann::json::parse(filter.out)["identification"];
+  v = riccati("--json validate --model two_tank --data " + dataset + " --params " + job_id_in(last_stderr()) +
+              " --estimate final");
+  ASSERT_EQ(v.exit_code, 0) << last_stderr();
+  const auto validated = nlohmann::json::parse(v.out)["validation"];
+  EXPECT_EQ(validated["theta"], identified["theta"]);
+  EXPECT_NE(validated["theta"], identified["theta_mean"]);
+  EXPECT_NE(validated["parameters_from"].get<std::string>().find("end of the last pass"), std::string::npos)
+      << validated["parameters_from"];
+}
+
+// CTSM-R's method with R estimated, on the first 500 samples of the noisy
+// record from near the truth (seconds): the table gives each parameter a
+// finite std and an interval around its estimate, and R with its std.
+TEST_F(CliTest, IdentifyByMaximumLikelihoodShowsStdIntervalsAndR) {
+  const CliRun r = riccati("identify --method ml --model two_tank --data " + kData +
+                           "/two_tank_noisy.csv --inputs F1,F2 --outputs h1,h2 --theta0 12,6,0.09,0.15 --r 1e-4 "
+                           "--estimate-r --p0 2.5e-5,2.5e-5,0,0,0,0 --end-sample 500 --max-iterations 30 "
+                           "--truth 10,5,0.0791,0.1342");
+  ASSERT_EQ(r.exit_code, 0) << last_stderr();
+  EXPECT_NE(r.out.find("method ml: "), std::string::npos) << r.out;
+  // The watch told the optimiser's iterations and cost (stderr is no terminal here: a line each).
+  EXPECT_NE(last_stderr().find("\niteration 1, cost "), std::string::npos) << last_stderr();
+  for (const char* name : {"A1", "A2", "k1", "k2"}) {
+    const std::vector<std::string> row = words_of_line(r.out, std::string(name) + " ");
+    ASSERT_GE(row.size(), 10u) << r.out;
+    const double estimate = std::stod(row[2]), std_error = std::stod(row[3]);
+    const double lower = std::stod(row[4].substr(1)), upper = std::stod(row[5]);
+    EXPECT_TRUE(std::isfinite(std_error) && std_error > 0.0) << name << ": " << row[3];
+    EXPECT_LT(lower, estimate) << name;
+    EXPECT_GT(upper, estimate) << name;
+    EXPECT_NEAR(upper - lower, 2 * 1.96 * std_error, 0.01 * (upper - lower)) << name;
+    // 500 noisy samples: within 5 % of the truth.
+    EXPECT_LT(std::abs(std::stod(row[9])), 5.0) << name << " error %";
+  }
+  // R near the record's noise variance (0.005^2), with its std.
+  const auto at = r.out.find("measurement noise R (diagonal): h1 ");
+  ASSERT_NE(at, std::string::npos) << r.out;
+  const double r_h1 = std::stod(r.out.substr(at + 35));
+  EXPECT_NEAR(r_h1, 2.5e-5, 0.5 * 2.5e-5) << r.out.substr(at, 120);
+  EXPECT_NE(r.out.find("(std ", at), std::string::npos) << r.out.substr(at, 120);
+  EXPECT_NE(r.out.find("mean NIS in its band"), std::string::npos) << r.out;
+}
+
+// A noisy record made here from the noise-free one (whose levels are then
+// the truth), smoothed with the true parameters: the smoothed levels are
+// closer to the truth than the filter's, and than the measurements.
+TEST_F(CliTest, SmoothRunsTheSmootherOverARecord) {
+  std::string header;
+  const auto clean = csv_rows(kData + "/two_tank.csv", &header);
+  ASSERT_EQ(header, "t,F1,F2,h1,h2");
+  constexpr double sigma = 0.005;
+  const auto noisy_file = dir_.path() / "noisy.csv";
+  {
+    std::mt19937 rng(11);
+    std::normal_distribution<double> noise(0.0, sigma);
+    std::ofstream out(noisy_file);
+    out.precision(17);
+    out << header << "\n";
+    for (const auto& row : clean) {
+      out << row[0] << ',' << row[1] << ',' << row[2] << ',' << row[3] + noise(rng) << ',' << row[4] + noise(rng)
+          << "\n";
+    }
+  }
+  const std::string common = "smooth --model two_tank --data " + noisy_file.string() +
+                             " --inputs F1,F2 --outputs h1,h2 --r 2.5e-5 --q 1e-8,1e-8,0,0,0,0 --x0 0.4,0.15 "
+                             "--p0 1e-4,1e-4,0,0,0,0";
+  const CliRun table = riccati(common + " --params 10,5,0.0791,0.1342");
+  ASSERT_EQ(table.exit_code, 0) << last_stderr();
+  EXPECT_NE(table.out.find("smoothed over 2000 samples"), std::string::npos) << table.out;
+  const std::vector<std::string> a1 = words_of_line(table.out, "A1 ");
+  ASSERT_GE(a1.size(), 2u) << table.out;
+  EXPECT_EQ(a1[1], "10");  // held: P0 and Q zero for the parameters
+  // --params is what the smoother starts from (the model's defaults are the truth too).
+  const CliRun other = riccati(common + " --params 11,5,0.0791,0.1342 --end-sample 50");
+  ASSERT_EQ(other.exit_code, 0) << last_stderr();
+  EXPECT_NE(other.out.find("smoothed over 50 samples"), std::string::npos) << other.out;
+  EXPECT_EQ(words_of_line(other.out, "A1 ").at(1), "11") << other.out;
+
+  const auto csv = dir_.path() / "smoothed.csv";
+  const CliRun r = riccati(common + " --params 10,5,0.0791,0.1342 --format csv -o " + csv.string());
+  ASSERT_EQ(r.exit_code, 0) << last_stderr();
+  const auto rows = csv_rows(csv, &header);
+  ASSERT_EQ(rows.size(), clean.size());
+  EXPECT_EQ(header.rfind("t,h1,h2,A1,A2,k1,k2,std_h1,std_h2,", 0), 0u) << header;
+  const std::size_t filtered = 1 + 2 * 6;  // t, the smoothed [x; theta], their std, then the filtered
+  double smoothed_sq = 0.0, filtered_sq = 0.0;
+  for (std::size_t k = 0; k < rows.size(); ++k) {
+    for (std::size_t i = 0; i < 2; ++i) {
+      smoothed_sq += std::pow(rows[k][1 + i] - clean[k][3 + i], 2);
+      filtered_sq += std::pow(rows[k][filtered + i] - clean[k][3 + i], 2);
+    }
+  }
+  EXPECT_LT(smoothed_sq, filtered_sq);
+  EXPECT_LT(std::sqrt(smoothed_sq / (2.0 * rows.size())), sigma);
+}
+
+// Names the daemon does not know are refused at submit (1), the name and
+// the setting said; what the flags' syntax gets wrong is refused before
+// anything is sent (2), the flag said.
+TEST_F(CliTest, BadEstimationFlagsAreRefusedNamingThem) {
+  const std::string identify = "identify --method oe --model two_tank --data " + kData +
+                               "/two_tank.csv --inputs F1,F2 --outputs h1,h2 ";
+  CliRun r = riccati(identify + "--bound A3=0:1");
+  EXPECT_EQ(r.exit_code, 1);
+  EXPECT_NE(last_stderr().find("submitting the identification: bounds: model two_tank has no parameter \"A3\" (its "
+                               "parameters: A1, A2, k1, k2)"),
+            std::string::npos)
+      << last_stderr();
+  r = riccati(identify + "--fix k9");
+  EXPECT_EQ(r.exit_code, 1);
+  EXPECT_NE(last_stderr().find("fixed: model two_tank has no parameter \"k9\""), std::string::npos) << last_stderr();
+  r = riccati(identify + "--estimate-x0 h3");
+  EXPECT_EQ(r.exit_code, 1);
+  EXPECT_NE(last_stderr().find("initial_state.estimate: model two_tank has no state \"h3\""), std::string::npos)
+      << last_stderr();
+  r = riccati(identify + "--bound A1=1:x");
+  EXPECT_EQ(r.exit_code, 2);
+  EXPECT_NE(last_stderr().find("riccati: --bound: \"A1=1:x\": \"x\" is not a number"), std::string::npos)
+      << last_stderr();
+  r = riccati(identify + "--exclude 2@0:10");
+  EXPECT_EQ(r.exit_code, 2);
+  EXPECT_NE(last_stderr().find("--exclude 2@0:10: there is no experiment 2"), std::string::npos) << last_stderr();
+  EXPECT_EQ(riccati("jobs").out.find("job-"), std::string::npos) << "a refused job was made";
 }
 
 // Sizes, and which settings a filter takes, are riccatid's to check: the CLI

@@ -1,9 +1,10 @@
 // The `riccati` commands: each talks to riccatid through the API and prints
 // a table (or JSON with --json), and returns a process exit code. One file
 // per area: health.cpp, models.cpp, data.cpp, jobs.cpp (jobs and results),
-// identify.cpp, validate.cpp, stream.cpp, simulate.cpp.
+// identify.cpp, validate.cpp, stream.cpp, simulate.cpp, smooth.cpp.
 #pragma once
 
+#include <optional>
 #include <string>
 #include <vector>
 
@@ -55,9 +56,21 @@ struct ValidateOptions {
 int validate(Client& c, const ValidateOptions& o);
 // Parameters from a finished identification job id, a YAML file with
 // `theta: [...]` or a list of numbers. A job id goes into `spec` as it is
-// when there is one; otherwise the job's result is fetched.
-bool resolve_parameters(Client& c, const std::string& params, v1::ValidationSpec* spec, std::vector<double>* theta,
-                        std::string* error);
+// when there is one; otherwise the job's result is fetched and its estimate
+// taken: an iterated filter's as `estimate` (EstimateChoice) says, the mean
+// over its last pass by default. `estimate` given without a job is an error.
+bool resolve_parameters(Client& c, const std::string& params, std::optional<int> estimate, v1::ValidationSpec* spec,
+                        std::vector<double>* theta, std::string* error);
+
+// `riccati smooth`: model, data and the filter in `settings`; the
+// parameters from `params` (as resolve_parameters reads them; empty: theta0
+// of the job file, else the model's defaults).
+struct SmoothOptions {
+  RunSettings settings;
+  std::string params, format = "table", output;
+  bool full_covariance = false;
+};
+int smooth(Client& c, const SmoothOptions& o);
 
 struct StreamOptions {
   RunSettings settings;

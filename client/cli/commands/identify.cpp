@@ -10,11 +10,22 @@ int identify(Client& c, const RunSettings& settings, bool wait) {
     std::fprintf(stderr, "riccati: identify needs --model and --data (or model: and data: in --config)\n");
     return kExitUsage;
   }
+  std::string error;
+  if (!check_identification(settings, &error)) {
+    std::fprintf(stderr, "riccati: %s\n", error.c_str());
+    return kExitUsage;
+  }
+  // Experiment 1 (--data), then the others (--experiment), uploaded where they are files.
   std::string dataset;
   if (const int rc = dataset_for(c, *settings.data, settings.inputs, settings.outputs, &dataset); rc != kExitOk) {
     return rc;
   }
-  const v1::IdentificationSpec spec = to_identification_spec(settings, dataset);
+  std::vector<std::string> more(settings.experiments.size());
+  for (std::size_t e = 0; e < more.size(); ++e) {
+    const int rc = dataset_for(c, settings.experiments[e], settings.inputs, settings.outputs, &more[e]);
+    if (rc != kExitOk) return rc;
+  }
+  const v1::IdentificationSpec spec = to_identification_spec(settings, dataset, more);
   v1::Job job;
   {
     auto ctx = c.context();

@@ -62,10 +62,13 @@ int watch_until_done(Client& c, const std::string& id, v1::Job* last) {
   request.set_id(id);
   auto reader = c.jobs->WatchJob(ctx.get(), request);
   const bool tty = isatty(STDERR_FILENO) != 0 && !c.json;
-  uint32_t last_pass_printed = 0;
+  uint32_t last_pass_printed = 0, last_iteration_printed = 0;
   while (reader->Read(last)) {
     const auto& p = last->progress();
-    if (tty && p.samples() > 0 && p.passes() > 0) {
+    if (tty && p.iteration() > 0) {
+      // OE and ML: the optimiser's iterations, whose number is not known ahead.
+      std::fprintf(stderr, "\r%s   ", progress_text(p).c_str());
+    } else if (tty && p.samples() > 0 && p.passes() > 0) {
       const double done = ((p.pass() > 0 ? p.pass() - 1 : 0) + double(p.sample()) / double(p.samples())) / p.passes();
       const int width = 30;
       const int filled = static_cast<int>(done * width);
@@ -74,7 +77,11 @@ int watch_until_done(Client& c, const std::string& id, v1::Job* last) {
       std::fprintf(stderr, "\r[%-*s] pass %u/%u sample %llu/%llu theta%s   ", width, std::string(filled, '#').c_str(),
                    p.pass(), p.passes(), static_cast<unsigned long long>(p.sample()),
                    static_cast<unsigned long long>(p.samples()), theta.c_str());
-    } else if (!tty && !c.json && p.pass() != last_pass_printed && p.sample() == p.samples() && p.pass() > 0) {
+    } else if (!tty && !c.json && p.iteration() > last_iteration_printed) {
+      std::fprintf(stderr, "%s\n", progress_text(p).c_str());
+      last_iteration_printed = p.iteration();
+    } else if (!tty && !c.json && p.iteration() == 0 && p.pass() != last_pass_printed && p.sample() == p.samples() &&
+               p.pass() > 0) {
       std::fprintf(stderr, "pass %u/%u done\n", p.pass(), p.passes());
       last_pass_printed = p.pass();
     }
@@ -89,6 +96,30 @@ int watch_until_done(Client& c, const std::string& id, v1::Job* last) {
   }
   return kExitOk;
 }
+
+namespace {
+
+// What a result's tables take from its job and model: the parameters it
+// started from (theta0, else the model's defaults) and the names of the
+// model's states, inputs and outputs. Without the model (no longer
+// loaded), the names are numbered and the start is theta0 alone.
+void job_context(Client& c, const v1::Job& job, std::vector<double>* initial, ModelNames* names) {
+  const std::string& model = job.has_smoothing()    ? job.smoothing().model()
+                             : job.has_validation() ? job.validation().model()
+                                                    : job.identification().model();
+  v1::ModelInfo info;
+  const bool known = !model.empty() && c.get_model(model, &info).ok();
+  if (known) *names = model_names(info);
+  if (!job.has_identification()) return;
+  const auto& theta0 = job.identification().theta0();
+  if (!theta0.empty()) {
+    initial->assign(theta0.begin(), theta0.end());
+  } else if (known) {
+    initial->assign(info.theta_default().begin(), info.theta_default().end());
+  }
+}
+
+}  // namespace
 
 int result(Client& c, const std::string& id, const std::string& format_name, const std::string& output,
            const std::vector<double>& truth) {
@@ -107,13 +138,16 @@ int result(Client& c, const std::string& id, const std::string& format_name, con
     request.set_id(id);
     (void)c.jobs->GetJob(ctx.get(), request, &job);
   }
+  std::vector<double> initial;
+  ModelNames names;
+  if (format_name != "json") job_context(c, job, &initial, &names);
   std::string text;
   if (format_name == "json") {
     text = to_json(r) + "\n";
   } else if (format_name == "csv") {
-    text = result_csv(r);
+    text = result_csv(r, names);
   } else if (format_name == "table") {
-    text = result_table(r, job, truth);
+    text = result_table(r, initial, truth, names);
   } else {
     std::fprintf(stderr, "riccati: unknown format \"%s\" (table, json or csv)\n", format_name.c_str());
     return kExitUsage;

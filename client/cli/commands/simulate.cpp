@@ -26,7 +26,7 @@ int simulate(Client& c, const SimulateOptions& o) {
   request.set_model(model);
   std::string error;
   std::vector<double> theta;
-  if (!o.params.empty() && !resolve_parameters(c, o.params, nullptr, &theta, &error)) {
+  if (!o.params.empty() && !resolve_parameters(c, o.params, s.estimate, nullptr, &theta, &error)) {
     std::fprintf(stderr, "riccati: %s\n", error.c_str());
     return kExitUsage;
   }

@@ -6,11 +6,11 @@
 
 namespace riccati::cli {
 
-bool resolve_parameters(Client& c, const std::string& params, v1::ValidationSpec* spec, std::vector<double>* theta,
-                        std::string* error) {
+bool resolve_parameters(Client& c, const std::string& params, std::optional<int> estimate, v1::ValidationSpec* spec,
+                        std::vector<double>* theta, std::string* error) {
   if (params.rfind("job-", 0) == 0) {
     if (spec != nullptr) {
-      spec->set_identification_job_id(params);
+      spec->set_identification_job_id(params);  // riccatid takes the estimate (spec.estimate) itself
       return true;
     }
     auto ctx = c.context();
@@ -22,8 +22,27 @@ bool resolve_parameters(Client& c, const std::string& params, v1::ValidationSpec
       *error = "job " + params + ": " + s.error_message();
       return false;
     }
-    theta->assign(r.identification().theta_mean().begin(), r.identification().theta_mean().end());
+    if (r.has_estimation()) {
+      if (estimate) {  // as riccatid says of a validation asking the same
+        *error = "--estimate: job " + params +
+                 " is an output-error or likelihood identification, with one estimate; the choice is the iterated "
+                 "filter's";
+        return false;
+      }
+      theta->assign(r.estimation().theta().begin(), r.estimation().theta().end());
+      return true;
+    }
+    if (!r.has_identification()) {
+      *error = "--params: job " + params + " is not an identification";
+      return false;
+    }
+    const auto& chosen = estimate == v1::ESTIMATE_CHOICE_FINAL ? r.identification().theta() : r.identification().theta_mean();
+    theta->assign(chosen.begin(), chosen.end());
     return true;
+  }
+  if (estimate) {
+    *error = "--estimate chooses among an identification job's estimates; --params " + params + " is not a job";
+    return false;
   }
   if (is_local_file(params)) {
     try {
@@ -49,7 +68,7 @@ int validate(Client& c, const ValidateOptions& o) {
   v1::ValidationSpec spec = to_validation_spec(s, dataset);
   std::string error;
   std::vector<double> theta;
-  if (!resolve_parameters(c, o.params, &spec, &theta, &error)) {
+  if (!resolve_parameters(c, o.params, s.estimate, &spec, &theta, &error)) {
     std::fprintf(stderr, "riccati: %s\n", error.c_str());
     return kExitUsage;
   }
