@@ -120,6 +120,9 @@ TEST_F(EstimationJobTest, OutputErrorFindsTheTwoTankTruthFromHensensStart) {
   }
   EXPECT_GT(first_cost, 0.0) << "no progress with an iteration was watched";
   EXPECT_LE(last_cost, first_cost);
+  // The end shows the last iteration, not the last one the throttle let through.
+  ASSERT_FALSE(seen.empty());
+  EXPECT_EQ(seen.back().progress().iteration(), e.iterations());
 }
 
 // CTSM-R's method on the noisy record: the truth within the intervals the
@@ -257,7 +260,10 @@ TEST_F(EstimationJobTest, SmoothingJobIsCloserToTheTruthThanItsFilter) {
     const grpc::Status s = jobs_->SubmitSmoothing(&ctx, spec, &job);
     ASSERT_TRUE(s.ok()) << s.error_message();
   }
-  EXPECT_EQ(wait_for(job.id()).state(), v1::JOB_STATE_SUCCEEDED);
+  const v1::Job done = wait_for(job.id());
+  EXPECT_EQ(done.state(), v1::JOB_STATE_SUCCEEDED);
+  EXPECT_EQ(done.progress().pass(), 2u) << "the backward pass";
+  EXPECT_EQ(done.progress().sample(), done.progress().samples());
   const v1::JobResult result = result_of(job.id());
   ASSERT_TRUE(result.has_smoothing());
   const v1::SmoothingResult& s = result.smoothing();

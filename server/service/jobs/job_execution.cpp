@@ -224,11 +224,12 @@ Result<std::string> execute_smoothing(const JobRecord& job, const JobExecution& 
   hooks.stop = run.stop;
   if (run.progress) {
     hooks.progress = [&](const SmootherProgress& p) {
-      // Forward is pass 1, backward pass 2 (counting down).
+      // Forward is pass 1, backward pass 2, counted up: the backward pass
+      // smooths N - 1 down to 1, sample N being smoothed as it was filtered.
       JobProgress progress;
       progress.pass = p.pass == SmootherProgress::Pass::kForward ? 1 : 2;
       progress.passes = 2;
-      progress.sample = p.pass == SmootherProgress::Pass::kForward ? p.sample : p.samples - p.sample;
+      progress.sample = p.pass == SmootherProgress::Pass::kForward ? p.sample : p.samples - p.sample + 1;
       progress.samples = p.samples;
       run.progress(progress);
     };

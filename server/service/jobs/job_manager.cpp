@@ -458,29 +458,50 @@ void JobManager::finish(JobRecord job, const Result<std::string>& result,
 
 Result<std::string> JobManager::execute(const JobRecord& job, std::stop_token stop) {
   auto last_publish = std::chrono::steady_clock::now();
+  // Where the job stands, in numbers, as the last callback said it: what the
+  // throttle held back is published when the run ends, so a finished job
+  // shows its last iteration or sample, not the last one published. (The
+  // filter's theta is published at every pass's end anyway.)
+  struct Counters {
+    bool optimizer = false;
+    int pass = 0, passes = 0, iteration = 0;
+    std::int64_t sample = 0, samples = 0;
+    double cost = 0.0;
+  };
+  std::optional<Counters> held_back;
+  auto apply = [](const Counters& c, JobRecord& r) {
+    if (c.optimizer) {
+      r.iteration = c.iteration;
+      r.cost = c.cost;
+      return;
+    }
+    r.pass = c.pass;
+    r.passes = c.passes;
+    r.sample = c.sample;
+    r.samples = c.samples;
+  };
   JobExecution run{store_, models_, stop, {}};
   run.progress = [&](const JobProgress& p) {
+    const Counters counters{p.optimizer, p.pass, p.passes, p.iteration, p.sample, p.samples, p.cost};
     const auto now = std::chrono::steady_clock::now();
     const bool pass_done = !p.optimizer && p.sample == p.samples;
-    if (!pass_done && now - last_publish < kProgressInterval) return;
+    if (!pass_done && now - last_publish < kProgressInterval) {
+      held_back = counters;
+      return;
+    }
+    held_back.reset();
     last_publish = now;
     // Progress is for watchers here; the store gets it at every lease
     // renewal and at the end of each pass (for watchers elsewhere).
     const auto changed = update(job.id, [&](JobRecord& r) {
-      if (p.optimizer) {
-        r.iteration = p.iteration;
-        r.cost = p.cost;
-        return;
-      }
-      r.pass = p.pass;
-      r.passes = p.passes;
-      r.sample = p.sample;
-      r.samples = p.samples;
-      r.theta.assign(p.theta.begin(), p.theta.end());
+      apply(counters, r);
+      if (!p.optimizer) r.theta.assign(p.theta.begin(), p.theta.end());
     });
     if (pass_done && changed) renew(*changed);
   };
-  return execute_job(job, run);
+  Result<std::string> outcome = execute_job(job, run);
+  if (held_back) update(job.id, [&](JobRecord& r) { apply(*held_back, r); });
+  return outcome;
 }
 
 }  // namespace riccati::service
