@@ -210,7 +210,9 @@ class Store {
 };
 
 // Opens (creating if needed) the SQLite store in `path` and brings its schema
-// up to date (versioned migrations, applied in one transaction each).
+// up to date (versioned migrations, applied in one transaction each). An
+// empty file (a truncated database) and a damaged one (PRAGMA quick_check)
+// are refused: FAILED_PRECONDITION naming the file and what to do.
 Result<std::unique_ptr<Store>> open_sqlite_store(const std::string& path);
 
 }  // namespace riccati

@@ -12,7 +12,9 @@
 #include <unistd.h>
 
 #include <algorithm>
+#include <array>
 #include <chrono>
+#include <cstdio>
 #include <cstdlib>
 #include <cstring>
 #include <filesystem>
@@ -285,6 +287,24 @@ inline grpc::Status upload_dataset(v1::DatasetService::Stub& datasets, const std
                                    const std::vector<std::string>& outputs, v1::DatasetInfo* info) {
   grpc::ClientContext ctx;
   return upload_dataset(datasets, &ctx, name, bytes, inputs, outputs, info);
+}
+
+// riccatid run to its end with `args` (for what it refuses at start): its
+// exit code and everything it printed. One that starts instead is killed
+// after a minute (exit code 124), so such a test fails rather than hangs.
+struct Outcome {
+  int exit_code;
+  std::string output;
+};
+
+inline Outcome riccatid(const std::string& args) {
+  const std::string command = "timeout 60 " + std::string(RICCATI_DAEMON_BIN) + " " + args + " 2>&1";
+  std::FILE* pipe = ::popen(command.c_str(), "r");
+  std::string output;
+  std::array<char, 4096> buffer;
+  while (std::fgets(buffer.data(), buffer.size(), pipe) != nullptr) output += buffer.data();
+  const int status = ::pclose(pipe);
+  return {WIFEXITED(status) ? WEXITSTATUS(status) : -1, output};
 }
 
 // A fresh directory under the system's temp directory, removed at the end.

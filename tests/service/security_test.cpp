@@ -281,20 +281,8 @@ TEST(Tls, MutualTlsRequiresAClientCertificateFromItsCa) {
 // ---------------------------------------------------------------------------
 // Refusals at start
 
-struct Outcome {
-  int exit_code;
-  std::string output;
-};
-
-Outcome riccatid(const std::string& args) {
-  const std::string command = std::string(RICCATI_DAEMON_BIN) + " " + args + " 2>&1";
-  std::FILE* pipe = ::popen(command.c_str(), "r");
-  std::string output;
-  std::array<char, 4096> buffer;
-  while (std::fgets(buffer.data(), buffer.size(), pipe) != nullptr) output += buffer.data();
-  const int status = ::pclose(pipe);
-  return {WIFEXITED(status) ? WEXITSTATUS(status) : -1, output};
-}
+using testing::Outcome;
+using testing::riccatid;
 
 TEST(Startup, RefusesPlainTcpOrNoAuthenticationOffLoopback) {
   TempDir dir;

@@ -5,6 +5,8 @@
 #include <grpcpp/grpcpp.h>
 
 #include <cstdio>
+#include <filesystem>
+#include <fstream>
 #include <random>
 #include <string>
 
@@ -85,6 +87,57 @@ TEST(Storage, AFileSizeLimitIsAFullStoreNotADeadDaemon) {
   EXPECT_TRUE(s.ok()) << s.error_message();
   datasets.reset();  // an open channel would hold the stop for its grace period
   EXPECT_EQ(daemon.stop(), 0) << "riccatid did not live through it: " << daemon.exit_report();
+}
+
+
+// A 0-byte database file is what a truncated one looks like: riccatid used to
+// start a new, empty store over it without a word. Now it refuses to start,
+// naming the file and what to do.
+TEST(Storage, AnEmptyDatabaseFileIsRefusedNotReplaced) {
+  TempDir dir;
+  const auto data = dir.path() / "data";
+  std::filesystem::create_directories(data);
+  std::ofstream(data / "riccati.db").flush();
+  const testing::Outcome r = testing::riccatid("--listen 127.0.0.1:0 --data-dir " + data.string());
+  EXPECT_NE(r.exit_code, 0);
+  EXPECT_NE(r.output.find((data / "riccati.db").string() + " is an empty file (0 bytes)"), std::string::npos) << r.output;
+  EXPECT_NE(r.output.find("remove it to start a new, empty store"), std::string::npos) << r.output;
+  EXPECT_EQ(std::filesystem::file_size(data / "riccati.db"), 0u) << "the file was written to";
+}
+
+// Damage in the middle of the file (a page of a stored dataset overwritten)
+// is found at start by the integrity check, not later by whoever reads that
+// dataset; riccatid refuses to serve it.
+TEST(Storage, ADamagedDatabaseIsReportedAtStart) {
+  TempDir dir;
+  const auto data = dir.path() / "data";
+  {
+    DaemonProcess daemon(data);
+    daemon.start();
+    auto datasets = v1::DatasetService::NewStub(daemon.channel());
+    for (unsigned i = 0; i < 3; ++i) {
+      v1::DatasetInfo info;
+      const grpc::Status s = testing::upload_dataset(*datasets, "d" + std::to_string(i) + ".csv", random_csv(3000, i),
+                                                     {"F1", "F2"}, {"h1", "h2"}, &info);
+      ASSERT_TRUE(s.ok()) << s.error_message();
+    }
+    datasets.reset();
+    ASSERT_EQ(daemon.stop(), 0);  // a clean stop copies the write-ahead log into the file
+  }
+  const auto db = data / "riccati.db";
+  const auto size = std::filesystem::file_size(db);
+  ASSERT_GT(size, 64u * 4096u) << "the datasets should span many pages";
+  {
+    // Page 3 (an index or table page of the schema's first tables) gets junk.
+    std::fstream f(db, std::ios::in | std::ios::out | std::ios::binary);
+    f.seekp(2 * 4096);
+    const std::string junk(4096, '\xa5');
+    f.write(junk.data(), static_cast<std::streamsize>(junk.size()));
+  }
+  const testing::Outcome r = testing::riccatid("--listen 127.0.0.1:0 --data-dir " + data.string());
+  EXPECT_NE(r.exit_code, 0);
+  EXPECT_NE(r.output.find(db.string() + " is damaged"), std::string::npos) << r.output;
+  EXPECT_NE(r.output.find("restore it from a backup"), std::string::npos) << r.output;
 }
 
 }  // namespace
