@@ -130,6 +130,7 @@ case $mode in
     keys=0
     while IFS=$sep read -r flag key type def help group; do
       [ -n "$key" ] || continue
+      [ -z "$type" ] && [ -z "$def" ] && def=false  # a flag without a value: a boolean, off
       printf '%s: "%s"\n' "$key" "$def" >>"$work/riccatid.yaml"
       keys=$((keys + 1))
     done < <(options)

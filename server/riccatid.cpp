@@ -68,6 +68,11 @@ int main(int argc, char** argv) {
           ->capture_default_str();
   auto* metrics_listen = app.add_option("--metrics-listen", flags.metrics_listen,
                                         "Serve Prometheus metrics at http://HOST:PORT/metrics (default: off)");
+  bool metrics_public = false;
+  auto* metrics_public_flag =
+      app.add_flag("--metrics-public", metrics_public,
+                   "Serve metrics on a non-loopback --metrics-listen address: plain HTTP without authentication, for "
+                   "a network that keeps it private (config key metrics_public)");
   auto* log_level =
       app.add_option("--log-level", flags.log_level, "trace, debug, info, warn, error, off")->capture_default_str();
   app.add_option("--port-file", port_file, "Write the bound port to this file once listening");
@@ -122,6 +127,7 @@ int main(int argc, char** argv) {
   if (*workers) config.workers = flags.workers;
   if (*log_level) config.log_level = flags.log_level;
   if (*metrics_listen) config.metrics_listen = flags.metrics_listen;
+  if (*metrics_public_flag) config.metrics_public = metrics_public;
   if (*tls_cert) config.security.tls_cert = flags.security.tls_cert;
   if (*tls_key) config.security.tls_key = flags.security.tls_key;
   if (*tls_client_ca) config.security.tls_client_ca = flags.security.tls_client_ca;

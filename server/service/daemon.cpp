@@ -76,6 +76,8 @@ Status load_config_file(const std::string& path, DaemonConfig* c) {
         c->security.tokens_file = v.as<std::string>();
       } else if (key == "metrics_listen") {
         c->metrics_listen = v.as<std::string>();
+      } else if (key == "metrics_public") {
+        c->metrics_public = v.as<bool>();
       } else if (key == "log_level") {
         c->log_level = v.as<std::string>();
       } else {
@@ -179,6 +181,12 @@ Status Daemon::start() {
   spdlog::info("riccatid listening address={} port={} security=\"{}\" workers={} models={}", config_.listen, port_,
                security, workers, models_.models().size());
   if (!config_.metrics_listen.empty()) {
+    if (!config_.metrics_public && !is_loopback(config_.metrics_listen)) {
+      return failed_precondition("metrics_listen " + config_.metrics_listen +
+                                 " is not a loopback address: /metrics is plain HTTP without authentication, so it is "
+                                 "served off loopback only with metrics_public: true (--metrics-public), on a network "
+                                 "that keeps it private");
+    }
     metrics_.set_sessions_open([this] { return sessions_->size(); });
     metrics_.set_store(store_.get());
     RICCATI_ASSIGN_OR_RETURN(metrics_port_, metrics_.serve(config_.metrics_listen));

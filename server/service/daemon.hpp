@@ -40,6 +40,9 @@ struct DaemonConfig {
   Limits limits;
   SecurityConfig security;  // TLS and bearer tokens (auth.hpp)
   std::string metrics_listen;  // host:port of the Prometheus /metrics endpoint; empty: none
+  // /metrics is plain HTTP without authentication: off loopback only when
+  // asked for (a network that keeps it private: compose's, a cluster's).
+  bool metrics_public = false;
   std::string log_level = "info";
 };
 

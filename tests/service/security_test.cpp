@@ -296,6 +296,21 @@ TEST(Startup, RefusesPlainTcpOrNoAuthenticationOffLoopback) {
   EXPECT_NE(r.output.find("needs a tokens file"), std::string::npos) << r.output;
 }
 
+// /metrics has neither TLS nor tokens: off loopback only when asked for.
+TEST(Startup, RefusesMetricsOffLoopbackUnlessAskedFor) {
+  TempDir dir;
+  const std::string common = "--listen 127.0.0.1:0 --data-dir " + (dir.path() / "data").string() +
+                             " --models-dir " RICCATI_TEST_PLUGIN_DIR " --metrics-listen 0.0.0.0:0";
+  const Outcome r = riccatid(common);
+  EXPECT_NE(r.exit_code, 0);
+  EXPECT_NE(r.output.find("metrics_listen 0.0.0.0:0 is not a loopback address"), std::string::npos) << r.output;
+  EXPECT_NE(r.output.find("metrics_public: true (--metrics-public)"), std::string::npos) << r.output;
+
+  DaemonProcess daemon(dir.path() / "data", {"--metrics-listen", "0.0.0.0:0", "--metrics-public"});
+  daemon.start();  // throws if it refuses
+  EXPECT_TRUE(list_models(daemon.channel()).ok());
+}
+
 TEST(Startup, RefusesATokensFileWithATokenInClear) {
   TempDir dir;
   const auto tokens = dir.path() / "tokens";
