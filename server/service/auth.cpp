@@ -1,8 +1,13 @@
 #include "service/auth.hpp"
 
+#include <openssl/err.h>
+#include <openssl/pem.h>
+#include <openssl/x509.h>
+
 #include <array>
 #include <cctype>
 #include <fstream>
+#include <memory>
 #include <sstream>
 
 #include "engine/sha256.hpp"
@@ -24,6 +29,55 @@ Result<std::string> read_file(const std::string& path, const char* what) {
   std::ostringstream text;
   text << in.rdbuf();
   return text.str();
+}
+
+// What gRPC would refuse only when it binds, with "cannot listen on ...":
+// files without a PEM certificate or key, a key of another certificate.
+// Checked with OpenSSL here, so that the error names the file and the fault.
+struct BioFree {
+  void operator()(BIO* b) const { BIO_free(b); }
+};
+struct X509Free {
+  void operator()(X509* c) const { X509_free(c); }
+};
+struct KeyFree {
+  void operator()(EVP_PKEY* k) const { EVP_PKEY_free(k); }
+};
+std::unique_ptr<BIO, BioFree> memory_bio(const std::string& pem) {
+  return std::unique_ptr<BIO, BioFree>(BIO_new_mem_buf(pem.data(), static_cast<int>(pem.size())));
+}
+
+Result<std::unique_ptr<X509, X509Free>> first_certificate(const std::string& pem, const std::string& path,
+                                                          const char* what) {
+  auto bio = memory_bio(pem);
+  std::unique_ptr<X509, X509Free> cert(PEM_read_bio_X509(bio.get(), nullptr, nullptr, nullptr));
+  ERR_clear_error();
+  if (cert == nullptr) {
+    return invalid_argument(std::string(what) + " " + path +
+                            (pem.empty() ? " is empty" : " holds no PEM certificate (-----BEGIN CERTIFICATE-----)"));
+  }
+  return cert;
+}
+
+Status check_tls_files(const SecurityConfig& config, const std::string& cert_pem, const std::string& key_pem,
+                       const std::string& ca_pem) {
+  RICCATI_ASSIGN_OR_RETURN(const auto cert, first_certificate(cert_pem, config.tls_cert, "tls_cert"));
+  auto bio = memory_bio(key_pem);
+  const std::unique_ptr<EVP_PKEY, KeyFree> key(PEM_read_bio_PrivateKey(bio.get(), nullptr, nullptr, nullptr));
+  ERR_clear_error();
+  if (key == nullptr) {
+    return invalid_argument("tls_key " + config.tls_key +
+                            (key_pem.empty() ? " is empty" : " holds no PEM private key (or one with a passphrase)"));
+  }
+  if (X509_check_private_key(cert.get(), key.get()) != 1) {
+    ERR_clear_error();
+    return invalid_argument("tls_key " + config.tls_key + " is not the key of the certificate in tls_cert " +
+                            config.tls_cert);
+  }
+  if (!config.tls_client_ca.empty()) {
+    RICCATI_RETURN_IF_ERROR(first_certificate(ca_pem, config.tls_client_ca, "tls_client_ca").status());
+  }
+  return Status::ok();
 }
 
 }  // namespace
@@ -139,6 +193,7 @@ Result<std::shared_ptr<grpc::ServerCredentials>> server_credentials(const Securi
     if (!config.tls_client_ca.empty()) {
       RICCATI_ASSIGN_OR_RETURN(options.pem_root_certs, read_file(config.tls_client_ca, "TLS client CA"));
     }
+    RICCATI_RETURN_IF_ERROR(check_tls_files(config, cert, key, options.pem_root_certs));
     credentials = grpc::SslServerCredentials(options);
     *description = config.tls_client_ca.empty() ? "tls" : "mutual-tls";
   } else {

@@ -296,6 +296,41 @@ TEST(Startup, RefusesPlainTcpOrNoAuthenticationOffLoopback) {
   EXPECT_NE(r.output.find("needs a tokens file"), std::string::npos) << r.output;
 }
 
+// TLS files gRPC would refuse only when binding ("cannot listen on ...
+// (address in use or invalid?)"): the error names the file and the fault.
+TEST(Startup, RefusesBadTlsFilesNamingTheFileAndTheFault) {
+  TempDir dir;
+  const auto junk = dir.path() / "junk.pem";
+  const auto empty = dir.path() / "empty.key";
+  std::ofstream(junk) << "this is not a certificate\n";
+  std::ofstream(empty).flush();
+  const std::string common = "--listen 127.0.0.1:0 --data-dir " + (dir.path() / "data").string() +
+                             " --models-dir " RICCATI_TEST_PLUGIN_DIR;
+  struct Case {
+    std::string args, expected;
+  };
+  const Case cases[] = {
+      {"--tls-cert " + junk.string() + " --tls-key " + kTls + "/server.key",
+       "tls_cert " + junk.string() + " holds no PEM certificate"},
+      {"--tls-cert " + kTls + "/server.pem --tls-key " + empty.string(), "tls_key " + empty.string() + " is empty"},
+      {"--tls-cert " + kTls + "/server.pem --tls-key " + kTls + "/stranger.key",
+       "tls_key " + kTls + "/stranger.key is not the key of the certificate in tls_cert " + kTls + "/server.pem"},
+      {"--tls-cert " + kTls + "/server.pem --tls-key " + kTls + "/server.key --tls-client-ca " + junk.string(),
+       "tls_client_ca " + junk.string() + " holds no PEM certificate"},
+  };
+  for (const Case& c : cases) {
+    const Outcome r = riccatid(common + " " + c.args);
+    EXPECT_NE(r.exit_code, 0) << c.args;
+    EXPECT_NE(r.output.find(c.expected), std::string::npos) << c.args << "\n" << r.output;
+    EXPECT_EQ(r.output.find("address in use"), std::string::npos) << r.output;
+  }
+  // A models "directory" that is a file is said to be one.
+  const Outcome r = riccatid("--listen 127.0.0.1:0 --data-dir " + (dir.path() / "data").string() + " --models-dir " +
+                             junk.string());
+  EXPECT_NE(r.exit_code, 0);
+  EXPECT_NE(r.output.find(junk.string() + " is a file, not a directory"), std::string::npos) << r.output;
+}
+
 // /metrics has neither TLS nor tokens: off loopback only when asked for.
 TEST(Startup, RefusesMetricsOffLoopbackUnlessAskedFor) {
   TempDir dir;

@@ -66,9 +66,8 @@ std::string unsafe_file(const fs::path& path) {
 
 Result<ModelRegistry> ModelRegistry::load_directory(const std::string& dir) {
   struct stat st {};
-  if (::stat(dir.c_str(), &st) != 0 || !S_ISDIR(st.st_mode)) {
-    return not_found("models directory " + dir + " does not exist");
-  }
+  if (::stat(dir.c_str(), &st) != 0) return not_found("models directory " + dir + " does not exist");
+  if (!S_ISDIR(st.st_mode)) return invalid_argument("models directory " + dir + " is a file, not a directory");
   if (writable_by_others(st) || !owned_by_us_or_root(st)) {
     return failed_precondition("models directory " + dir +
                                " is writable by others or owned by another user: anyone who can write there can run "
