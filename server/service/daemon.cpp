@@ -152,7 +152,7 @@ Status Daemon::start() {
   RICCATI_RETURN_IF_ERROR(sessions_->start());
 
   RICCATI_ASSIGN_OR_RETURN(auth_, Authenticator::create(config_.security.tokens_file));
-  model_service_ = std::make_unique<ModelServiceImpl>(models_);
+  model_service_ = std::make_unique<ModelServiceImpl>(models_, config_.limits);
   datasets_ = std::make_unique<DatasetManager>(*store_, config_.limits);
   dataset_service_ = std::make_unique<DatasetServiceImpl>(*auth_, *datasets_);
   job_service_ = std::make_unique<JobServiceImpl>(*auth_, *jobs_);

@@ -22,6 +22,8 @@ struct Limits {
   std::int64_t max_jobs = 1000;                        // queued and running jobs, all tenants
   std::int64_t max_tenant_jobs = 100;                  // queued and running jobs of one tenant
   std::int64_t max_passes = 10'000;                    // passes of one identification
+  std::int64_t max_simulation_steps = 20'000'000;      // samples x substeps of one Simulate call
+  std::int64_t max_simulations = 4;                    // Simulate calls running at once, all tenants
 };
 
 struct LimitSpec {
@@ -41,6 +43,9 @@ inline constexpr LimitSpec kLimitSpecs[] = {
     {"max_jobs", &Limits::max_jobs, "Most queued and running jobs, all tenants"},
     {"max_tenant_jobs", &Limits::max_tenant_jobs, "Most queued and running jobs of one tenant"},
     {"max_passes", &Limits::max_passes, "Most passes of one identification"},
+    {"max_simulation_steps", &Limits::max_simulation_steps,
+     "Most integration steps (samples x substeps) of one Simulate call"},
+    {"max_simulations", &Limits::max_simulations, "Most Simulate calls running at once, all tenants"},
 };
 
 // RESOURCE_EXHAUSTED: "limit <key> = <limit> reached: <what>".

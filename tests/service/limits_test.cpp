@@ -3,13 +3,16 @@
 // freeing the resource lets the tenant go on.
 #include <gtest/gtest.h>
 
+#include <atomic>
 #include <cmath>
 #include <fstream>
 #include <sstream>
+#include <thread>
 
 #include "engine/sha256.hpp"
 #include "riccati/v1/datasets.grpc.pb.h"
 #include "riccati/v1/jobs.grpc.pb.h"
+#include "riccati/v1/models.grpc.pb.h"
 #include "riccati/v1/sessions.grpc.pb.h"
 #include "service/daemon_fixture.hpp"
 #include "support/mat_files.hpp"
@@ -186,6 +189,75 @@ TEST_F(LimitsTest, MeasurementsPerMessage) {
   while (stream->Read(&response)) {
   }
   expect_limit(stream->Finish(), "max_batch = 4");
+}
+
+
+// Simulate's work is bounded before it starts and stops when nobody waits:
+// 1e8 RK4 steps are refused naming the limit; a long simulation whose
+// deadline passed stops between samples (with one simulation allowed at a
+// time, the next one is taken soon after, not after the ~20 s the first
+// would have computed on), and one running keeps a second out.
+TEST(SimulateLimits, WorkIsBoundedAtTheStartAndStopsAtTheDeadline) {
+  TempDir dir;
+  DaemonProcess daemon(dir.path() / "data", {"--max-simulations", "1", "--max-simulation-steps", "400000000"});
+  daemon.start();
+  auto models = v1::ModelService::NewStub(daemon.channel());
+  auto request = [](int samples, int substeps) {
+    v1::SimulateRequest r;
+    r.set_model("two_tank");
+    for (double x : {0.4, 0.15}) r.add_x0(x);
+    for (int k = 0; k < samples; ++k) r.add_t(0.1 * k);
+    r.mutable_u()->set_rows(2);
+    r.mutable_u()->set_cols(static_cast<std::uint32_t>(samples));
+    for (int k = 0; k < 2 * samples; ++k) r.mutable_u()->add_values(0.01);
+    r.mutable_integrator()->set_substeps(static_cast<std::uint32_t>(substeps));
+    return r;
+  };
+  v1::SimulateResponse response;
+  {
+    grpc::ClientContext ctx;
+    const grpc::Status s = models->Simulate(&ctx, request(1001, 1'000'000), &response);
+    EXPECT_EQ(s.error_code(), grpc::StatusCode::RESOURCE_EXHAUSTED) << s.error_message();
+    EXPECT_NE(s.error_message().find("limit max_simulation_steps = 400000000 reached: 1001 samples x 1000000 substeps"),
+              std::string::npos)
+        << s.error_message();
+  }
+  // About 3e8 steps: many seconds of work, with a deadline of half a second.
+  {
+    grpc::ClientContext ctx;
+    ctx.set_deadline(std::chrono::system_clock::now() + std::chrono::milliseconds(500));
+    const grpc::Status s = models->Simulate(&ctx, request(3001, 100'000), &response);
+    EXPECT_EQ(s.error_code(), grpc::StatusCode::DEADLINE_EXCEEDED) << s.error_message();
+  }
+  const auto after_deadline = std::chrono::steady_clock::now();
+  EXPECT_TRUE(testing::wait_until(
+      [&] {
+        grpc::ClientContext ctx;
+        return models->Simulate(&ctx, request(10, 10), &response).ok();
+      },
+      testing::kWait, "a small simulation taken once the one past its deadline has stopped"));
+  EXPECT_LT(std::chrono::steady_clock::now() - after_deadline, std::chrono::seconds(testing::kSanitized ? 60 : 5));
+
+  // One running (cancelled by its client below) keeps a second out.
+  std::atomic<bool> started{false};
+  grpc::ClientContext long_ctx;
+  std::thread running([&] {
+    started = true;
+    v1::SimulateResponse r;
+    (void)models->Simulate(&long_ctx, request(3001, 100'000), &r);
+  });
+  grpc::Status refused;
+  EXPECT_TRUE(testing::wait_until(
+      [&] {
+        grpc::ClientContext ctx;
+        refused = models->Simulate(&ctx, request(10, 10), &response);
+        return started && !refused.ok();
+      },
+      testing::kWait, "a second simulation refused while one runs"));
+  EXPECT_EQ(refused.error_code(), grpc::StatusCode::RESOURCE_EXHAUSTED) << refused.error_message();
+  EXPECT_NE(refused.error_message().find("max_simulations = 1"), std::string::npos) << refused.error_message();
+  long_ctx.TryCancel();
+  running.join();
 }
 
 }  // namespace

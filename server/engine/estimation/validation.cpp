@@ -28,7 +28,8 @@ class SimulationRhs final : public OdeRhs {
 
 Result<Eigen::MatrixXd> simulate(const Model& model, const Eigen::VectorXd& t, const Eigen::MatrixXd& u,
                                  const Eigen::VectorXd& x0, const Eigen::VectorXd& theta,
-                                 const SimulationSettings& settings, Eigen::MatrixXd* states) {
+                                 const SimulationSettings& settings, Eigen::MatrixXd* states,
+                                 const std::function<bool()>& stopped) {
   const Eigen::Index N = t.size();
   if (u.rows() != model.nu() || u.cols() != N) {
     return invalid_argument("inputs must be " + std::to_string(model.nu()) + " x " + std::to_string(N));
@@ -45,6 +46,7 @@ Result<Eigen::MatrixXd> simulate(const Model& model, const Eigen::VectorXd& t, c
   Eigen::MatrixXd y(model.ny(), N);
   if (states != nullptr) states->resize(model.nx(), N);
   for (Eigen::Index k = 0; k < N; ++k) {
+    if (stopped && stopped()) return cancelled("simulation stopped at sample " + std::to_string(k + 1));
     if (k > 0) {
       rhs.set_interval(t[k - 1], t[k], u.col(k - 1).data(), u.col(k).data());
       Status s = integrator->integrate(rhs, t[k - 1], t[k], std::span<double>(x.data(), std::size_t(x.size())));

@@ -2,6 +2,8 @@
 // and compare its outputs with the measured ones (MATLAB's compare).
 #pragma once
 
+#include <functional>
+
 #include <Eigen/Core>
 #include <vector>
 
@@ -21,9 +23,12 @@ struct SimulationSettings {
 
 // Open-loop simulation from x0 with parameters theta over the times t [N] and
 // inputs u [nu x N]: the model outputs [ny x N] (and the states, if wanted).
+// `stopped`, when given, is asked before every sample: true ends the run
+// with kCancelled (a call's client gone or past its deadline).
 Result<Eigen::MatrixXd> simulate(const Model& model, const Eigen::VectorXd& t, const Eigen::MatrixXd& u,
                                  const Eigen::VectorXd& x0, const Eigen::VectorXd& theta,
-                                 const SimulationSettings& settings, Eigen::MatrixXd* states = nullptr);
+                                 const SimulationSettings& settings, Eigen::MatrixXd* states = nullptr,
+                                 const std::function<bool()>& stopped = {});
 
 struct ValidationSettings {
   SimulationSettings simulation;

@@ -76,14 +76,36 @@ grpc::Status ModelServiceImpl::GetModel(grpc::ServerContext*, const v1::GetModel
   return grpc::Status::OK;
 }
 
-grpc::Status ModelServiceImpl::Simulate(grpc::ServerContext*, const v1::SimulateRequest* request,
+// A Simulate call's work is bounded before it starts (samples x substeps,
+// and how many run at once), and it stops between samples once its client
+// has gone or its deadline has passed: an RPC thread is never held by work
+// nobody waits for.
+grpc::Status ModelServiceImpl::Simulate(grpc::ServerContext* context, const v1::SimulateRequest* request,
                                         v1::SimulateResponse* response) {
   const Result<ModelPtr> m = models_.get(request->model());
   if (!m.is_ok()) return to_grpc(m.status());
   const Result<Simulation> s = simulation_from_proto(*request, *m.value());
   if (!s.is_ok()) return to_grpc(s.status());
+  const bool fixed_step = s->settings.integrator.kind == IntegratorKind::kRk4 ||
+                          s->settings.integrator.kind == IntegratorKind::kRk3;
+  const std::int64_t steps = (s->t.size() - 1) * (fixed_step ? std::int64_t{s->settings.integrator.substeps} : 1);
+  if (steps > limits_.max_simulation_steps) {
+    return to_grpc(limit_reached("max_simulation_steps", limits_.max_simulation_steps,
+                                 std::to_string(s->t.size()) + " samples x " +
+                                     std::to_string(s->settings.integrator.substeps) + " substeps are " +
+                                     std::to_string(steps) + " steps"));
+  }
+  struct Running {
+    std::atomic<std::int64_t>& count;
+    ~Running() { --count; }
+  } running{simulations_};
+  if (++simulations_ > limits_.max_simulations) {
+    return to_grpc(limit_reached("max_simulations", limits_.max_simulations,
+                                 "as many simulations are running; try again when one has ended"));
+  }
   Eigen::MatrixXd x;
-  const Result<Eigen::MatrixXd> y = simulate(*m.value(), s->t, s->u, s->x0, s->theta, s->settings, &x);
+  const Result<Eigen::MatrixXd> y = simulate(*m.value(), s->t, s->u, s->x0, s->theta, s->settings, &x,
+                                             [context] { return context->IsCancelled(); });
   if (!y.is_ok()) return to_grpc(y.status());
   *response->mutable_y() = to_matrix(y.value());
   *response->mutable_x() = to_matrix(x);
