@@ -47,10 +47,7 @@ class ExperimentCost final : public ceres::CostFunction {
     const Eigen::Map<const Eigen::VectorXd> x0(parameters[1], nx);
     const bool theta_jacobian = jacobians != nullptr && jacobians[0] != nullptr;
     const bool x0_jacobian = jacobians != nullptr && jacobians[1] != nullptr;
-    const Status simulated =
-        simulator_.simulate(experiment_.data.t, experiment_.data.u, x0, theta_, theta_jacobian || x0_jacobian, &record_);
-    ++counters_->evaluations;
-    if (theta_jacobian || x0_jacobian) ++counters_->jacobian_evaluations;
+    const Status simulated = simulate(x0, theta_jacobian || x0_jacobian);
     if (!simulated.is_ok()) {
       counters_->last_failure = simulated;
       return false;  // Ceres rejects the step and shrinks the trust region
@@ -78,11 +75,31 @@ class ExperimentCost final : public ceres::CostFunction {
 
   // The simulation with sensitivities at (theta, x0): the final analysis.
   Result<const SimulatedRecord*> analyse(const Eigen::VectorXd& theta, const Eigen::VectorXd& x0) const {
-    RICCATI_RETURN_IF_ERROR(simulator_.simulate(experiment_.data.t, experiment_.data.u, x0, theta, true, &record_));
+    theta_ = theta;
+    RICCATI_RETURN_IF_ERROR(simulate(x0, true));
     return &record_;
   }
 
  private:
+  // Simulates at (theta_, x0) unless record_ already holds that point (with
+  // sensitivities if asked): Ceres evaluates a point more than once (its cost
+  // as a candidate, then its Jacobian once the step is accepted).
+  Status simulate(const Eigen::Ref<const Eigen::VectorXd>& x0, bool sensitivities) const {
+    if (cached_ && cached_theta_ == theta_ && cached_x0_ == x0 && (cached_sensitivities_ || !sensitivities)) {
+      return Status::ok();
+    }
+    cached_ = false;
+    ++counters_->evaluations;
+    if (sensitivities) ++counters_->jacobian_evaluations;
+    RICCATI_RETURN_IF_ERROR(
+        simulator_.simulate(experiment_.data.t, experiment_.data.u, x0, theta_, sensitivities, &record_));
+    cached_ = true;
+    cached_theta_ = theta_;
+    cached_x0_ = x0;
+    cached_sensitivities_ = sensitivities;
+    return Status::ok();
+  }
+
   const Experiment& experiment_;
   mutable SensitivitySimulator simulator_;
   const ParameterSettings& parameters_;
@@ -90,6 +107,8 @@ class ExperimentCost final : public ceres::CostFunction {
   Counters* const counters_;
   mutable Eigen::VectorXd theta_;
   mutable SimulatedRecord record_;
+  mutable bool cached_ = false, cached_sensitivities_ = false;
+  mutable Eigen::VectorXd cached_theta_, cached_x0_;
 };
 
 std::string number(double v) {
