@@ -2,6 +2,7 @@
 
 #include <ceres/ceres.h>
 
+#include <array>
 #include <cmath>
 #include <limits>
 #include <memory>
@@ -47,26 +48,27 @@ class ExperimentCost final : public ceres::CostFunction {
     const Eigen::Map<const Eigen::VectorXd> x0(parameters[1], nx);
     const bool theta_jacobian = jacobians != nullptr && jacobians[0] != nullptr;
     const bool x0_jacobian = jacobians != nullptr && jacobians[1] != nullptr;
-    const Status simulated = simulate(x0, theta_jacobian || x0_jacobian);
-    if (!simulated.is_ok()) {
-      counters_->last_failure = simulated;
+    const Simulation& simulation = simulate(x0, theta_jacobian || x0_jacobian);
+    if (!simulation.status.is_ok()) {
+      counters_->last_failure = simulation.status;
       return false;  // Ceres rejects the step and shrinks the trust region
     }
+    const SimulatedRecord& record = simulation.record;
     const bool masked = experiment_.mask.size() != 0;
     for (Eigen::Index k = 0; k < N; ++k) {
       for (Eigen::Index i = 0; i < ny; ++i) {
         const Eigen::Index row = k * ny + i;
         const double w = weights_[i] * (masked ? experiment_.mask(i, k) : 1.0);
-        residuals[row] = w * (record_.y(i, k) - experiment_.data.y(i, k));
+        residuals[row] = w * (record.y(i, k) - experiment_.data.y(i, k));
         if (theta_jacobian) {
           double* jrow = jacobians[0] + row * ntheta;
           for (Eigen::Index j = 0; j < ntheta; ++j) {
-            jrow[j] = w * record_.dy_dtheta(row, j) * theta_per_phi(parameters_, j, theta_[j]);
+            jrow[j] = w * record.dy_dtheta(row, j) * theta_per_phi(parameters_, j, theta_[j]);
           }
         }
         if (x0_jacobian) {
           double* jrow = jacobians[1] + row * nx;
-          for (Eigen::Index j = 0; j < nx; ++j) jrow[j] = w * record_.dy_dx0(row, j);
+          for (Eigen::Index j = 0; j < nx; ++j) jrow[j] = w * record.dy_dx0(row, j);
         }
       }
     }
@@ -76,28 +78,45 @@ class ExperimentCost final : public ceres::CostFunction {
   // The simulation with sensitivities at (theta, x0): the final analysis.
   Result<const SimulatedRecord*> analyse(const Eigen::VectorXd& theta, const Eigen::VectorXd& x0) const {
     theta_ = theta;
-    RICCATI_RETURN_IF_ERROR(simulate(x0, true));
-    return &record_;
+    const Simulation& simulation = simulate(x0, true);
+    RICCATI_RETURN_IF_ERROR(simulation.status);
+    return &simulation.record;
   }
 
  private:
-  // Simulates at (theta_, x0) unless record_ already holds that point (with
-  // sensitivities if asked): Ceres evaluates a point more than once (its cost
-  // as a candidate, then its Jacobian once the step is accepted).
-  Status simulate(const Eigen::Ref<const Eigen::VectorXd>& x0, bool sensitivities) const {
-    if (cached_ && cached_theta_ == theta_ && cached_x0_ == x0 && (cached_sensitivities_ || !sensitivities)) {
-      return Status::ok();
+  // A simulation of the record, and the point it was made at.
+  struct Simulation {
+    bool made = false, sensitivities = false;
+    Eigen::VectorXd theta, x0;
+    Status status;
+    SimulatedRecord record;
+  };
+
+  // The simulation at (theta_, x0), with sensitivities if asked, made only
+  // when neither of the last two is it. Ceres evaluates a point more than
+  // once: in the line search with its gradient, then its cost as the
+  // candidate, then its Jacobian once accepted; a step projected onto the
+  // bounds lands on the same point again and again (failing the same way
+  // each time). The analysis after the fit is at the last accepted point,
+  // one before the candidate that ended the fit.
+  const Simulation& simulate(const Eigen::Ref<const Eigen::VectorXd>& x0, bool sensitivities) const {
+    for (std::size_t i = 0; i < simulations_.size(); ++i) {
+      const Simulation& s = simulations_[i];
+      if (s.made && (s.sensitivities || !sensitivities) && s.theta == theta_ && s.x0 == x0) {
+        if (i > 0) std::swap(simulations_[0], simulations_[i]);
+        return simulations_[0];
+      }
     }
-    cached_ = false;
+    std::swap(simulations_[0], simulations_[1]);  // the older one is overwritten
+    Simulation& s = simulations_[0];
     ++counters_->evaluations;
     if (sensitivities) ++counters_->jacobian_evaluations;
-    RICCATI_RETURN_IF_ERROR(
-        simulator_.simulate(experiment_.data.t, experiment_.data.u, x0, theta_, sensitivities, &record_));
-    cached_ = true;
-    cached_theta_ = theta_;
-    cached_x0_ = x0;
-    cached_sensitivities_ = sensitivities;
-    return Status::ok();
+    s.status = simulator_.simulate(experiment_.data.t, experiment_.data.u, x0, theta_, sensitivities, &s.record);
+    s.made = true;
+    s.sensitivities = sensitivities;
+    s.theta = theta_;
+    s.x0 = x0;
+    return s;
   }
 
   const Experiment& experiment_;
@@ -106,9 +125,7 @@ class ExperimentCost final : public ceres::CostFunction {
   const Eigen::VectorXd weights_;
   Counters* const counters_;
   mutable Eigen::VectorXd theta_;
-  mutable SimulatedRecord record_;
-  mutable bool cached_ = false, cached_sensitivities_ = false;
-  mutable Eigen::VectorXd cached_theta_, cached_x0_;
+  mutable std::array<Simulation, 2> simulations_;  // the latest first
 };
 
 std::string number(double v) {
