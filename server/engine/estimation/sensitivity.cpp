@@ -29,15 +29,29 @@ class SensitivitySimulator::Rhs final : public OdeRhs {
     const double* u = hold_.at(t);
     if (!sensitivities_) return model_.f(t, u, 1, 1, w, theta_, wdot);
     RICCATI_RETURN_IF_ERROR(model_.f_jacobian(t, u, w, theta_, wdot, jac_.data()));
-    // S' = f_x S + [f_theta 0]
-    const Eigen::Map<const Eigen::MatrixXd> S(w + nx, nx, m_);
-    Eigen::Map<Eigen::MatrixXd> dS(wdot + nx, nx, m_);
-    dS.noalias() = jac_.leftCols(nx) * S;
-    dS.leftCols(ntheta) += jac_.rightCols(ntheta);
+    variational(jac_.data(), w + nx, wdot + nx, nx, ntheta, m_);
     return Status::ok();
   }
 
  private:
+  // S' = f_x S + [f_theta 0] (all column-major; jac = [f_x f_theta]), each
+  // entry summed in a register: at these sizes (a few states) Eigen's
+  // dynamic-size product spends more on choosing its kernel than on the
+  // products, and accumulating in dS stalls on reading back its own stores.
+  static void variational(const double* jac, const double* S, double* dS, Eigen::Index nx, Eigen::Index ntheta,
+                          Eigen::Index m) {
+    const double* f_x = jac;
+    const double* f_theta = jac + nx * nx;
+    for (Eigen::Index j = 0; j < m; ++j) {
+      const double* s = S + j * nx;
+      for (Eigen::Index i = 0; i < nx; ++i) {
+        double sum = j < ntheta ? f_theta[j * nx + i] : 0.0;
+        for (Eigen::Index k = 0; k < nx; ++k) sum += f_x[k * nx + i] * s[k];
+        dS[j * nx + i] = sum;
+      }
+    }
+  }
+
   const Model& model_;
   InputHold hold_;
   const Eigen::Index m_;
