@@ -18,12 +18,13 @@
 // C_k = Cov(z_k|k, z_k+1|k) = P_k|k Phi^T (the RTS smoother's gain is
 // G_k = C_k P_k+1|k^-1). Its parameter rows stay [0 I], so only the nx rows
 // Phi_x = [Phi_xx Phi_xth] are integrated, with the rest:
-//     Phi_x' = Jx Phi_x + [0 Jth].
+//     Phi_x' = Jx Phi_x + [0 Jth]   (the variational equations, models/variational.hpp).
 #include <Eigen/Core>
 #include <algorithm>
 #include <string>
 
 #include "engine/filters/kalman_filter.hpp"
+#include "engine/models/variational.hpp"
 
 namespace riccati {
 
@@ -79,42 +80,6 @@ void covariance_derivative(int nx_runtime, int nth, const double* __restrict J, 
 using CovarianceDerivativeFn = void (*)(int, int, const double*, const double*, const double*, const double*,
                                         const double*, double*, double*, double*);
 
-// The derivative of the transition matrix's state rows, Phi_x' = Jx Phi_x +
-// [0 Jth] (see the top), column-major: J = [Jx Jth] and Phi_x, dPhi_x nx x nz.
-// Unrolled per nx as covariance_derivative.
-template <int NX>
-void transition_derivative(int nx_runtime, int nth, const double* __restrict J, const double* __restrict Phi,
-                           double* __restrict dPhi) {
-  const int nx = NX > 0 ? NX : nx_runtime;
-  const int nz = nx + nth;
-  for (int c = 0; c < nz; ++c) {
-    double* d = dPhi + c * nx;
-    if (c < nx) {
-      for (int i = 0; i < nx; ++i) d[i] = 0.0;
-    } else {
-      for (int i = 0; i < nx; ++i) d[i] = J[i + c * nx];  // Jth's column c - nx
-    }
-    for (int k = 0; k < nx; ++k) {
-      const double p = Phi[k + c * nx];
-      for (int i = 0; i < nx; ++i) d[i] += J[i + k * nx] * p;
-    }
-  }
-}
-
-using TransitionDerivativeFn = void (*)(int, int, const double*, const double*, double*);
-
-TransitionDerivativeFn transition_derivative_for(int nx) {
-  switch (nx) {
-    case 1: return &transition_derivative<1>;
-    case 2: return &transition_derivative<2>;
-    case 3: return &transition_derivative<3>;
-    case 4: return &transition_derivative<4>;
-    case 5: return &transition_derivative<5>;
-    case 6: return &transition_derivative<6>;
-    default: return &transition_derivative<0>;
-  }
-}
-
 CovarianceDerivativeFn covariance_derivative_for(int nx) {
   switch (nx) {
     case 1: return &covariance_derivative<1>;
@@ -136,7 +101,7 @@ class Ekf final : public KalmanFilter {
     // [x; Pxx; Pxth], and Phi_x when smoothing.
     y_.resize(nx + nx * nx + nx * nth + (settings_.smoothing ? nx * nz : 0));
     if (settings_.smoothing) {
-      transition_derivative_ = transition_derivative_for(nx);
+      transition_derivative_ = variational_derivative_for(nx);
       P_start_.resize(nz, nz);
     }
     jac_f_.resize(nx, nz);
@@ -245,7 +210,7 @@ class Ekf final : public KalmanFilter {
                           ydot + nx, ydot + nx + nx * nx);
     if constexpr (kTransition) {
       const int offset = nx + nx * nx + nx * nth;
-      transition_derivative_(nx, nth, jac_f_.data(), y + offset, ydot + offset);
+      transition_derivative_(nx, nx + nth, nx, jac_f_.data(), y + offset, ydot + offset);
     }
     return Status::ok();
   }
@@ -255,7 +220,7 @@ class Ekf final : public KalmanFilter {
   Rhs<true> smoothing_rhs_;
   bool q_thth_is_zero_ = true;
   CovarianceDerivativeFn covariance_derivative_ = nullptr;
-  TransitionDerivativeFn transition_derivative_ = nullptr;
+  VariationalDerivativeFn transition_derivative_ = nullptr;  // Phi_x' = Jx Phi_x + [0 Jth]
   Eigen::MatrixXd P_start_;  // P_k|k, kept over the prediction when smoothing
   // Work space, sized once.
   std::vector<double> y_;
