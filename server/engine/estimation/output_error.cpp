@@ -183,7 +183,10 @@ Result<EstimationResult> output_error(ModelPtr model, const std::vector<Experime
   result.param_names = model->param_names();
   result.gradient = "exact: forward sensitivities of the simulation";
   IterationWatcher watcher(hooks, &result.cost_history);
-  const ceres::Solver::Options options = solver_options(settings.optimizer, &watcher);
+  // The line search's trials with their gradients: a trial that is accepted
+  // (most are) then has its Jacobian ready, one sensitivity simulation where
+  // the cost alone and then the Jacobian would take a simulation more.
+  const ceres::Solver::Options options = solver_options(settings.optimizer, &watcher, ceres::CUBIC);
   ceres::Solver::Summary summary;
   ceres::Solve(options, &problem, &summary);
   if (hooks.stop.stop_requested()) {
