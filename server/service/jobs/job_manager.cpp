@@ -448,7 +448,10 @@ Result<std::string> JobManager::execute(const JobRecord& job, std::stop_token st
   run.progress = [&](const JobProgress& p) {
     const auto now = std::chrono::steady_clock::now();
     const bool pass_done = !p.optimizer && p.sample == p.samples;
-    if (!pass_done && now - last_publish < kProgressInterval) return;
+    // Samples come by the thousand a second; an optimiser's iterations are
+    // few (each at least a run over the record), and a fast job would
+    // otherwise end before any was told.
+    if (!pass_done && !p.optimizer && now - last_publish < kProgressInterval) return;
     last_publish = now;
     // Progress is for watchers here; the store gets it at every lease
     // renewal and at the end of each pass (for watchers elsewhere).
