@@ -19,6 +19,7 @@
 
 #include "engine/estimation/binding.hpp"
 #include "engine/estimation/identification.hpp"
+#include "engine/estimation/max_likelihood.hpp"
 #include "engine/estimation/output_error.hpp"
 #include "engine/estimation/sensitivity.hpp"
 #include "engine/estimation/smoother.hpp"
@@ -348,6 +349,43 @@ void TwoTankOutputError(benchmark::State& state) {
   state.SetLabel(label + last.termination);
 }
 BENCHMARK(TwoTankOutputError)->ArgName("substeps")->Arg(10)->Arg(4)->Arg(2)->Unit(benchmark::kMillisecond);
+
+// Maximum likelihood on the same record from the same start, as
+// MaxLikelihood.TwoTankFromHensensStartRecoversTheTruth runs it: the EKF as
+// predictor (RK4, 10 substeps), Q = 0, P0 = 0, R = 1e-3 I given, bounds
+// theta >= 0; the whole max_likelihood() call (the fit by Ceres with central
+// differences of the filter's residuals, then the Hessian by second
+// differences and the diagnostics at the estimate). Counters as for
+// TwoTankOutputError; evaluations are filter runs over the record.
+void TwoTankMaximumLikelihood(benchmark::State& state) {
+  static TwoTankFixture fixture;
+  Experiment e;
+  e.data = bind_dataset(*fixture.model, fixture.data).value();
+  e.x0 = e.data.y.col(0);
+  MaxLikelihoodSettings settings;
+  settings.filter.Q = Eigen::MatrixXd::Zero(6, 6);
+  settings.filter.R = Eigen::Matrix2d::Identity() * 1e-3;
+  settings.P0x = Eigen::Matrix2d::Zero();
+  settings.parameters = default_parameters(*fixture.model, Eigen::Vector4d(20, 20, 1, 1));
+  const std::vector<Experiment> experiments{e};
+  EstimationResult last;
+  for (auto _ : state) {
+    auto r = max_likelihood(fixture.model, experiments, settings);
+    if (!r.is_ok()) {
+      state.SkipWithError(r.status().to_string().c_str());
+      return;
+    }
+    benchmark::DoNotOptimize(r.value().estimate.theta.data());
+    last = std::move(r).value().estimate;
+  }
+  const Eigen::VectorXd truth = fixture.model->theta_default();
+  state.counters["worst_rel_error"] = ((last.theta - truth).array() / truth.array()).abs().maxCoeff();
+  state.counters["evaluations"] = last.evaluations;
+  state.counters["jacobian_evaluations"] = last.jacobian_evaluations;
+  state.counters["iterations"] = last.iterations;
+  state.counters["converged"] = last.converged ? 1.0 : 0.0;
+}
+BENCHMARK(TwoTankMaximumLikelihood)->Unit(benchmark::kMillisecond);
 
 // One simulation of the two-tank record at the truth (RK4, 10 substeps, zero-
 // order hold): the states alone (what a trial step of output error costs) and

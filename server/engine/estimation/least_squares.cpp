@@ -62,11 +62,13 @@ ceres::CallbackReturnType IterationWatcher::operator()(const ceres::IterationSum
   return hooks_.stop.stop_requested() ? ceres::SOLVER_ABORT : ceres::SOLVER_CONTINUE;
 }
 
-ceres::Solver::Options solver_options(const OptimizerSettings& settings, IterationWatcher* watcher) {
+ceres::Solver::Options solver_options(const OptimizerSettings& settings, IterationWatcher* watcher,
+                                      ceres::LineSearchInterpolationType line_search) {
   ceres::Solver::Options options;
   options.minimizer_type = ceres::TRUST_REGION;
   options.trust_region_strategy_type = ceres::LEVENBERG_MARQUARDT;
   options.linear_solver_type = ceres::DENSE_QR;
+  options.line_search_interpolation_type = line_search;
   options.max_num_iterations = settings.max_iterations;
   options.function_tolerance = settings.function_tolerance;
   options.gradient_tolerance = settings.gradient_tolerance;

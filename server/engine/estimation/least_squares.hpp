@@ -42,8 +42,13 @@ class IterationWatcher final : public ceres::IterationCallback {
 };
 
 // Levenberg-Marquardt with a dense QR (few unknowns, many residuals), one
-// thread, silent; `watcher` attached.
-ceres::Solver::Options solver_options(const OptimizerSettings& settings, IterationWatcher* watcher);
+// thread, silent; `watcher` attached. On a problem with bounds Ceres runs a
+// projected line search along each step; `line_search` says how it fits its
+// trials: CUBIC evaluates each with its gradient (worth it when the gradient
+// comes with the residuals), BISECTION the cost alone (when a gradient costs
+// many more evaluations, as central differences do).
+ceres::Solver::Options solver_options(const OptimizerSettings& settings, IterationWatcher* watcher,
+                                      ceres::LineSearchInterpolationType line_search);
 
 // Ceres reports through glog; riccati reports what the optimiser did in its
 // results and logs through spdlog, so glog is kept quiet (it would write to

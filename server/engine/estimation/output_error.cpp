@@ -2,6 +2,7 @@
 
 #include <ceres/ceres.h>
 
+#include <array>
 #include <cmath>
 #include <limits>
 #include <memory>
@@ -47,29 +48,27 @@ class ExperimentCost final : public ceres::CostFunction {
     const Eigen::Map<const Eigen::VectorXd> x0(parameters[1], nx);
     const bool theta_jacobian = jacobians != nullptr && jacobians[0] != nullptr;
     const bool x0_jacobian = jacobians != nullptr && jacobians[1] != nullptr;
-    const Status simulated =
-        simulator_.simulate(experiment_.data.t, experiment_.data.u, x0, theta_, theta_jacobian || x0_jacobian, &record_);
-    ++counters_->evaluations;
-    if (theta_jacobian || x0_jacobian) ++counters_->jacobian_evaluations;
-    if (!simulated.is_ok()) {
-      counters_->last_failure = simulated;
+    const Simulation& simulation = simulate(x0, theta_jacobian || x0_jacobian);
+    if (!simulation.status.is_ok()) {
+      counters_->last_failure = simulation.status;
       return false;  // Ceres rejects the step and shrinks the trust region
     }
+    const SimulatedRecord& record = simulation.record;
     const bool masked = experiment_.mask.size() != 0;
     for (Eigen::Index k = 0; k < N; ++k) {
       for (Eigen::Index i = 0; i < ny; ++i) {
         const Eigen::Index row = k * ny + i;
         const double w = weights_[i] * (masked ? experiment_.mask(i, k) : 1.0);
-        residuals[row] = w * (record_.y(i, k) - experiment_.data.y(i, k));
+        residuals[row] = w * (record.y(i, k) - experiment_.data.y(i, k));
         if (theta_jacobian) {
           double* jrow = jacobians[0] + row * ntheta;
           for (Eigen::Index j = 0; j < ntheta; ++j) {
-            jrow[j] = w * record_.dy_dtheta(row, j) * theta_per_phi(parameters_, j, theta_[j]);
+            jrow[j] = w * record.dy_dtheta(row, j) * theta_per_phi(parameters_, j, theta_[j]);
           }
         }
         if (x0_jacobian) {
           double* jrow = jacobians[1] + row * nx;
-          for (Eigen::Index j = 0; j < nx; ++j) jrow[j] = w * record_.dy_dx0(row, j);
+          for (Eigen::Index j = 0; j < nx; ++j) jrow[j] = w * record.dy_dx0(row, j);
         }
       }
     }
@@ -78,18 +77,55 @@ class ExperimentCost final : public ceres::CostFunction {
 
   // The simulation with sensitivities at (theta, x0): the final analysis.
   Result<const SimulatedRecord*> analyse(const Eigen::VectorXd& theta, const Eigen::VectorXd& x0) const {
-    RICCATI_RETURN_IF_ERROR(simulator_.simulate(experiment_.data.t, experiment_.data.u, x0, theta, true, &record_));
-    return &record_;
+    theta_ = theta;
+    const Simulation& simulation = simulate(x0, true);
+    RICCATI_RETURN_IF_ERROR(simulation.status);
+    return &simulation.record;
   }
 
  private:
+  // A simulation of the record, and the point it was made at.
+  struct Simulation {
+    bool made = false, sensitivities = false;
+    Eigen::VectorXd theta, x0;
+    Status status;
+    SimulatedRecord record;
+  };
+
+  // The simulation at (theta_, x0), with sensitivities if asked, made only
+  // when neither of the last two is it. Ceres evaluates a point more than
+  // once: in the line search with its gradient, then its cost as the
+  // candidate, then its Jacobian once accepted; a step projected onto the
+  // bounds lands on the same point again and again (failing the same way
+  // each time). The analysis after the fit is at the last accepted point,
+  // one before the candidate that ended the fit.
+  const Simulation& simulate(const Eigen::Ref<const Eigen::VectorXd>& x0, bool sensitivities) const {
+    for (std::size_t i = 0; i < simulations_.size(); ++i) {
+      const Simulation& s = simulations_[i];
+      if (s.made && (s.sensitivities || !sensitivities) && s.theta == theta_ && s.x0 == x0) {
+        if (i > 0) std::swap(simulations_[0], simulations_[i]);
+        return simulations_[0];
+      }
+    }
+    std::swap(simulations_[0], simulations_[1]);  // the older one is overwritten
+    Simulation& s = simulations_[0];
+    ++counters_->evaluations;
+    if (sensitivities) ++counters_->jacobian_evaluations;
+    s.status = simulator_.simulate(experiment_.data.t, experiment_.data.u, x0, theta_, sensitivities, &s.record);
+    s.made = true;
+    s.sensitivities = sensitivities;
+    s.theta = theta_;
+    s.x0 = x0;
+    return s;
+  }
+
   const Experiment& experiment_;
   mutable SensitivitySimulator simulator_;
   const ParameterSettings& parameters_;
   const Eigen::VectorXd weights_;
   Counters* const counters_;
   mutable Eigen::VectorXd theta_;
-  mutable SimulatedRecord record_;
+  mutable std::array<Simulation, 2> simulations_;  // the latest first
 };
 
 std::string number(double v) {
@@ -147,7 +183,10 @@ Result<EstimationResult> output_error(ModelPtr model, const std::vector<Experime
   result.param_names = model->param_names();
   result.gradient = "exact: forward sensitivities of the simulation";
   IterationWatcher watcher(hooks, &result.cost_history);
-  const ceres::Solver::Options options = solver_options(settings.optimizer, &watcher);
+  // The line search's trials with their gradients: a trial that is accepted
+  // (most are) then has its Jacobian ready, one sensitivity simulation where
+  // the cost alone and then the Jacobian would take a simulation more.
+  const ceres::Solver::Options options = solver_options(settings.optimizer, &watcher, ceres::CUBIC);
   ceres::Solver::Summary summary;
   ceres::Solve(options, &problem, &summary);
   if (hooks.stop.stop_requested()) {

@@ -3,17 +3,22 @@
 #include <span>
 #include <string>
 
+#include "engine/models/variational.hpp"
+
 namespace riccati {
 
-// The right-hand side of [x; vec S] (S column-major, nx x m with m = ntheta,
-// or ntheta + nx with the initial states' columns), or of x alone.
+// The right-hand side of [x; vec S] (S column-major: dx/dtheta, nx x
+// ntheta, or [dx/dx0 dx/dtheta] with the initial states' columns), or of x
+// alone.
 class SensitivitySimulator::Rhs final : public OdeRhs {
  public:
   Rhs(const Model& model, HoldOrder hold, bool x0_columns)
       : model_(model),
         hold_(hold, model.nu()),
-        m_(model.ntheta() + (x0_columns ? model.nx() : 0)),
-        jac_(model.nx(), model.nz()) {}
+        unforced_(x0_columns ? model.nx() : 0),
+        m_(model.ntheta() + unforced_),
+        jac_(model.nx(), model.nz()),
+        variational_(variational_derivative_for(model.nx())) {}
 
   void set_interval(double t0, double t1, const double* u0, const double* u1, const double* theta,
                     bool sensitivities) {
@@ -22,26 +27,23 @@ class SensitivitySimulator::Rhs final : public OdeRhs {
     sensitivities_ = sensitivities;
   }
 
-  Eigen::Index columns() const { return m_; }
+  int columns() const { return m_; }
 
   Status eval(double t, const double* w, double* wdot) override {
-    const int nx = model_.nx(), ntheta = model_.ntheta();
+    const int nx = model_.nx();
     const double* u = hold_.at(t);
     if (!sensitivities_) return model_.f(t, u, 1, 1, w, theta_, wdot);
     RICCATI_RETURN_IF_ERROR(model_.f_jacobian(t, u, w, theta_, wdot, jac_.data()));
-    // S' = f_x S + [f_theta 0]
-    const Eigen::Map<const Eigen::MatrixXd> S(w + nx, nx, m_);
-    Eigen::Map<Eigen::MatrixXd> dS(wdot + nx, nx, m_);
-    dS.noalias() = jac_.leftCols(nx) * S;
-    dS.leftCols(ntheta) += jac_.rightCols(ntheta);
+    variational_(nx, m_, unforced_, jac_.data(), w + nx, wdot + nx);
     return Status::ok();
   }
 
  private:
   const Model& model_;
   InputHold hold_;
-  const Eigen::Index m_;
+  const int unforced_, m_;
   Eigen::MatrixXd jac_;  // [f_x f_theta], nx x nz
+  const VariationalDerivativeFn variational_;
   const double* theta_ = nullptr;
   bool sensitivities_ = true;
 };
@@ -91,7 +93,7 @@ Status SensitivitySimulator::simulate(const Eigen::VectorXd& t, const Eigen::Mat
   if (sensitivities) {
     Eigen::Map<Eigen::MatrixXd> S(w_.data() + nx, nx, m);
     S.setZero();
-    if (x0_sensitivities_) S.rightCols(nx).setIdentity();
+    if (x0_sensitivities_) S.leftCols(nx).setIdentity();
   }
   const Eigen::Index size = sensitivities ? w_.size() : nx;
   Integrator& integrator = sensitivities ? *sensitivity_integrator_ : *values_integrator_;
@@ -112,9 +114,9 @@ Status SensitivitySimulator::simulate(const Eigen::VectorXd& t, const Eigen::Mat
     out->y.col(k) = y_;
     const Eigen::Map<const Eigen::MatrixXd> S(w_.data() + nx, nx, m);
     auto rows_theta = out->dy_dtheta.middleRows(k * ny, ny);
-    rows_theta.noalias() = g_jac_.leftCols(nx) * S.leftCols(ntheta);
+    rows_theta.noalias() = g_jac_.leftCols(nx) * S.rightCols(ntheta);
     rows_theta += g_jac_.rightCols(ntheta);
-    if (x0_sensitivities_) out->dy_dx0.middleRows(k * ny, ny).noalias() = g_jac_.leftCols(nx) * S.rightCols(nx);
+    if (x0_sensitivities_) out->dy_dx0.middleRows(k * ny, ny).noalias() = g_jac_.leftCols(nx) * S.leftCols(nx);
   }
   return Status::ok();
 }

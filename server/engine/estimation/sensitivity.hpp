@@ -2,11 +2,12 @@
 // the variational equations integrated alongside the states (IDENTIFICATION.md),
 //
 //     x' = f(x, theta, u, t),              x(t0) = x0
-//     S' = f_x S + [f_theta  0],           S(t0) = [0  I],   S = [dx/dtheta  dx/dx0]
+//     S' = f_x S + [0  f_theta],           S(t0) = [I  0],   S = [dx/dx0  dx/dtheta]
 //     y_k = g(x_k, theta, u_k, t_k),       dy_k/dtheta = g_x S_theta + g_theta,  dy_k/dx0 = g_x S_x0
 //
-// with the model's exact Jacobians f_x, f_theta, g_x, g_theta (dual numbers
-// in the plugin) and the inputs held between samples as the filters hold
+// (models/variational.hpp; without dx/dx0 when the initial states are
+// known) with the model's exact Jacobians f_x, f_theta, g_x, g_theta (dual
+// numbers in the plugin) and the inputs held between samples as the filters hold
 // them. The same integrator steps carry x and S, so with a fixed-step
 // integrator S is the exact derivative of the discretised solution: an
 // optimiser sees the gradient of the very cost it minimises.

@@ -9,6 +9,9 @@
 //     Pthth' = Qthth, so Pthth(t) = Pthth(t0) + Qthth (t - t0) exactly,
 // and only [x; Pxx; Pxth] (nx + nx^2 + nx ntheta values, against nx + nz^2
 // for the whole P) go through the integrator. The result is the same P.
+// With the parameters held (no covariance and no process noise on them, as
+// maximum likelihood's predictor has them) Pxth and Pthth stay zero, and
+// [x; Pxx] alone is integrated.
 // At a sample, with G = dg/d[x; theta] at the prior:
 //     S = G P G^T + R,  K = P G^T S^-1,  z += K (y - g),
 //     P = (I - K G) P (I - K G)^T + K R K^T   (Joseph form, or (I - K G) P)
@@ -18,12 +21,13 @@
 // C_k = Cov(z_k|k, z_k+1|k) = P_k|k Phi^T (the RTS smoother's gain is
 // G_k = C_k P_k+1|k^-1). Its parameter rows stay [0 I], so only the nx rows
 // Phi_x = [Phi_xx Phi_xth] are integrated, with the rest:
-//     Phi_x' = Jx Phi_x + [0 Jth].
+//     Phi_x' = Jx Phi_x + [0 Jth]   (the variational equations, models/variational.hpp).
 #include <Eigen/Core>
 #include <algorithm>
 #include <string>
 
 #include "engine/filters/kalman_filter.hpp"
+#include "engine/models/variational.hpp"
 
 namespace riccati {
 
@@ -79,42 +83,6 @@ void covariance_derivative(int nx_runtime, int nth, const double* __restrict J, 
 using CovarianceDerivativeFn = void (*)(int, int, const double*, const double*, const double*, const double*,
                                         const double*, double*, double*, double*);
 
-// The derivative of the transition matrix's state rows, Phi_x' = Jx Phi_x +
-// [0 Jth] (see the top), column-major: J = [Jx Jth] and Phi_x, dPhi_x nx x nz.
-// Unrolled per nx as covariance_derivative.
-template <int NX>
-void transition_derivative(int nx_runtime, int nth, const double* __restrict J, const double* __restrict Phi,
-                           double* __restrict dPhi) {
-  const int nx = NX > 0 ? NX : nx_runtime;
-  const int nz = nx + nth;
-  for (int c = 0; c < nz; ++c) {
-    double* d = dPhi + c * nx;
-    if (c < nx) {
-      for (int i = 0; i < nx; ++i) d[i] = 0.0;
-    } else {
-      for (int i = 0; i < nx; ++i) d[i] = J[i + c * nx];  // Jth's column c - nx
-    }
-    for (int k = 0; k < nx; ++k) {
-      const double p = Phi[k + c * nx];
-      for (int i = 0; i < nx; ++i) d[i] += J[i + k * nx] * p;
-    }
-  }
-}
-
-using TransitionDerivativeFn = void (*)(int, int, const double*, const double*, double*);
-
-TransitionDerivativeFn transition_derivative_for(int nx) {
-  switch (nx) {
-    case 1: return &transition_derivative<1>;
-    case 2: return &transition_derivative<2>;
-    case 3: return &transition_derivative<3>;
-    case 4: return &transition_derivative<4>;
-    case 5: return &transition_derivative<5>;
-    case 6: return &transition_derivative<6>;
-    default: return &transition_derivative<0>;
-  }
-}
-
 CovarianceDerivativeFn covariance_derivative_for(int nx) {
   switch (nx) {
     case 1: return &covariance_derivative<1>;
@@ -130,13 +98,17 @@ CovarianceDerivativeFn covariance_derivative_for(int nx) {
 class Ekf final : public KalmanFilter {
  public:
   Ekf(ModelPtr model, const FilterSettings& settings, std::unique_ptr<Integrator> integrator)
-      : KalmanFilter(std::move(model), settings), integrator_(std::move(integrator)), rhs_(this), smoothing_rhs_(this) {
+      : KalmanFilter(std::move(model), settings),
+        integrator_(std::move(integrator)),
+        rhs_(this),
+        smoothing_rhs_(this),
+        held_rhs_(this) {
     const int nx = model_->nx(), nz = model_->nz(), ny = model_->ny();
     const int nth = nz - nx;
     // [x; Pxx; Pxth], and Phi_x when smoothing.
     y_.resize(nx + nx * nx + nx * nth + (settings_.smoothing ? nx * nz : 0));
     if (settings_.smoothing) {
-      transition_derivative_ = transition_derivative_for(nx);
+      transition_derivative_ = variational_derivative_for(nx);
       P_start_.resize(nz, nz);
     }
     jac_f_.resize(nx, nz);
@@ -144,6 +116,8 @@ class Ekf final : public KalmanFilter {
     Pthth0_.resize(nth, nth);
     Pthth_.resize(nth, nth);
     q_thth_is_zero_ = settings_.Q.bottomRightCorner(nth, nth).isZero(0.0);
+    q_theta_is_zero_ = settings_.Q.rightCols(nth).isZero(0.0);
+    Qxx_ = settings_.Q.topLeftCorner(nx, nx);
     covariance_derivative_ = covariance_derivative_for(nx);
     G_.resize(ny, nz);
     PGt_.resize(nz, ny);
@@ -159,27 +133,37 @@ class Ekf final : public KalmanFilter {
                               std::to_string(t_));
     }
     const int nx = model_->nx(), nz = model_->nz(), nth = nz - nx;
+    // Parameters held (no covariance, no process noise: maximum likelihood's
+    // predictor): Pxth' = Jx Pxth + Jth Pthth + Qxth = 0 keeps Pxth and Pthth
+    // zero, so only [x; Pxx] is integrated, and Pxx' loses only terms that
+    // were exact zeros: the same P.
+    const bool held = !settings_.smoothing && q_theta_is_zero_ && P_.rightCols(nth).isZero(0.0);
     double* y = y_.data();
     Eigen::Map<Eigen::VectorXd>(y, nx) = z_.head(nx);
     Eigen::Map<Eigen::MatrixXd>(y + nx, nx, nx) = P_.topLeftCorner(nx, nx);
-    Eigen::Map<Eigen::MatrixXd>(y + nx + nx * nx, nx, nth) = P_.topRightCorner(nx, nth);
-    Pthth0_ = P_.bottomRightCorner(nth, nth);
-    Pthth_ = Pthth0_;
+    if (!held) {
+      Eigen::Map<Eigen::MatrixXd>(y + nx + nx * nx, nx, nth) = P_.topRightCorner(nx, nth);
+      Pthth0_ = P_.bottomRightCorner(nth, nth);
+      Pthth_ = Pthth0_;
+    }
     double* Phi_x = y + nx + nx * nx + nx * nth;
     if (settings_.smoothing) {
       P_start_ = P_;
       Eigen::Map<Eigen::MatrixXd>(Phi_x, nx, nz).setIdentity();  // Phi_x(t_k) = [I 0]
     }
     hold_.set_interval(t_, t1, u0, u1);
-    Status s = settings_.smoothing ? integrator_->integrate(smoothing_rhs_, t_, t1, y_)
-                                   : integrator_->integrate(rhs_, t_, t1, y_);
+    Status s = held                  ? integrator_->integrate(held_rhs_, t_, t1, {y, std::size_t(nx + nx * nx)})
+               : settings_.smoothing ? integrator_->integrate(smoothing_rhs_, t_, t1, y_)
+                                     : integrator_->integrate(rhs_, t_, t1, y_);
     if (!s.is_ok()) return s.with_context("EKF prediction from t = " + std::to_string(t_));
     z_.head(nx) = Eigen::Map<const Eigen::VectorXd>(y, nx);
     const Eigen::Map<const Eigen::MatrixXd> Pxx(y + nx, nx, nx);
     P_.topLeftCorner(nx, nx) = 0.5 * (Pxx + Pxx.transpose());
-    P_.topRightCorner(nx, nth) = Eigen::Map<const Eigen::MatrixXd>(y + nx + nx * nx, nx, nth);
-    P_.bottomLeftCorner(nth, nx) = P_.topRightCorner(nx, nth).transpose();
-    P_.bottomRightCorner(nth, nth) = Pthth0_ + settings_.Q.bottomRightCorner(nth, nth) * (t1 - t_);
+    if (!held) {
+      P_.topRightCorner(nx, nth) = Eigen::Map<const Eigen::MatrixXd>(y + nx + nx * nx, nx, nth);
+      P_.bottomLeftCorner(nth, nx) = P_.topRightCorner(nx, nth).transpose();
+      P_.bottomRightCorner(nth, nth) = Pthth0_ + settings_.Q.bottomRightCorner(nth, nth) * (t1 - t_);
+    }
     t_ = t1;
     if (settings_.smoothing) {
       // C = P_k|k Phi^T with Phi = [Phi_x; 0 I]: P_k|k Phi_x^T, then P_k|k's parameter columns.
@@ -218,44 +202,53 @@ class Ekf final : public KalmanFilter {
   }
 
  private:
-  // The joint system [x; vec(Pxx); vec(Pxth)] integrated between two samples,
-  // and Phi_x after it with kTransition (smoothing): a system of its own, so
-  // that the filter without it evaluates exactly what it did before.
-  template <bool kTransition>
+  // What is integrated between two samples: the joint system [x; vec(Pxx);
+  // vec(Pxth)] (kJoint), with Phi_x after it (kTransition: smoothing; a system
+  // of its own, so that the filter without it evaluates exactly what it did
+  // before), or [x; vec(Pxx)] alone with the parameters held (kHeld).
+  enum class System { kJoint, kTransition, kHeld };
+  template <System kSystem>
   class Rhs final : public OdeRhs {
    public:
     explicit Rhs(Ekf* ekf) : ekf_(ekf) {}
     Status eval(double t, const double* y, double* ydot) override {
-      return ekf_->derivatives<kTransition>(t, y, ydot);
+      return ekf_->derivatives<kSystem>(t, y, ydot);
     }
 
    private:
     Ekf* ekf_;
   };
 
-  template <bool kTransition>
+  template <System kSystem>
   Status derivatives(double t, const double* y, double* ydot) {
     const int nx = model_->nx(), nth = model_->ntheta();
     const double* theta = z_.data() + nx;  // constant over the interval
     RICCATI_RETURN_IF_ERROR(model_->f_jacobian(t, hold_.at(t), y, theta, ydot, jac_f_.data()));
-    if (!q_thth_is_zero_) Pthth_ = Pthth0_ + settings_.Q.bottomRightCorner(nth, nth) * (t - hold_.t0());
     const double* Pxx = y + nx;
+    if constexpr (kSystem == System::kHeld) {
+      covariance_derivative_(nx, 0, jac_f_.data(), Pxx, nullptr, nullptr, Qxx_.data(), A_.data(), ydot + nx, nullptr);
+      return Status::ok();
+    }
+    if (!q_thth_is_zero_) Pthth_ = Pthth0_ + settings_.Q.bottomRightCorner(nth, nth) * (t - hold_.t0());
     const double* Pxth = Pxx + nx * nx;
     covariance_derivative_(nx, nth, jac_f_.data(), Pxx, Pxth, Pthth_.data(), settings_.Q.data(), A_.data(),
                           ydot + nx, ydot + nx + nx * nx);
-    if constexpr (kTransition) {
+    if constexpr (kSystem == System::kTransition) {
       const int offset = nx + nx * nx + nx * nth;
-      transition_derivative_(nx, nth, jac_f_.data(), y + offset, ydot + offset);
+      transition_derivative_(nx, nx + nth, nx, jac_f_.data(), y + offset, ydot + offset);
     }
     return Status::ok();
   }
 
   std::unique_ptr<Integrator> integrator_;
-  Rhs<false> rhs_;
-  Rhs<true> smoothing_rhs_;
+  Rhs<System::kJoint> rhs_;
+  Rhs<System::kTransition> smoothing_rhs_;
+  Rhs<System::kHeld> held_rhs_;
   bool q_thth_is_zero_ = true;
+  bool q_theta_is_zero_ = true;  // Q's parameter rows and columns: no process noise on them
+  Eigen::MatrixXd Qxx_;          // Q's states' block, alone (for kHeld: a covariance kernel with nth = 0)
   CovarianceDerivativeFn covariance_derivative_ = nullptr;
-  TransitionDerivativeFn transition_derivative_ = nullptr;
+  VariationalDerivativeFn transition_derivative_ = nullptr;  // Phi_x' = Jx Phi_x + [0 Jth]
   Eigen::MatrixXd P_start_;  // P_k|k, kept over the prediction when smoothing
   // Work space, sized once.
   std::vector<double> y_;

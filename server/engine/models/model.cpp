@@ -48,18 +48,16 @@ int index_of(const std::vector<std::string>& names, std::string_view n) {
   return -1;
 }
 
-// True if no value is NaN or infinite: v - v is 0 for every finite v and NaN
-// otherwise, so one test of a sum replaces a branch per value. Four partial
-// sums keep the additions from waiting on each other (this runs on every
-// model evaluation).
+// True if no value is NaN or infinite. One scalar test per value, on
+// purpose: the values were just stored one by one by the plugin, and a
+// vectorised sum would load them in pairs before those stores complete, a
+// store-forwarding stall per pair that costs more than the tests (this runs
+// on every model evaluation).
 bool all_finite(const double* v, std::size_t n) {
-  double acc[4] = {0.0, 0.0, 0.0, 0.0};
-  std::size_t i = 0;
-  for (; i + 4 <= n; i += 4) {
-    for (int k = 0; k < 4; ++k) acc[k] += v[i + k] - v[i + k];
+  for (std::size_t i = 0; i < n; ++i) {
+    if (!std::isfinite(v[i])) return false;
   }
-  for (; i < n; ++i) acc[0] += v[i] - v[i];
-  return (acc[0] + acc[1]) + (acc[2] + acc[3]) == 0.0;
+  return true;
 }
 
 // Scratch space for finite differences, per thread so that concurrent

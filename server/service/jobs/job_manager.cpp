@@ -485,7 +485,10 @@ Result<std::string> JobManager::execute(const JobRecord& job, std::stop_token st
     const Counters counters{p.optimizer, p.pass, p.passes, p.iteration, p.sample, p.samples, p.cost};
     const auto now = std::chrono::steady_clock::now();
     const bool pass_done = !p.optimizer && p.sample == p.samples;
-    if (!pass_done && now - last_publish < kProgressInterval) {
+    // Samples come by the thousand a second; an optimiser's iterations are
+    // few (each at least a run over the record), and a fast job would
+    // otherwise end before any was told.
+    if (!pass_done && !p.optimizer && now - last_publish < kProgressInterval) {
       held_back = counters;
       return;
     }

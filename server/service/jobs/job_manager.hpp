@@ -13,9 +13,11 @@
 // engine; RPC threads submit, read and wait.
 //
 // Watchers of a job running here wait on a version number that changes with
-// every state or progress change (progress is published at most every
-// kProgressInterval); watchers of a job queued or running elsewhere poll the
-// store, which has its progress at every lease renewal and pass.
+// every state or progress change (a filter's progress through its samples
+// is published at most every kProgressInterval, each optimiser iteration
+// and each pass's end always); watchers of a job queued or running
+// elsewhere poll the store, which has its progress at every lease renewal
+// and pass.
 #pragma once
 
 #include "service/limits.hpp"
