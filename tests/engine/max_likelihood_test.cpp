@@ -56,6 +56,8 @@ TEST(MaxLikelihood, TwoTankFromHensensStartRecoversTheTruth) {
   RecordProperty("iterations", r->estimate.iterations);
   RecordProperty("evaluations", r->estimate.evaluations);
   EXPECT_LT(worst_relative_error(r->estimate.theta, truth), 1e-8);
+  ASSERT_FALSE(r->estimate.cost_history.empty());
+  EXPECT_NEAR(r->estimate.cost_history.back(), r->estimate.cost, 1e-9 * std::abs(r->estimate.cost));
 }
 
 // The two-tank record of the model itself with measurement noise of a known
@@ -127,6 +129,11 @@ TEST(MaxLikelihood, EstimatesTheMeasurementNoise) {
     EXPECT_NEAR(r->noise.r_std[i] / r->noise.r[i], std::sqrt(2.0 / 1000.0), 0.01);
   }
   EXPECT_LT(worst_relative_error(r->estimate.theta, model->theta_default()), 0.01);
+  // The history says L itself, R estimated or not: its last value is the
+  // criterion at the estimate, computed apart; and it went down.
+  ASSERT_GE(r->estimate.cost_history.size(), 2u);
+  EXPECT_NEAR(r->estimate.cost_history.back(), r->estimate.cost, 1e-9 * std::abs(r->estimate.cost));
+  EXPECT_LT(r->estimate.cost_history.back(), r->estimate.cost_history.front());
 }
 
 // Process noise lets the predictor follow the data where a simulation cannot:

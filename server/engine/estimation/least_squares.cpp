@@ -57,8 +57,8 @@ Eigen::VectorXd LeastSquaresUnknowns::theta(const ParameterSettings& p) const {
 }
 
 ceres::CallbackReturnType IterationWatcher::operator()(const ceres::IterationSummary& summary) {
-  history_->push_back(summary.cost);
-  if (hooks_.progress) hooks_.progress(EstimationProgress{summary.iteration, summary.cost});
+  history_->push_back(summary.cost + offset_);
+  if (hooks_.progress) hooks_.progress(EstimationProgress{summary.iteration, summary.cost + offset_});
   return hooks_.stop.stop_requested() ? ceres::SOLVER_ABORT : ceres::SOLVER_CONTINUE;
 }
 

@@ -33,12 +33,16 @@ bool estimates_x0(const Experiment& experiment);
 // Records the cost after each iteration, reports it, stops on request.
 class IterationWatcher final : public ceres::IterationCallback {
  public:
-  IterationWatcher(const EstimationHooks& hooks, std::vector<double>* history) : hooks_(hooks), history_(history) {}
+  // `offset`: what is added to the optimiser's cost to give the criterion
+  // that is reported (0 for output error; maximum likelihood's constant).
+  IterationWatcher(const EstimationHooks& hooks, std::vector<double>* history, double offset = 0.0)
+      : hooks_(hooks), history_(history), offset_(offset) {}
   ceres::CallbackReturnType operator()(const ceres::IterationSummary& summary) override;
 
  private:
   const EstimationHooks& hooks_;
   std::vector<double>* history_;
+  const double offset_;
 };
 
 // Levenberg-Marquardt with a dense QR (few unknowns, many residuals), one

@@ -439,7 +439,32 @@ Result<MaxLikelihoodResult> max_likelihood(ModelPtr model, const std::vector<Exp
   if (settings.estimate_measurement_noise) {
     problem.AddResidualBlock(new NoiseLevelResidual(likelihood.used_samples(), log_r_floor), nullptr, log_r.data());
   }
-  IterationWatcher watcher(hooks, &result.cost_history);
+  // The unknowns as one vector (the likelihood's and the Hessian's coordinates).
+  const auto unknowns_now = [&] {
+    Eigen::VectorXd v(unknowns.size());
+    for (int j = 0; j < ntheta; ++j) {
+      if (unknowns.theta[static_cast<std::size_t>(j)] >= 0) v[unknowns.theta[static_cast<std::size_t>(j)]] = blocks.phi[j];
+    }
+    for (std::size_t e = 0; e < experiments.size(); ++e) {
+      for (int j = 0; j < nx; ++j) {
+        if (unknowns.x0[e][static_cast<std::size_t>(j)] >= 0) v[unknowns.x0[e][static_cast<std::size_t>(j)]] = blocks.x0[e][j];
+      }
+    }
+    for (int j = 0; j < nx; ++j) {
+      if (unknowns.q[static_cast<std::size_t>(j)] >= 0) v[unknowns.q[static_cast<std::size_t>(j)]] = log_q[j];
+    }
+    for (int j = 0; j < ny; ++j) {
+      if (unknowns.r[static_cast<std::size_t>(j)] >= 0) v[unknowns.r[static_cast<std::size_t>(j)]] = log_r[j];
+    }
+    return v;
+  };
+  // Progress and the cost history say L itself, not the optimiser's cost:
+  // the two differ by a constant (see residuals()), measured once at the start.
+  Sums at_start;
+  RICCATI_RETURN_IF_ERROR(likelihood.evaluate(unknowns_now(), &at_start).with_context("the likelihood at the start"));
+  double solver_cost_at_start = 0.0;
+  problem.Evaluate(ceres::Problem::EvaluateOptions(), &solver_cost_at_start, nullptr, nullptr, nullptr);
+  IterationWatcher watcher(hooks, &result.cost_history, at_start.total() - solver_cost_at_start);
   // The line search's trials by their cost alone: a gradient is 2n more
   // filter runs. (Bisection, not a quadratic fit: on two-tank that took twice
   // the iterations.)
@@ -461,22 +486,7 @@ Result<MaxLikelihoodResult> max_likelihood(ModelPtr model, const std::vector<Exp
   result.converged = summary.termination_type == ceres::CONVERGENCE;
   result.termination = summary.message;
 
-  // The unknowns as one vector (the Hessian's coordinates).
-  Eigen::VectorXd v(unknowns.size());
-  for (int j = 0; j < ntheta; ++j) {
-    if (unknowns.theta[static_cast<std::size_t>(j)] >= 0) v[unknowns.theta[static_cast<std::size_t>(j)]] = blocks.phi[j];
-  }
-  for (std::size_t e = 0; e < experiments.size(); ++e) {
-    for (int j = 0; j < nx; ++j) {
-      if (unknowns.x0[e][static_cast<std::size_t>(j)] >= 0) v[unknowns.x0[e][static_cast<std::size_t>(j)]] = blocks.x0[e][j];
-    }
-  }
-  for (int j = 0; j < nx; ++j) {
-    if (unknowns.q[static_cast<std::size_t>(j)] >= 0) v[unknowns.q[static_cast<std::size_t>(j)]] = log_q[j];
-  }
-  for (int j = 0; j < ny; ++j) {
-    if (unknowns.r[static_cast<std::size_t>(j)] >= 0) v[unknowns.r[static_cast<std::size_t>(j)]] = log_r[j];
-  }
+  const Eigen::VectorXd v = unknowns_now();
 
   // The estimate and what the run shows there.
   Sums sums;
