@@ -24,6 +24,7 @@ struct Limits {
   std::int64_t max_passes = 10'000;                    // passes of one identification
   std::int64_t max_simulation_steps = 20'000'000;      // samples x substeps of one Simulate call
   std::int64_t max_simulations = 4;                    // Simulate calls running at once, all tenants
+  std::int64_t max_time_step_s = 3600;                 // a session's step between two measurements
 };
 
 struct LimitSpec {
@@ -46,6 +47,8 @@ inline constexpr LimitSpec kLimitSpecs[] = {
     {"max_simulation_steps", &Limits::max_simulation_steps,
      "Most integration steps (samples x substeps) of one Simulate call"},
     {"max_simulations", &Limits::max_simulations, "Most Simulate calls running at once, all tenants"},
+    {"max_time_step_s", &Limits::max_time_step_s,
+     "Longest step between two measurements of a session (s): a longer one is refused, the session goes on"},
 };
 
 // RESOURCE_EXHAUSTED: "limit <key> = <limit> reached: <what>".

@@ -51,6 +51,7 @@ class RunnerPerKind : public ::testing::TestWithParam<FilterKind> {};
 TEST_P(RunnerPerKind, ARefusedMeasurementChangesNothing) {
   const TwoTank& f = two_tank();
   OnlineRunner with_bad = f.runner(GetParam()), reference = f.runner(GetParam());
+  with_bad.set_max_time_step(3600.0);
   const double nan = std::numeric_limits<double>::quiet_NaN();
   for (Eigen::Index k = 0; k < 50; ++k) {
     ASSERT_TRUE(f.advance(reference, k).is_ok());
@@ -64,6 +65,7 @@ TEST_P(RunnerPerKind, ARefusedMeasurementChangesNothing) {
           with_bad.advance(t - 1.0, {u, 2}, {y, 2}),              // time goes backwards
           with_bad.advance(t + 0.5, {u, 1}, {y, 2}),              // one input short
           with_bad.advance(std::numeric_limits<double>::infinity(), {u, 2}, {y, 2}),
+          with_bad.advance(1e308, {u, 2}, {y, 2}),                 // a step longer than the maximum
       };
       for (const Status& s : refused) EXPECT_EQ(s.code(), StatusCode::kInvalidArgument) << s.message();
       EXPECT_FALSE(with_bad.diverged());

@@ -968,10 +968,12 @@ TEST_F(DaemonTest, StreamRefusesBadMeasurementsOneByOneAndGoesOn) {
   add(1.0, {0.1, 0.03}, {0.4, 0.15});           // fine
   add(0.5, {0.1, 0.03}, {0.4, 0.15});           // time going backwards
   add(2.0, {0.1, 0.03}, {0.41, 0.15});          // fine
+  add(1e308, {0.1, 0.03}, {0.41, 0.15});        // a clock's glitch: a step past max_time_step_s
+  add(3.0, {0.1, 0.03}, {0.41, 0.15});          // fine: the session did not diverge
   ASSERT_TRUE(stream->Write(request));
   v1::StreamResponse response;
   ASSERT_TRUE(stream->Read(&response));
-  ASSERT_EQ(response.results_size(), 6);
+  ASSERT_EQ(response.results_size(), 8);
   EXPECT_TRUE(response.results(0).has_estimate());
   EXPECT_EQ(response.results(1).error().code(), static_cast<int>(grpc::StatusCode::INVALID_ARGUMENT));
   EXPECT_NE(response.results(1).error().message().find("output h1 is not finite"), std::string::npos);
@@ -980,6 +982,10 @@ TEST_F(DaemonTest, StreamRefusesBadMeasurementsOneByOneAndGoesOn) {
   EXPECT_NE(response.results(4).error().message().find("backwards"), std::string::npos);
   EXPECT_TRUE(response.results(5).has_estimate());
   EXPECT_EQ(response.results(5).sequence(), 5u);
+  EXPECT_EQ(response.results(6).error().code(), static_cast<int>(grpc::StatusCode::INVALID_ARGUMENT));
+  EXPECT_NE(response.results(6).error().message().find("more than the 3600 s a step may be"), std::string::npos)
+      << response.results(6).error().message();
+  EXPECT_TRUE(response.results(7).has_estimate()) << response.results(7).ShortDebugString();
 
   // A second stream on the same session is refused while this one is open.
   {
@@ -999,10 +1005,10 @@ TEST_F(DaemonTest, StreamRefusesBadMeasurementsOneByOneAndGoesOn) {
   auto resumed = sessions_->Stream(&ctx3);
   ASSERT_TRUE(resumed->Write(open));
   v1::StreamRequest next;
-  testing::add_measurement(next, 1.5, {0.1, 0.03}, {0.4, 0.15});  // not after t = 2: refused, so the session kept its time
+  testing::add_measurement(next, 2.5, {0.1, 0.03}, {0.4, 0.15});  // not after t = 3: refused, so the session kept its time
   ASSERT_TRUE(resumed->Write(next));
   ASSERT_TRUE(resumed->Read(&response));
-  EXPECT_NE(response.results(0).error().message().find("after t = 2"), std::string::npos)
+  EXPECT_NE(response.results(0).error().message().find("after t = 3"), std::string::npos)
       << response.results(0).error().message();
   resumed->WritesDone();
   EXPECT_TRUE(resumed->Finish().ok());

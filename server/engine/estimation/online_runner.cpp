@@ -2,6 +2,7 @@
 
 #include <algorithm>
 #include <cmath>
+#include <cstdio>
 #include <string>
 
 namespace riccati {
@@ -128,6 +129,12 @@ Status OnlineRunner::check(double t, std::span<const double> u, std::span<const 
   if (started_ && !(t > filter_->time())) {
     return invalid_argument("time goes backwards (or repeats): t = " + std::to_string(t) +
                             " after t = " + std::to_string(filter_->time()));
+  }
+  if (started_ && max_time_step_ > 0.0 && t - filter_->time() > max_time_step_) {
+    char text[200];
+    std::snprintf(text, sizeof text, "time jumps by %.6g s (t = %.6g after t = %.6g), more than the %.6g s a step may be",
+                  t - filter_->time(), t, filter_->time(), max_time_step_);
+    return invalid_argument(text);
   }
   return Status::ok();
 }

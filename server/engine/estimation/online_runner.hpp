@@ -74,6 +74,12 @@ class OnlineRunner {
   Status set_parameter_bounds(Eigen::VectorXd lower, Eigen::VectorXd upper);
   const Eigen::VectorXi& parameter_bound_hits() const { return hits_; }
 
+  // The longest step between two measurements a run takes (seconds; 0: any).
+  // A longer one (a clock's glitch: t = 1e308 after t = 3) is refused like a
+  // bad measurement, changing nothing, instead of being integrated into a
+  // divergence that would end the run for good.
+  void set_max_time_step(double seconds) { max_time_step_ = seconds; }
+
   bool started() const { return started_; }
   bool diverged() const { return !divergence_.is_ok(); }
   const Status& divergence() const { return divergence_; }
@@ -105,6 +111,7 @@ class OnlineRunner {
   std::unique_ptr<Filter> filter_;
   InitialEstimate initial_;
   bool started_ = false;
+  double max_time_step_ = 0.0;
   Status divergence_;
   Eigen::VectorXd u_last_;  // [nu]
   Eigen::VectorXd lower_, upper_;  // [ntheta], or empty

@@ -106,6 +106,7 @@ Result<std::shared_ptr<Session>> SessionManager::build(std::string id, const std
                            initial_estimate_from_proto(request.initial_state(), request.theta0(), request.p0(),
                                                        request.filter(), *model));
   RICCATI_ASSIGN_OR_RETURN(OnlineRunner runner, OnlineRunner::create(model, settings, std::move(initial)));
+  runner.set_max_time_step(static_cast<double>(limits_.max_time_step_s));
   return std::make_shared<Session>(std::move(id), tenant, request, created_ms, std::move(runner));
 }
 
