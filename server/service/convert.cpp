@@ -1,18 +1,57 @@
 #include "service/convert.hpp"
 
+#include <algorithm>
 #include <cmath>
 
 namespace riccati::service {
 
+// What a message may show of the bytes it quotes (a CSV header, a cell, a
+// file name): valid UTF-8 as it is, control characters and invalid bytes as
+// \xNN, and at most kMaxMessage bytes of it, so that junk uploaded is not
+// echoed raw into a client's terminal or log.
+std::string printable(const std::string& text) {
+  constexpr std::size_t kMaxMessage = 2048;
+  std::string out;
+  out.reserve(std::min(text.size(), kMaxMessage) + 16);
+  auto escape = [&out](unsigned char c) {
+    static const char* hex = "0123456789abcdef";
+    out += "\\x";
+    out += hex[c >> 4];
+    out += hex[c & 15];
+  };
+  std::size_t i = 0;
+  while (i < text.size() && out.size() < kMaxMessage) {
+    const auto c = static_cast<unsigned char>(text[i]);
+    if (c >= 0x20 && c < 0x7f) {
+      out += static_cast<char>(c);
+      ++i;
+      continue;
+    }
+    // A multi-byte UTF-8 sequence: its lead byte says how long it is.
+    const std::size_t length = (c & 0xe0) == 0xc0 ? 2 : (c & 0xf0) == 0xe0 ? 3 : (c & 0xf8) == 0xf0 ? 4 : 0;
+    bool valid = length > 0 && i + length <= text.size() && c != 0xc0 && c != 0xc1 && c < 0xf5;
+    for (std::size_t k = 1; valid && k < length; ++k) valid = (static_cast<unsigned char>(text[i + k]) & 0xc0) == 0x80;
+    if (valid) {
+      out.append(text, i, length);
+      i += length;
+    } else {
+      escape(c);
+      ++i;
+    }
+  }
+  if (i < text.size()) out += " ... (" + std::to_string(text.size() - i) + " more bytes)";
+  return out;
+}
+
 grpc::Status to_grpc(const Status& status) {
   if (status.is_ok()) return grpc::Status::OK;
-  return {static_cast<grpc::StatusCode>(status.code()), status.message()};
+  return {static_cast<grpc::StatusCode>(status.code()), printable(status.message())};
 }
 
 v1::Error to_error(const Status& status) {
   v1::Error e;
   e.set_code(static_cast<int>(status.code()));
-  e.set_message(status.message());
+  e.set_message(printable(status.message()));
   return e;
 }
 

@@ -22,7 +22,11 @@
 namespace riccati::service {
 
 // Status <-> gRPC (the codes are the same numbers).
+// The gRPC status of a Status, its message printable().
 grpc::Status to_grpc(const Status& status);
+// A message as a client may be shown it: valid UTF-8 kept, control
+// characters and invalid bytes as \xNN, at most 2 KiB.
+std::string printable(const std::string& text);
 v1::Error to_error(const Status& status);
 // The inverse of to_error (a stored divergence); a code of 0 reads as `otherwise`.
 Status from_error(const v1::Error& error, StatusCode otherwise);

@@ -913,6 +913,28 @@ TEST_F(DaemonTest, BadInputGetsClearErrorsAndTheDaemonKeepsServing) {
   s = upload("broken.mat", mat.substr(0, 200), {"F1", "F2"}, {"h1", "h2"}, &info);
   EXPECT_EQ(s.error_code(), grpc::StatusCode::INVALID_ARGUMENT) << s.error_message();
   EXPECT_NE(s.error_message().find("broken.mat"), std::string::npos) << s.error_message();
+  // Binary junk in a CSV header is quoted escaped, never raw (bytes that
+  // would move a terminal's cursor, or are not UTF-8), and a name in UTF-8
+  // as it is.
+  s = upload("junk.csv", std::string("t,u,\x1b[2J\xff\xfe\x01,h\xc3\xb6he\n0,1,2,3\n1,1,2,3\n"), {"u"}, {"y"}, &info);
+  EXPECT_EQ(s.error_code(), grpc::StatusCode::INVALID_ARGUMENT) << s.error_message();
+  EXPECT_NE(s.error_message().find("\\x1b[2J\\xff\\xfe\\x01"), std::string::npos) << s.error_message();
+  EXPECT_NE(s.error_message().find("h\xc3\xb6he"), std::string::npos) << s.error_message();
+  for (const char raw : {'\x1b', '\xff', '\x01'}) {
+    EXPECT_EQ(s.error_message().find(raw), std::string::npos) << "a raw byte " << int(raw) << " in the message";
+  }
+  // A message that is neither header nor chunk.
+  {
+    grpc::ClientContext ctx;
+    auto writer = datasets_->UploadDataset(&ctx, &info);
+    writer->Write(testing::upload_header("empty-message.csv", {"u"}, {"y"}));
+    writer->Write(v1::UploadDatasetRequest());
+    writer->WritesDone();
+    s = writer->Finish();
+    EXPECT_EQ(s.error_code(), grpc::StatusCode::INVALID_ARGUMENT) << s.error_message();
+    EXPECT_NE(s.error_message().find("a message of the upload of empty-message.csv is empty"), std::string::npos)
+        << s.error_message();
+  }
 
   // Unknown model; wrong sizes.
   const std::string dataset = upload_two_tank();

@@ -42,7 +42,11 @@ grpc::Status DatasetServiceImpl::UploadDataset(grpc::ServerContext* context,
   }
   DatasetUpload upload = upload_from_header(part.header());
   while (reader->Read(&part)) {
-    if (!part.has_chunk()) return to_grpc(invalid_argument("only one header per upload"));
+    if (part.has_header()) return to_grpc(invalid_argument("only one header per upload"));
+    if (!part.has_chunk()) {
+      return to_grpc(invalid_argument("a message of the upload of " + upload.name +
+                                      " is empty: after the header, every message carries a chunk"));
+    }
     const Status room =
         datasets_.check_upload_size(static_cast<std::int64_t>(upload.bytes.size() + part.chunk().size()), upload.name);
     if (!room.is_ok()) return to_grpc(room);
