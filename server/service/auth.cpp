@@ -3,6 +3,8 @@
 #include <openssl/err.h>
 #include <openssl/pem.h>
 #include <openssl/x509.h>
+#include <sys/stat.h>
+#include <unistd.h>
 
 #include <array>
 #include <cctype>
@@ -85,6 +87,19 @@ Status check_tls_files(const SecurityConfig& config, const std::string& cert_pem
 std::string token_digest(std::string_view token) { return "sha256:" + sha256_hex(token); }
 
 Result<TokenTable> TokenTable::load(const std::string& path) {
+  // Whoever can write the tokens file can add a token for any tenant.
+  struct stat st {};
+  if (::stat(path.c_str(), &st) == 0) {
+    if ((st.st_mode & (S_IWGRP | S_IWOTH)) != 0) {
+      return failed_precondition("tokens file " + path +
+                                 " is writable by its group or others, who could add a token for any tenant "
+                                 "(chmod go-w " + path + ")");
+    }
+    if (st.st_uid != ::geteuid() && st.st_uid != 0) {
+      return failed_precondition("tokens file " + path + " is owned by uid " + std::to_string(st.st_uid) +
+                                 ", not by riccatid's user or root, who could add a token for any tenant");
+    }
+  }
   RICCATI_ASSIGN_OR_RETURN(const std::string text, read_file(path, "tokens file"));
   TokenTable table;
   std::istringstream lines(text);

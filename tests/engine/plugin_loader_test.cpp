@@ -433,6 +433,32 @@ TEST(ModelRegistryTest, OnlyFilesNoOneElseCanWriteAreLoadedWithTheirChecksums) {
   EXPECT_NE(open_dir.status().message().find("writable by others"), std::string::npos) << open_dir.status().message();
 }
 
+// A models directory that is safe itself but inside one others can write to
+// (not sticky) is refused, naming that parent: whoever writes there can put
+// another directory in its place. Inside a sticky one (/tmp) it loads.
+TEST(ModelRegistryTest, AnAncestorOthersCanWriteToIsRefused) {
+  const ScratchDir scratch;  // under the system's temporary directory, sticky
+  const fs::path open_parent = scratch.path() / "open";
+  const fs::path models = open_parent / "models";
+  fs::create_directories(models);
+  fs::copy_file(builtin_plugin("two_tank.so"), models / "two_tank.so");
+  auto loaded = ModelRegistry::load_directory(models.string());
+  ASSERT_TRUE(loaded.is_ok()) << loaded.status().to_string();
+  EXPECT_EQ(loaded->models().size(), 1u);
+
+  fs::permissions(open_parent, fs::perms::others_write, fs::perm_options::add);
+  auto refused = ModelRegistry::load_directory(models.string());
+  ASSERT_FALSE(refused.is_ok());
+  EXPECT_EQ(refused.status().code(), StatusCode::kFailedPrecondition);
+  EXPECT_NE(refused.status().message().find("is inside " + fs::canonical(open_parent).string()), std::string::npos)
+      << refused.status().message();
+  EXPECT_NE(refused.status().message().find("chmod go-w"), std::string::npos) << refused.status().message();
+
+  // Sticky, as /tmp is: others cannot rename what is not theirs.
+  fs::permissions(open_parent, fs::perms::sticky_bit, fs::perm_options::add);
+  EXPECT_TRUE(ModelRegistry::load_directory(models.string()).is_ok());
+}
+
 // The shared_ptr<const Model> keeps the plugin's library loaded: calling f
 // after the registry (and every other holder) is gone must still work.
 TEST(ModelRegistryTest, ModelOutlivesItsRegistry) {

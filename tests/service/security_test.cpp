@@ -346,6 +346,22 @@ TEST(Startup, RefusesMetricsOffLoopbackUnlessAskedFor) {
   EXPECT_TRUE(list_models(daemon.channel()).ok());
 }
 
+// Whoever can write the tokens file can add a token for any tenant.
+TEST(Startup, RefusesATokensFileOthersCanWrite) {
+  TempDir dir;
+  const std::string tokens = write_tokens(dir.path());
+  using std::filesystem::perms;
+  for (const perms mode : {perms::group_write, perms::others_write}) {
+    std::filesystem::permissions(tokens, perms::owner_read | perms::owner_write | mode);
+    const Outcome r = riccatid("--listen 127.0.0.1:0 --data-dir " + (dir.path() / "data").string() +
+                               " --models-dir " RICCATI_TEST_PLUGIN_DIR " --tokens-file " + tokens);
+    EXPECT_NE(r.exit_code, 0);
+    EXPECT_NE(r.output.find("tokens file " + tokens + " is writable by its group or others"), std::string::npos)
+        << r.output;
+    EXPECT_NE(r.output.find("chmod go-w " + tokens), std::string::npos) << r.output;
+  }
+}
+
 TEST(Startup, RefusesATokensFileWithATokenInClear) {
   TempDir dir;
   const auto tokens = dir.path() / "tokens";

@@ -73,6 +73,21 @@ Result<ModelRegistry> ModelRegistry::load_directory(const std::string& dir) {
                                " is writable by others or owned by another user: anyone who can write there can run "
                                "code in riccatid (chmod go-w " + dir + ")");
   }
+  // Whoever can write to an ancestor can put another directory in this
+  // one's place (as sshd's StrictModes reasons). A sticky directory (/tmp)
+  // lets no one rename what others own, so it is safe.
+  std::error_code canonical_error;
+  const fs::path real = fs::canonical(dir, canonical_error);
+  for (fs::path parent = real.parent_path(); !canonical_error && !parent.empty(); parent = parent.parent_path()) {
+    struct stat up {};
+    if (::stat(parent.c_str(), &up) == 0 && (up.st_mode & S_ISVTX) == 0 &&
+        (writable_by_others(up) || !owned_by_us_or_root(up))) {
+      return failed_precondition("models directory " + dir + " is inside " + parent.string() +
+                                 ", which others can write to or another user owns: they could replace the "
+                                 "plugins (chmod go-w " + parent.string() + ", or move the models elsewhere)");
+    }
+    if (parent == parent.root_path()) break;
+  }
 
   std::error_code ec;
   std::vector<fs::path> files;
