@@ -260,5 +260,58 @@ TEST(SimulateLimits, WorkIsBoundedAtTheStartAndStopsAtTheDeadline) {
   running.join();
 }
 
+
+// A batch of slow measurements stops between two once its stream is
+// cancelled (here: its deadline passed): the session is free for a new
+// stream soon after, not after the minutes the batch would have taken.
+TEST(StreamLimits, ABatchStopsWhenItsStreamIsCancelled) {
+  TempDir dir;
+  DaemonProcess daemon(dir.path() / "data");
+  daemon.start();
+  auto sessions = v1::SessionService::NewStub(daemon.channel());
+  v1::CreateSessionRequest create = testing::two_tank_session();
+  create.mutable_filter()->mutable_integrator()->set_substeps(100'000);  // tens of ms a measurement
+  v1::SessionInfo session;
+  {
+    grpc::ClientContext ctx;
+    ASSERT_TRUE(sessions->CreateSession(&ctx, create, &session).ok());
+  }
+  v1::StreamRequest open;
+  open.mutable_open()->set_session_id(session.id());
+  v1::StreamRequest batch;
+  for (int k = 0; k < 1000; ++k) testing::add_measurement(batch, k, {0.1, 0.03}, {0.4, 0.15});
+  {
+    grpc::ClientContext ctx;
+    ctx.set_deadline(std::chrono::system_clock::now() + std::chrono::milliseconds(500));
+    auto stream = sessions->Stream(&ctx);
+    ASSERT_TRUE(stream->Write(open));
+    ASSERT_TRUE(stream->Write(batch));
+    v1::StreamResponse response;
+    while (stream->Read(&response)) {
+    }
+    EXPECT_EQ(stream->Finish().error_code(), grpc::StatusCode::DEADLINE_EXCEEDED);
+  }
+  const auto after_deadline = std::chrono::steady_clock::now();
+  grpc::Status attached;
+  EXPECT_TRUE(testing::wait_until(
+      [&] {
+        grpc::ClientContext ctx;
+        auto stream = sessions->Stream(&ctx);
+        stream->Write(open);
+        v1::StreamRequest one;
+        testing::add_measurement(one, 5000.0, {0.1, 0.03}, {0.4, 0.15});
+        stream->Write(one);
+        stream->WritesDone();
+        v1::StreamResponse response;
+        while (stream->Read(&response)) {
+        }
+        attached = stream->Finish();
+        return attached.ok();
+      },
+      testing::kWait, "a new stream on the session once the cancelled batch has stopped"))
+      << attached.error_message();
+  EXPECT_LT(std::chrono::steady_clock::now() - after_deadline, std::chrono::seconds(testing::kSanitized ? 60 : 5));
+}
+
 }  // namespace
 }  // namespace riccati

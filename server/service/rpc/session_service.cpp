@@ -2,6 +2,7 @@
 
 #include <spdlog/spdlog.h>
 
+#include <atomic>
 #include <optional>
 
 #include "service/convert.hpp"
@@ -67,6 +68,10 @@ class SessionServiceImpl::StreamReactor final : public grpc::ServerBidiReactor<v
     }
     response_.Clear();
     for (const auto& m : measurements) {
+      // A batch is thousands of steps: it stops between two once the call
+      // is cancelled (deadline, client gone) or riccatid is shutting down.
+      // The measurements left are not answered; the session keeps its time.
+      if (stopping_.load(std::memory_order_relaxed)) break;
       const auto began = std::chrono::steady_clock::now();
       v1::MeasurementResult* result = response_.add_results();
       diverged_ = session_->process(m, full_covariance_, result);
@@ -93,7 +98,10 @@ class SessionServiceImpl::StreamReactor final : public grpc::ServerBidiReactor<v
     StartRead(&request_);
   }
 
-  void OnCancel() override { finish({grpc::StatusCode::CANCELLED, "stream cancelled"}); }
+  void OnCancel() override {
+    stopping_ = true;
+    finish({grpc::StatusCode::CANCELLED, "stream cancelled"});
+  }
 
   void OnDone() override {
     spdlog::debug("stream done session={}", session_ != nullptr ? session_->id() : "");
@@ -106,6 +114,7 @@ class SessionServiceImpl::StreamReactor final : public grpc::ServerBidiReactor<v
   }
 
   void drain() {
+    stopping_ = true;
     finish({grpc::StatusCode::UNAVAILABLE,
             "riccatid is shutting down; the session is stored: open the stream again, on this or another instance "
             "(GetSession gives its time t: send the measurements after t)"});
@@ -160,6 +169,7 @@ class SessionServiceImpl::StreamReactor final : public grpc::ServerBidiReactor<v
   std::mutex mu_;  // finish() may come from drain() on another thread
   bool writing_ = false;
   bool finished_ = false;
+  std::atomic<bool> stopping_{false};  // set from other threads: OnCancel, drain()
   std::optional<grpc::Status> pending_finish_;
 };
 

@@ -49,6 +49,11 @@ Status Session::process(const v1::Measurement& m, bool full_covariance, v1::Meas
     *out->mutable_error() = to_error(lost_);
     return lost_;
   }
+  if (closed_) {  // CloseSession (or expiry) while a batch was being processed
+    const Status ended(StatusCode::kFailedPrecondition, "session " + id_ + " was closed: measurement not processed");
+    *out->mutable_error() = to_error(ended);
+    return ended;
+  }
   if (!diverged_.is_ok()) {
     *out->mutable_error() = to_error(diverged_);
     return diverged_;
