@@ -313,5 +313,87 @@ TEST(StreamLimits, ABatchStopsWhenItsStreamIsCancelled) {
   EXPECT_LT(std::chrono::steady_clock::now() - after_deadline, std::chrono::seconds(testing::kSanitized ? 60 : 5));
 }
 
+
+// The tenant's quota holds however many uploads run at once: room is
+// reserved as the bytes arrive, with what is stored and every upload in
+// flight (12 concurrent uploads against a 500 KB quota stored 691 KB).
+// Uploads in flight are capped: a third past max_uploads = 2 is refused
+// naming the limit, and taken once one has ended.
+TEST(UploadLimits, TheQuotaHoldsForConcurrentUploadsAndUploadsInFlightAreCapped) {
+  TempDir dir;
+  constexpr std::int64_t kQuota = 500'000;
+  DaemonProcess daemon(dir.path() / "data",
+                       {"--max-tenant-dataset-bytes", std::to_string(kQuota), "--max-uploads", "12"});
+  daemon.start();
+  auto datasets = v1::DatasetService::NewStub(daemon.channel());
+  const std::string csv = small_csv(3000);  // about 60 KB
+  ASSERT_GT(csv.size(), 50'000u);
+  std::vector<grpc::Status> outcomes(12);
+  std::vector<std::thread> uploads;
+  for (std::size_t i = 0; i < outcomes.size(); ++i) {
+    uploads.emplace_back([&, i] {
+      grpc::ClientContext ctx;
+      v1::DatasetInfo info;
+      outcomes[i] = testing::upload_dataset(*datasets, &ctx, "u" + std::to_string(i) + ".csv", csv, {"F1", "F2"},
+                                            {"h1", "h2"}, &info, 2048);
+    });
+  }
+  for (std::thread& t : uploads) t.join();
+  std::size_t stored = 0;
+  for (const grpc::Status& s : outcomes) {
+    if (s.ok()) {
+      ++stored;
+      continue;
+    }
+    EXPECT_EQ(s.error_code(), grpc::StatusCode::RESOURCE_EXHAUSTED) << s.error_message();
+    EXPECT_NE(s.error_message().find("max_tenant_dataset_bytes"), std::string::npos) << s.error_message();
+  }
+  grpc::ClientContext list_ctx;
+  v1::ListDatasetsResponse list;
+  ASSERT_TRUE(datasets->ListDatasets(&list_ctx, {}, &list).ok());
+  std::int64_t bytes = 0;
+  for (const v1::DatasetInfo& d : list.datasets()) bytes += static_cast<std::int64_t>(d.size_bytes());
+  EXPECT_LE(bytes, kQuota) << stored << " uploads stored";
+  EXPECT_GE(stored, 1u);
+  EXPECT_LT(stored, outcomes.size());
+  datasets.reset();
+  ASSERT_EQ(daemon.stop(), 0);
+
+  DaemonProcess capped(dir.path() / "data2", {"--max-uploads", "2"});
+  capped.start();
+  auto capped_datasets = v1::DatasetService::NewStub(capped.channel());
+  std::vector<std::unique_ptr<grpc::ClientContext>> contexts;
+  std::vector<std::unique_ptr<grpc::ClientWriter<v1::UploadDatasetRequest>>> open;
+  v1::DatasetInfo info[3];
+  for (int i = 0; i < 2; ++i) {
+    contexts.push_back(std::make_unique<grpc::ClientContext>());
+    open.push_back(capped_datasets->UploadDataset(contexts.back().get(), &info[i]));
+    ASSERT_TRUE(open.back()->Write(testing::upload_header("open.csv", {"F1", "F2"}, {"h1", "h2"})));
+  }
+  grpc::Status third;
+  EXPECT_TRUE(testing::wait_until(
+      [&] {
+        v1::DatasetInfo ignored;
+        third = testing::upload_dataset(*capped_datasets, "third.csv", csv, {"F1", "F2"}, {"h1", "h2"}, &ignored);
+        return !third.ok();
+      },
+      testing::kWait, "a third upload refused while two are in flight"));
+  EXPECT_EQ(third.error_code(), grpc::StatusCode::RESOURCE_EXHAUSTED) << third.error_message();
+  EXPECT_NE(third.error_message().find("max_uploads = 2"), std::string::npos) << third.error_message();
+  // One of the two ends (sent and stored): the next is taken.
+  v1::UploadDatasetRequest chunk;
+  chunk.set_chunk(csv);
+  ASSERT_TRUE(open[0]->Write(chunk));
+  open[0]->WritesDone();
+  EXPECT_TRUE(open[0]->Finish().ok());
+  v1::DatasetInfo next;
+  const grpc::Status taken = testing::upload_dataset(*capped_datasets, "next.csv", csv, {"F1", "F2"}, {"h1", "h2"}, &next);
+  EXPECT_TRUE(taken.ok()) << taken.error_message();
+  contexts[1]->TryCancel();
+  open[1]->Finish();
+  open.clear();
+  capped_datasets.reset();  // an open channel would hold the daemon's stop for its grace period
+}
+
 }  // namespace
 }  // namespace riccati

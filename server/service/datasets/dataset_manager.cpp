@@ -3,14 +3,61 @@
 #include <spdlog/spdlog.h>
 
 #include <filesystem>
+#include <utility>
 
 #include "service/ids.hpp"
 
 namespace riccati::service {
 
-Status DatasetManager::check_upload_size(std::int64_t bytes, const std::string& name) const {
-  if (bytes <= limits_.max_dataset_bytes) return Status::ok();
-  return limit_reached("max_dataset_bytes", limits_.max_dataset_bytes, "the upload of " + name + " is larger");
+UploadTicket::UploadTicket(UploadTicket&& other) noexcept
+    : manager_(std::exchange(other.manager_, nullptr)),
+      tenant_(std::move(other.tenant_)),
+      name_(std::move(other.name_)),
+      stored_(other.stored_),
+      bytes_(std::exchange(other.bytes_, 0)) {}
+
+UploadTicket::~UploadTicket() {
+  if (manager_ == nullptr) return;
+  std::lock_guard lock(manager_->mu_);
+  --manager_->uploads_;
+  if ((manager_->in_flight_bytes_[tenant_] -= bytes_) == 0) manager_->in_flight_bytes_.erase(tenant_);
+}
+
+Status UploadTicket::grow(std::int64_t bytes) {
+  const Limits& limits = manager_->limits_;
+  if (bytes > limits.max_dataset_bytes) {
+    return limit_reached("max_dataset_bytes", limits.max_dataset_bytes, "the upload of " + name_ + " is larger");
+  }
+  std::lock_guard lock(manager_->mu_);
+  std::int64_t& in_flight = manager_->in_flight_bytes_[tenant_];
+  const std::int64_t used = stored_ + in_flight - bytes_ + bytes;
+  if (used > limits.max_tenant_dataset_bytes) return manager_->quota_error(used);
+  in_flight += bytes - bytes_;
+  bytes_ = bytes;
+  return Status::ok();
+}
+
+Result<std::int64_t> DatasetManager::stored_bytes(const std::string& tenant) {
+  RICCATI_ASSIGN_OR_RETURN(const std::vector<DatasetRecord> stored, store_.list_datasets(tenant));
+  std::int64_t bytes = 0;
+  for (const DatasetRecord& r : stored) bytes += r.size_bytes;
+  return bytes;
+}
+
+Status DatasetManager::quota_error(std::int64_t used) const {
+  return limit_reached("max_tenant_dataset_bytes", limits_.max_tenant_dataset_bytes,
+                       "this tenant's datasets, with its uploads in flight, would take " + std::to_string(used) +
+                           " bytes; delete some (DeleteDataset) first");
+}
+
+Result<UploadTicket> DatasetManager::begin_upload(const std::string& tenant, const std::string& name) {
+  RICCATI_ASSIGN_OR_RETURN(const std::int64_t stored, stored_bytes(tenant));
+  std::lock_guard lock(mu_);
+  if (uploads_ >= limits_.max_uploads) {
+    return limit_reached("max_uploads", limits_.max_uploads, "as many uploads are in flight; try again shortly");
+  }
+  ++uploads_;
+  return UploadTicket(this, tenant, name.empty() ? "upload" : name, stored);
 }
 
 Result<Dataset> DatasetManager::parse(const DatasetUpload& upload, const std::string& name,
@@ -24,22 +71,10 @@ Result<Dataset> DatasetManager::parse(const DatasetUpload& upload, const std::st
   return parsed;
 }
 
-Status DatasetManager::check_tenant_room(const std::string& tenant, std::int64_t adding) {
-  // Checked before storing, so concurrent uploads of one tenant may pass it
-  // together: a soft limit, by at most one upload per connection.
-  RICCATI_ASSIGN_OR_RETURN(const std::vector<DatasetRecord> stored, store_.list_datasets(tenant));
-  std::int64_t used = adding;
-  for (const DatasetRecord& r : stored) used += r.size_bytes;
-  if (used <= limits_.max_tenant_dataset_bytes) return Status::ok();
-  return limit_reached("max_tenant_dataset_bytes", limits_.max_tenant_dataset_bytes,
-                       "this tenant's datasets would take " + std::to_string(used) +
-                           " bytes; delete some (DeleteDataset) first");
-}
-
-Result<DatasetRecord> DatasetManager::upload(const std::string& tenant, const DatasetUpload& upload) {
+Result<DatasetRecord> DatasetManager::upload(const UploadTicket& ticket, const DatasetUpload& upload) {
+  const std::string& tenant = ticket.tenant();
   const std::string name = upload.name.empty() ? "upload" : upload.name;
   const auto size = static_cast<std::int64_t>(upload.bytes.size());
-  RICCATI_RETURN_IF_ERROR(check_upload_size(size, name));
   if (upload.bytes.empty()) return invalid_argument("upload of " + name + " is empty");
   const std::string extension = std::filesystem::path(name).extension().string();
   const DatasetFormat format =
@@ -49,7 +84,16 @@ Result<DatasetRecord> DatasetManager::upload(const std::string& tenant, const Da
     return limit_reached("max_dataset_samples", limits_.max_dataset_samples,
                          name + " has " + std::to_string(data.size()) + " samples");
   }
-  RICCATI_RETURN_IF_ERROR(check_tenant_room(tenant, size));
+  // Again with what is stored now: uploads that ended since this one began
+  // are stored, those still in flight (this one too) hold their room, so
+  // every byte is counted at least once however uploads interleave.
+  RICCATI_ASSIGN_OR_RETURN(const std::int64_t stored, stored_bytes(tenant));
+  {
+    std::lock_guard lock(mu_);
+    const auto in_flight = in_flight_bytes_.find(tenant);
+    const std::int64_t used = stored + (in_flight != in_flight_bytes_.end() ? in_flight->second : 0);
+    if (used > limits_.max_tenant_dataset_bytes) return quota_error(used);
+  }
 
   DatasetRecord record;
   record.id = new_id("ds");

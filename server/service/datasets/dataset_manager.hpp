@@ -5,6 +5,8 @@
 #pragma once
 
 #include <cstdint>
+#include <map>
+#include <mutex>
 #include <optional>
 #include <string>
 #include <vector>
@@ -24,15 +26,43 @@ struct DatasetUpload {
   std::string bytes;                    // the whole file
 };
 
+class DatasetManager;
+
+// An upload in flight: the room it holds, counted against the uploads in
+// flight (max_uploads) and, with what the tenant has stored and its other
+// uploads in flight, against its quota (max_tenant_dataset_bytes) before the
+// bytes are accepted. Released when it goes.
+class UploadTicket {
+ public:
+  UploadTicket(UploadTicket&& other) noexcept;
+  UploadTicket& operator=(UploadTicket&&) = delete;
+  ~UploadTicket();
+  // The upload now holds `bytes` in all: RESOURCE_EXHAUSTED naming
+  // max_dataset_bytes or max_tenant_dataset_bytes if that is too much.
+  Status grow(std::int64_t bytes);
+  const std::string& tenant() const { return tenant_; }
+  std::int64_t bytes() const { return bytes_; }
+
+ private:
+  friend class DatasetManager;
+  UploadTicket(DatasetManager* manager, std::string tenant, std::string name, std::int64_t stored)
+      : manager_(manager), tenant_(std::move(tenant)), name_(std::move(name)), stored_(stored) {}
+  DatasetManager* manager_;
+  std::string tenant_, name_;
+  std::int64_t stored_;  // the tenant's stored bytes when the upload began
+  std::int64_t bytes_ = 0;
+};
+
 class DatasetManager {
  public:
   DatasetManager(Store& store, Limits limits) : store_(store), limits_(limits) {}
 
-  // RESOURCE_EXHAUSTED (max_dataset_bytes) once an upload of `name` would
-  // hold more than the limit: checked as its chunks arrive.
-  Status check_upload_size(std::int64_t bytes, const std::string& name) const;
-  // Parses, checks and stores an upload; the stored record.
-  Result<DatasetRecord> upload(const std::string& tenant, const DatasetUpload& upload);
+  // Room for an upload of `name` by `tenant`: RESOURCE_EXHAUSTED naming
+  // max_uploads when that many are in flight, or the quota when it is full.
+  Result<UploadTicket> begin_upload(const std::string& tenant, const std::string& name);
+  // Parses, checks and stores an upload whose bytes `ticket` holds; the
+  // stored record.
+  Result<DatasetRecord> upload(const UploadTicket& ticket, const DatasetUpload& upload);
 
   Result<DatasetRecord> get(const std::string& tenant, const std::string& id);
   Result<Dataset> load(const std::string& tenant, const std::string& id);
@@ -40,12 +70,16 @@ class DatasetManager {
   Status remove(const std::string& tenant, const std::string& id);
 
  private:
+  friend class UploadTicket;
   Result<Dataset> parse(const DatasetUpload& upload, const std::string& name, DatasetFormat format) const;
-  // max_tenant_dataset_bytes, with `adding` bytes more.
-  Status check_tenant_room(const std::string& tenant, std::int64_t adding);
+  Result<std::int64_t> stored_bytes(const std::string& tenant);
+  Status quota_error(std::int64_t used) const;
 
   Store& store_;
-  const Limits limits_;  // max_dataset_bytes, max_dataset_samples, max_tenant_dataset_bytes
+  const Limits limits_;  // max_dataset_bytes, max_dataset_samples, max_tenant_dataset_bytes, max_uploads
+  std::mutex mu_;
+  std::int64_t uploads_ = 0;                             // in flight, all tenants
+  std::map<std::string, std::int64_t> in_flight_bytes_;  // per tenant
 };
 
 }  // namespace riccati::service

@@ -41,14 +41,15 @@ grpc::Status DatasetServiceImpl::UploadDataset(grpc::ServerContext* context,
     return to_grpc(invalid_argument("the first message of an upload must be its header"));
   }
   DatasetUpload upload = upload_from_header(part.header());
+  Result<UploadTicket> ticket = datasets_.begin_upload(auth_.tenant(*context), upload.name);
+  if (!ticket.is_ok()) return to_grpc(ticket.status());
   while (reader->Read(&part)) {
     if (part.has_header()) return to_grpc(invalid_argument("only one header per upload"));
     if (!part.has_chunk()) {
       return to_grpc(invalid_argument("a message of the upload of " + upload.name +
                                       " is empty: after the header, every message carries a chunk"));
     }
-    const Status room =
-        datasets_.check_upload_size(static_cast<std::int64_t>(upload.bytes.size() + part.chunk().size()), upload.name);
+    const Status room = ticket->grow(static_cast<std::int64_t>(upload.bytes.size() + part.chunk().size()));
     if (!room.is_ok()) return to_grpc(room);
     upload.bytes += part.chunk();
   }
@@ -57,7 +58,7 @@ grpc::Status DatasetServiceImpl::UploadDataset(grpc::ServerContext* context,
   if (context->IsCancelled()) {
     return {grpc::StatusCode::CANCELLED, "upload of " + upload.name + " cancelled by the client: nothing stored"};
   }
-  const Result<DatasetRecord> stored = datasets_.upload(auth_.tenant(*context), upload);
+  const Result<DatasetRecord> stored = datasets_.upload(ticket.value(), upload);
   if (!stored.is_ok()) return to_grpc(stored.status());
   *response = to_proto(stored.value());
   return grpc::Status::OK;
