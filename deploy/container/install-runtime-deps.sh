@@ -30,7 +30,11 @@ packages=(
   libssl3                           # TLS and SHA-256 (libssl, libcrypto)
   libprometheus-cpp-core1.0         # metrics in Prometheus' model and text format
   libcpp-httplib0.11                # the HTTP server of /metrics
-  libceres3                         # Ceres Solver: output-error and maximum-likelihood identification
+  # Ceres Solver (output error, maximum likelihood) is linked statically
+  # (Debian ships libceres.a to CMake); these are what it links in turn:
+  libgoogle-glog0v6                 # its logging
+  libcholmod3 libcxsparse3          # SuiteSparse: its sparse solvers
+  libatlas3-base                    # LAPACK and BLAS (libceres-dev depends on ATLAS)
   zlib1g                            # checking compressed MAT variables
   libstdc++6 libgcc-s1 libc6        # the C and C++ runtimes
   ca-certificates                   # the system's CAs: riccati --tls, PostgreSQL with sslmode=verify-full
