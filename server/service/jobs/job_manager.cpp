@@ -47,7 +47,9 @@ Status JobManager::start() {
   // (killed, or stopped mid-job); with a shared one, only those of this
   // instance's id: the others belong to live instances or wait for their
   // leases to expire.
-  RICCATI_ASSIGN_OR_RETURN(const int released, store_.release_jobs(queue_.exclusive_store ? "" : instance_));
+  // Their claims count as attempts: their instance died with them.
+  RICCATI_ASSIGN_OR_RETURN(const int released,
+                           store_.release_jobs(queue_.exclusive_store ? "" : instance_, /*stopped=*/false));
   if (released > 0) spdlog::info("jobs queued again count={} (left running by an earlier run)", released);
   spdlog::info("job queue instance={} lease_ms={} poll_ms={}", instance_, queue_.lease.count(), queue_.poll.count());
   std::lock_guard lock(mu_);
@@ -71,7 +73,7 @@ void JobManager::shutdown() {
   if (renewals_.joinable()) renewals_.join();
   // The interrupted jobs go back to the queue now rather than when their
   // leases expire: another instance, or the next start, resumes them.
-  auto released = store_.release_jobs(instance_);
+  auto released = store_.release_jobs(instance_, /*stopped=*/true);
   if (!released.is_ok()) spdlog::warn("interrupted jobs not released error=\"{}\"", released.status().message());
 }
 
