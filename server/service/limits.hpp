@@ -25,6 +25,7 @@ struct Limits {
   std::int64_t max_simulation_steps = 20'000'000;      // samples x substeps of one Simulate call
   std::int64_t max_simulations = 4;                    // Simulate calls running at once, all tenants
   std::int64_t max_time_step_s = 3600;                 // a session's step between two measurements
+  std::int64_t max_result_bytes = 256ll << 20;         // a job's result, as estimated at submit
 };
 
 struct LimitSpec {
@@ -49,6 +50,8 @@ inline constexpr LimitSpec kLimitSpecs[] = {
     {"max_simulations", &Limits::max_simulations, "Most Simulate calls running at once, all tenants"},
     {"max_time_step_s", &Limits::max_time_step_s,
      "Longest step between two measurements of a session (s): a longer one is refused, the session goes on"},
+    {"max_result_bytes", &Limits::max_result_bytes,
+     "Largest result of one job (bytes), as estimated at submit from its samples, passes and model"},
 };
 
 // RESOURCE_EXHAUSTED: "limit <key> = <limit> reached: <what>".

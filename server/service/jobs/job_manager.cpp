@@ -28,6 +28,18 @@ std::string default_instance_id() {
   return std::string(host) + "-" + suffix;
 }
 
+// RESOURCE_EXHAUSTED (max_result_bytes) naming the estimate and what to
+// change: a result past the store's limit (1 GB for SQLite) would be
+// computed, then fail to be stored.
+Status check_result_size(const ResultSize& size, std::int64_t limit) {
+  if (size.bytes <= static_cast<double>(limit)) return Status::ok();
+  char bytes[32];
+  std::snprintf(bytes, sizeof bytes, "%.0f", size.bytes);
+  return limit_reached("max_result_bytes", limit,
+                       std::string("the job's result would take about ") + bytes + " bytes (" + size.what +
+                           ", 8 bytes each): ask for " + size.smaller + ", or raise max_result_bytes");
+}
+
 }  // namespace
 
 JobManager::JobManager(Store& store, const ModelRegistry& models, int workers, Limits limits, JobQueueOptions queue,
@@ -90,6 +102,7 @@ Result<JobRecord> JobManager::submit_identification(const std::string& tenant, c
     datasets.push_back(std::move(record));
   }
   RICCATI_RETURN_IF_ERROR(check_against_datasets(plan, datasets, *model));
+  RICCATI_RETURN_IF_ERROR(check_result_size(estimated_result_size(plan, datasets, *model), limits_.max_result_bytes));
   JobRecord job;
   job.id = new_id("job");
   job.tenant = tenant;
@@ -108,6 +121,22 @@ Result<JobRecord> JobManager::submit_smoothing(const std::string& tenant, const 
   if (end > dataset.samples || end - settings.first_sample < 2) {
     return invalid_argument("the sample range [" + std::to_string(settings.first_sample) + ", " + std::to_string(end) +
                             ") must hold at least two of the dataset's " + std::to_string(dataset.samples) + " samples");
+  }
+  {
+    // Per sample: t, the filtered and smoothed means and deviations of z
+    // (the states, then the parameters), y_model and innovations, and with
+    // full_covariance, P of z.
+    const double samples = static_cast<double>(end - settings.first_sample);
+    const double nz = model->nx() + model->ntheta();
+    const double per_sample = 1 + 4 * nz + 2 * model->ny() + (spec.full_covariance() ? nz * nz : 0);
+    RICCATI_RETURN_IF_ERROR(check_result_size(
+        {8 * samples * per_sample,
+         std::to_string(end - settings.first_sample) + " samples x " + std::to_string(static_cast<int>(per_sample)) +
+             " values (" + std::to_string(static_cast<int>(nz)) + " states and parameters" +
+             (spec.full_covariance() ? ", with their full covariance" : "") + ")",
+         std::string("a shorter sample range (first_sample, end_sample)") +
+             (spec.full_covariance() ? ", or no full_covariance" : "")},
+        limits_.max_result_bytes));
   }
   JobRecord job;
   job.id = new_id("job");
@@ -156,6 +185,13 @@ Result<JobRecord> JobManager::submit_validation(const std::string& tenant, const
     return invalid_argument("initial_state.x0 needs " + std::to_string(model->nx()) +
                             " values (or first_measurement = true)");
   }
+  // Per sample: t, the measured and the simulated outputs.
+  const int per_sample = 1 + 2 * model->ny();
+  RICCATI_RETURN_IF_ERROR(check_result_size({8.0 * static_cast<double>(dataset.samples) * per_sample,
+                                             std::to_string(dataset.samples) + " samples x " +
+                                                 std::to_string(per_sample) + " values",
+                                             "a dataset with fewer samples"},
+                                            limits_.max_result_bytes));
   JobRecord job;
   job.id = new_id("job");
   job.tenant = tenant;
