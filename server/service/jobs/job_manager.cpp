@@ -420,6 +420,20 @@ void JobManager::run(JobRecord job) {
     finish(std::move(job), cancelled("cancelled"), claimed);
     return;
   }
+  if (job.attempts > limits_.max_job_attempts) {
+    // Claimed that often without an end: its run kills riccatid, or its end
+    // cannot be stored. Failing it now is a small write, and the loop ends.
+    const std::string why = job.error_message.empty()
+                                ? "riccatid died or could not store its end each time"
+                                : "the last error: " + job.error_message;
+    spdlog::warn("job failed after too many attempts id={} attempts={} max_job_attempts={}", id, job.attempts - 1,
+                 limits_.max_job_attempts);
+    const Status exhausted = limit_reached("max_job_attempts", limits_.max_job_attempts,
+                                           "the job was claimed " + std::to_string(job.attempts - 1) +
+                                               " times without ending: " + why);
+    finish(std::move(job), exhausted, claimed);
+    return;
+  }
   std::stop_token stop;
   {
     std::lock_guard lock(mu_);
@@ -472,7 +486,18 @@ void JobManager::finish(JobRecord job, const Result<std::string>& result,
     auto it = live_.find(job.id);
     if (it != live_.end()) it->second.ending = true;
   }
-  const Status stored = store_.finish_job(job, instance_, result.is_ok() ? &result.value() : nullptr);
+  Status stored = store_.finish_job(job, instance_, result.is_ok() ? &result.value() : nullptr);
+  if (!stored.is_ok() && stored.code() != StatusCode::kAborted && result.is_ok()) {
+    // The result could not be stored (over the store's size limit, a full
+    // disk): the job fails saying so, a small write without the result,
+    // rather than running again once its lease expires, and failing again.
+    spdlog::warn("job result not stored id={} bytes={} error=\"{}\"", job.id, result.value().size(), stored.message());
+    job.state = JobState::kFailed;
+    job.error_code = static_cast<int>(stored.code());
+    job.error_message =
+        "the result of " + std::to_string(result.value().size()) + " bytes could not be stored: " + stored.message();
+    stored = store_.finish_job(job, instance_, nullptr);
+  }
   // Counted before watchers here hear of the end, so that what they see
   // next on /metrics includes it.
   if (stored.is_ok() && metrics_ != nullptr) {
@@ -485,12 +510,13 @@ void JobManager::finish(JobRecord job, const Result<std::string>& result,
   changed_.notify_all();
   if (!stored.is_ok()) {
     // ABORTED: another instance holds it now and writes the end itself.
-    // Otherwise the store failed: the lease expires and the job runs again.
+    // Otherwise the store failed: the lease expires and the job runs again,
+    // up to max_job_attempts times.
     spdlog::warn("job end not stored id={} error=\"{}\"", job.id, stored.message());
-  } else if (outcome.is_ok()) {
+  } else if (job.state == JobState::kSucceeded) {
     spdlog::info("job succeeded id={}", job.id);
   } else {
-    spdlog::info("job ended id={} state={} error=\"{}\"", job.id, job_state_name(job.state), outcome.message());
+    spdlog::info("job ended id={} state={} error=\"{}\"", job.id, job_state_name(job.state), job.error_message);
   }
 }
 
