@@ -26,6 +26,8 @@ struct Limits {
   std::int64_t max_simulations = 4;                    // Simulate calls running at once, all tenants
   std::int64_t max_time_step_s = 3600;                 // a session's step between two measurements
   std::int64_t max_uploads = 16;                       // uploads in flight, all tenants
+  std::int64_t max_result_bytes = 256ll << 20;         // a job's result, as estimated at submit
+  std::int64_t max_job_attempts = 3;                   // claims of one job that did not end it
 };
 
 struct LimitSpec {
@@ -51,6 +53,10 @@ inline constexpr LimitSpec kLimitSpecs[] = {
     {"max_time_step_s", &Limits::max_time_step_s,
      "Longest step between two measurements of a session (s): a longer one is refused, the session goes on"},
     {"max_uploads", &Limits::max_uploads, "Most uploads in flight, all tenants"},
+    {"max_result_bytes", &Limits::max_result_bytes,
+     "Largest result of one job (bytes), as estimated at submit from its samples, passes and model"},
+    {"max_job_attempts", &Limits::max_job_attempts,
+     "Most times a job is claimed without ending (its instance died, or could not store its end) before it fails"},
 };
 
 // RESOURCE_EXHAUSTED: "limit <key> = <limit> reached: <what>".

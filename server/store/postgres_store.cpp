@@ -106,6 +106,10 @@ const std::vector<const char*> kMigrations = {
     ALTER TABLE jobs ADD COLUMN iteration INTEGER NOT NULL DEFAULT 0,
       ADD COLUMN cost DOUBLE PRECISION NOT NULL DEFAULT 0;
     )sql",
+    // 5: how many times a job was claimed without ending (the retry budget).
+    R"sql(
+    ALTER TABLE jobs ADD COLUMN attempts INTEGER NOT NULL DEFAULT 0;
+    )sql",
 };
 
 // Leases are read against the database's clock, so that instances on hosts
@@ -209,7 +213,7 @@ std::vector<std::string> strings_of(const pqxx::field& f) {
 
 constexpr const char* kJobColumns =
     "id, tenant, kind, state, spec, pass, passes, sample, samples, theta, error_code, error_message, created_ms, "
-    "started_ms, finished_ms, owner, lease_until_ms, cancel_requested, iteration, cost";
+    "started_ms, finished_ms, owner, lease_until_ms, cancel_requested, iteration, cost, attempts";
 
 JobRecord read_job(const pqxx::row& r) {
   JobRecord j;
@@ -233,6 +237,7 @@ JobRecord read_job(const pqxx::row& r) {
   j.cancel_requested = r[17].as<bool>();
   j.iteration = r[18].as<int>();
   j.cost = r[19].as<double>();
+  j.attempts = r[20].as<int>();
   return j;
 }
 
@@ -469,11 +474,11 @@ class PostgresStore final : public Store {
     return run<pqxx::nontransaction>("storing job " + j.id, false, [&](auto& tx) -> Status {
       tx.exec_params(std::string("INSERT INTO jobs (") + kJobColumns +
                          ") VALUES ($1, $2, $3, $4, $5::bytea, $6, $7, $8, $9, $10::bytea, $11, $12, $13, $14, $15, "
-                         "$16, $17, $18, $19, $20)",
+                         "$16, $17, $18, $19, $20, $21)",
                      j.id, j.tenant, job_kind_name(j.kind), job_state_name(j.state), pqxx::binarystring(j.spec), j.pass, j.passes,
                      j.sample, j.samples, to_bytea(j.theta.data(), j.theta.size()), j.error_code, j.error_message,
                      j.created_ms, j.started_ms, j.finished_ms, j.owner, j.lease_until_ms, j.cancel_requested,
-                     j.iteration, j.cost);
+                     j.iteration, j.cost, j.attempts);
       return Status::ok();
     });
   }
@@ -529,7 +534,7 @@ class PostgresStore final : public Store {
       const pqxx::result r = tx.exec_params(
           std::string("UPDATE jobs SET state = 'running', owner = $1, lease_until_ms = " RICCATI_PG_NOW_MS
                       " + $2, started_ms = CASE WHEN started_ms = 0 THEN " RICCATI_PG_NOW_MS
-                      " ELSE started_ms END WHERE id = (SELECT id FROM jobs WHERE (state = 'queued' OR "
+                      " ELSE started_ms END, attempts = attempts + 1 WHERE id = (SELECT id FROM jobs WHERE (state = 'queued' OR "
                       "(state = 'running' AND lease_until_ms < " RICCATI_PG_NOW_MS
                       ")) AND kind IN (") + known_job_kinds_sql() +
               ") ORDER BY created_ms, seq LIMIT 1 FOR UPDATE SKIP LOCKED) RETURNING " +
@@ -572,13 +577,14 @@ class PostgresStore final : public Store {
     });
   }
 
-  Result<int> release_jobs(const std::string& owner) override {
+  Result<int> release_jobs(const std::string& owner, bool stopped) override {
     return run<pqxx::nontransaction>("releasing the jobs of " + (owner.empty() ? std::string("every instance") : owner),
                                      true, [&](auto& tx) -> Result<int> {
                                        const pqxx::result r = tx.exec_params(
-                                           "UPDATE jobs SET state = 'queued', owner = '', lease_until_ms = 0 WHERE "
-                                           "state = 'running' AND ($1 = '' OR owner = $1)",
-                                           owner);
+                                           "UPDATE jobs SET state = 'queued', owner = '', lease_until_ms = 0, "
+                                           "attempts = CASE WHEN $2 THEN greatest(attempts - 1, 0) ELSE attempts "
+                                           "END WHERE state = 'running' AND ($1 = '' OR owner = $1)",
+                                           owner, stopped);
                                        return static_cast<int>(r.affected_rows());
                                      });
   }

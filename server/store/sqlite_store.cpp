@@ -98,6 +98,10 @@ const std::vector<const char*> kMigrations = {
     ALTER TABLE jobs ADD COLUMN iteration INTEGER NOT NULL DEFAULT 0;
     ALTER TABLE jobs ADD COLUMN cost REAL NOT NULL DEFAULT 0;
     )sql",
+    // 6: how many times a job was claimed without ending (the retry budget).
+    R"sql(
+    ALTER TABLE jobs ADD COLUMN attempts INTEGER NOT NULL DEFAULT 0;
+    )sql",
 };
 
 // Names never contain the ASCII unit separator, so it can join them.
@@ -153,12 +157,14 @@ class Statement {
   }
   bool prepared() const { return rc_ == SQLITE_OK; }
 
+  // A value SQLite refuses (SQLITE_TOOBIG: over its 1 GB limit) would stay
+  // NULL and fail as a NOT NULL constraint; step() returns the refusal instead.
   Statement& text(const std::string& v) {
-    sqlite3_bind_text(stmt_.get(), ++index_, v.data(), static_cast<int>(v.size()), SQLITE_TRANSIENT);
+    bound(sqlite3_bind_text64(stmt_.get(), ++index_, v.data(), v.size(), SQLITE_TRANSIENT, SQLITE_UTF8));
     return *this;
   }
   Statement& blob(const std::string& v) {
-    sqlite3_bind_blob(stmt_.get(), ++index_, v.data(), static_cast<int>(v.size()), SQLITE_TRANSIENT);
+    bound(sqlite3_bind_blob64(stmt_.get(), ++index_, v.data(), v.size(), SQLITE_TRANSIENT));
     return *this;
   }
   Statement& integer(std::int64_t v) {
@@ -170,8 +176,9 @@ class Statement {
     return *this;
   }
 
-  // SQLITE_ROW, SQLITE_DONE or an error code.
-  int step() { return sqlite3_step(stmt_.get()); }
+  // SQLITE_ROW, SQLITE_DONE or an error code (a failed bind's, unrun).
+  int step() { return bind_rc_ != SQLITE_OK ? bind_rc_ : sqlite3_step(stmt_.get()); }
+  int bind_error() const { return bind_rc_; }
 
   std::string column_text(int i) const {
     const auto* p = reinterpret_cast<const char*>(sqlite3_column_text(stmt_.get(), i));
@@ -191,8 +198,13 @@ class Statement {
 
  private:
   sqlite3* db_;
+  void bound(int rc) {
+    if (rc != SQLITE_OK && bind_rc_ == SQLITE_OK && rc_ == SQLITE_OK) bind_rc_ = rc;
+  }
+
   std::unique_ptr<sqlite3_stmt, FinalizeStmt> stmt_;
   int rc_ = SQLITE_OK;
+  int bind_rc_ = SQLITE_OK;
   int index_ = 0;
 };
 
@@ -200,7 +212,7 @@ JobState parse_state(const std::string& s) { return parse_job_state(s).value_or(
 
 constexpr const char* kJobColumns =
     "id, tenant, kind, state, spec, pass, passes, sample, samples, theta, error_code, error_message, created_ms, "
-    "started_ms, finished_ms, owner, lease_until_ms, cancel_requested, iteration, cost";
+    "started_ms, finished_ms, owner, lease_until_ms, cancel_requested, iteration, cost, attempts";
 
 std::int64_t wall_clock_ms() {
   return std::chrono::duration_cast<std::chrono::milliseconds>(std::chrono::system_clock::now().time_since_epoch())
@@ -229,6 +241,7 @@ JobRecord read_job(const Statement& s) {
   j.cancel_requested = s.column_int(17) != 0;
   j.iteration = static_cast<int>(s.column_int(18));
   j.cost = s.column_double(19);
+  j.attempts = static_cast<int>(s.column_int(20));
   return j;
 }
 
@@ -388,13 +401,13 @@ class SqliteStore final : public Store {
   Status put_job(const JobRecord& j) override {
     std::lock_guard lock(mu_);
     Statement q(db_.get(), (std::string("INSERT INTO jobs (") + kJobColumns +
-                            ") VALUES (?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?)")
+                            ") VALUES (?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?)")
                                .c_str());
     q.text(j.id).text(j.tenant).text(job_kind_name(j.kind)).text(job_state_name(j.state)).blob(j.spec).integer(j.pass)
         .integer(j.passes).integer(j.sample).integer(j.samples).blob(to_blob(j.theta.data(), j.theta.size()))
         .integer(j.error_code).text(j.error_message).integer(j.created_ms).integer(j.started_ms)
         .integer(j.finished_ms).text(j.owner).integer(j.lease_until_ms).integer(j.cancel_requested ? 1 : 0)
-        .integer(j.iteration).real(j.cost);
+        .integer(j.iteration).real(j.cost).integer(j.attempts);
     return done(q, "storing job " + j.id);
   }
 
@@ -458,9 +471,11 @@ class SqliteStore final : public Store {
       job.owner = owner;
       job.lease_until_ms = now + lease_ms;
       if (job.started_ms == 0) job.started_ms = now;
+      ++job.attempts;
       Statement claim(db_.get(),
-                      "UPDATE jobs SET state = 'running', owner = ?, lease_until_ms = ?, started_ms = ? WHERE id = ?");
-      claim.text(job.owner).integer(job.lease_until_ms).integer(job.started_ms).text(job.id);
+                      "UPDATE jobs SET state = 'running', owner = ?, lease_until_ms = ?, started_ms = ?, attempts = ? "
+                      "WHERE id = ?");
+      claim.text(job.owner).integer(job.lease_until_ms).integer(job.started_ms).integer(job.attempts).text(job.id);
       RICCATI_RETURN_IF_ERROR(done(claim, "claiming job " + job.id));
       return std::optional<JobRecord>(std::move(job));
     });
@@ -501,12 +516,12 @@ class SqliteStore final : public Store {
     });
   }
 
-  Result<int> release_jobs(const std::string& owner) override {
+  Result<int> release_jobs(const std::string& owner, bool stopped) override {
     std::lock_guard lock(mu_);
     Statement q(db_.get(),
-                "UPDATE jobs SET state = 'queued', owner = '', lease_until_ms = 0 WHERE state = 'running' AND "
-                "(? = '' OR owner = ?)");
-    q.text(owner).text(owner);
+                "UPDATE jobs SET state = 'queued', owner = '', lease_until_ms = 0, attempts = CASE WHEN ? THEN "
+                "max(attempts - 1, 0) ELSE attempts END WHERE state = 'running' AND (? = '' OR owner = ?)");
+    q.integer(stopped ? 1 : 0).text(owner).text(owner);
     RICCATI_RETURN_IF_ERROR(done(q, "releasing the jobs of " + (owner.empty() ? std::string("every instance") : owner)));
     return sqlite3_changes(db_.get());
   }
@@ -706,20 +721,30 @@ class SqliteStore final : public Store {
   }
 
   Status error(const std::string& doing) { return failure(doing, sqlite3_errmsg(db_.get())); }
+  // A value refused when bound: its own code and message, not the
+  // connection's (which a later bind may have reset).
+  Status bind_failure(int rc, const std::string& doing) { return failure(doing, sqlite3_errstr(rc), rc); }
 
   // What a failed call means to the caller. A store that cannot grow (a full
   // disk or quota, or a file at the daemon's file size limit) is
   // RESOURCE_EXHAUSTED: the client can free room (delete datasets or jobs)
-  // and try again. Anything else is INTERNAL. Either way the database's path
-  // stays in the daemon's log and out of what clients see.
-  Status failure(const std::string& doing, const std::string& what) {
-    const int code = sqlite3_extended_errcode(db_.get());
+  // and try again. A value over SQLite's size limit (SQLITE_TOOBIG) is
+  // RESOURCE_EXHAUSTED too, saying so. Anything else is INTERNAL. Either way
+  // the database's path stays in the daemon's log and out of what clients see.
+  // `code`: SQLite's (extended) code; -1: the connection's last.
+  Status failure(const std::string& doing, const std::string& what, int code = -1) {
+    if (code < 0) code = sqlite3_extended_errcode(db_.get());
     const int primary = code & 0xff;
     std::string cause;
     if (primary == SQLITE_FULL || primary == SQLITE_IOERR) cause = no_room_cause();
     if (primary == SQLITE_FULL && cause.empty()) cause = "database or disk is full";
     spdlog::error("store failed database={} doing=\"{}\" error=\"{}\" sqlite_code={}{}", path_, doing, what, code,
                   cause.empty() ? "" : " cause=\"" + cause + "\"");
+    if (primary == SQLITE_TOOBIG) {
+      return {StatusCode::kResourceExhausted, "the store failed " + doing + ": " + what + " (SQLite stores at most " +
+                                                  std::to_string(sqlite3_limit(db_.get(), SQLITE_LIMIT_LENGTH, -1)) +
+                                                  " bytes in one value)"};
+    }
     if (cause.empty()) {
       return internal_error("the store failed " + doing + ": " + what + " (the daemon's log has the details)");
     }
@@ -773,6 +798,7 @@ class SqliteStore final : public Store {
   // Runs a statement that returns no rows.
   Status done(Statement& s, const std::string& doing) {
     if (!s.prepared()) return error(doing);
+    if (s.bind_error() != SQLITE_OK) return bind_failure(s.bind_error(), doing);
     const int rc = s.step();
     if (rc == SQLITE_DONE) return Status::ok();
     if (rc == SQLITE_CONSTRAINT) {

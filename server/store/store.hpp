@@ -99,6 +99,10 @@ struct JobRecord {
   std::string owner;  // empty: not claimed
   std::int64_t lease_until_ms = 0;
   bool cancel_requested = false;
+  // Claims so far, the current one included (claim_job counts them; a
+  // release by a stopping owner takes its claim back): what bounds a job
+  // that kills its instance, or whose end cannot be stored, to a few tries.
+  int attempts = 0;
 };
 
 class Store {
@@ -131,8 +135,8 @@ class Store {
   //
   // claim_job: the oldest job of a kind this riccatid knows that is queued,
   // or running under an expired lease (its instance died), becomes running, owned by `owner` for
-  // `lease_ms` from now; started_ms is set at its first claim. Two callers
-  // never get the same job. nullopt: nothing to run.
+  // `lease_ms` from now; started_ms is set at its first claim, and attempts
+  // counts the claim. Two callers never get the same job. nullopt: nothing to run.
   virtual Result<std::optional<JobRecord>> claim_job(const std::string& owner, std::int64_t lease_ms) = 0;
   // The owner renews its lease and publishes progress (pass, passes, sample,
   // samples, theta, iteration, cost of `progress`). ABORTED if `owner` no longer holds the job
@@ -146,7 +150,9 @@ class Store {
   virtual Status finish_job(const JobRecord& final, const std::string& owner, const std::string* result) = 0;
   // Puts the running jobs of `owner` (every owner's when empty: a store that
   // one instance uses alone, at its start) back in the queue; returns how many.
-  virtual Result<int> release_jobs(const std::string& owner) = 0;
+  // `stopped`: their owner stopped them itself (a shutdown), which is no
+  // fault of theirs, so their last claim is not counted in attempts.
+  virtual Result<int> release_jobs(const std::string& owner, bool stopped) = 0;
   // Cancels a job: a queued one at once (state cancelled), a running one by
   // flagging it for its owner; an ended one is left as it is. Returns the job.
   virtual Result<JobRecord> cancel_job(const std::string& tenant, const std::string& id) = 0;

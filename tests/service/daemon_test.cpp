@@ -44,11 +44,12 @@ using testing::two_tank_session;
 
 const std::string kData = RICCATI_TEST_DATA_DIR;
 
-// The most passes a job may ask for (the max_passes default): tens of
+// The most passes whose result fits the max_result_bytes default (256 MiB;
+// a pass's trace is 4 parameters x 2000 samples x 8 bytes): tens of
 // seconds of work (a Hensen pass on two_tank.csv takes about 10 ms here),
 // for a job that must still be running when a test looks, and that the
 // test cancels or a stop interrupts.
-constexpr int kEndlessPasses = 10'000;
+constexpr int kEndlessPasses = 4'000;
 
 // A free loopback TCP port (a tiny race with other processes, acceptable in tests).
 int free_port() {

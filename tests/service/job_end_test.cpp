@@ -4,7 +4,8 @@
 // and read back a few thousand times by several clients at once, which is
 // how the race between "the store has the end" and "the instance still
 // shows the job running" was found (riccati validate failed 2-3 % of the
-// time with "has no result: it is running").
+// time with "has no result: it is running"). And a job that cannot end
+// (its result cannot be stored, its daemon dies) ends FAILED saying why.
 #include <gtest/gtest.h>
 
 #include <atomic>
@@ -132,6 +133,129 @@ TEST(JobEndTest, AJobWatchedToItsEndHasItsResultOnPostgres) {
   DaemonProcess daemon(dir.path() / "data", {"--workers", "2", "--database", schema.url()});
   daemon.start();
   hammer(daemon);
+}
+
+// A job that cannot end must not run forever. Its end used to be dropped
+// when the store refused it (a result over SQLite's 1 GB limit): the job
+// stayed RUNNING, its lease expired, and it ran again, and failed again,
+// every ~23 s at ~5 GB, forever.
+
+v1::Job job_of(v1::JobService::Stub& jobs, const std::string& id) {
+  grpc::ClientContext ctx;
+  v1::GetJobRequest get;
+  get.set_id(id);
+  v1::Job job;
+  const grpc::Status s = jobs.GetJob(&ctx, get, &job);
+  EXPECT_TRUE(s.ok()) << s.error_message();
+  return job;
+}
+
+// A result the store cannot take: with a file size limit of 2.5 MiB, the
+// checkpoints of 20 passes fill the write-ahead log to ~1.4 MiB, and the
+// result (the same traces again) does not fit after them. The job fails
+// saying why, without its result, and is not run again: a restart finds it
+// FAILED, claimed once.
+TEST(JobEndTest, AJobWhoseResultCannotBeStoredFailsWithTheReason) {
+  TempDir dir;
+  DaemonProcess daemon(dir.path() / "data");
+  daemon.set_file_size_limit(5 << 19);
+  daemon.start();
+  auto datasets = v1::DatasetService::NewStub(daemon.channel());
+  auto jobs = v1::JobService::NewStub(daemon.channel());
+  v1::DatasetInfo dataset;
+  ASSERT_TRUE(upload_dataset(*datasets, "two_tank.csv", read_file(std::string(RICCATI_TEST_DATA_DIR) + "/two_tank.csv"),
+                             {"F1", "F2"}, {"h1", "h2"}, &dataset)
+                  .ok());
+  v1::Job job;
+  {
+    grpc::ClientContext ctx;
+    const grpc::Status s = jobs->SubmitIdentification(&ctx, hensen_spec(dataset.id(), 20), &job);
+    ASSERT_TRUE(s.ok()) << s.error_message();
+  }
+  EXPECT_TRUE(wait_until([&] { return job_of(*jobs, job.id()).state() >= v1::JOB_STATE_SUCCEEDED; }, kWait,
+                         "the job ends"));
+  const v1::Job failed = job_of(*jobs, job.id());
+  EXPECT_EQ(failed.state(), v1::JOB_STATE_FAILED) << failed.ShortDebugString();
+  EXPECT_EQ(failed.error().code(), static_cast<int>(grpc::StatusCode::RESOURCE_EXHAUSTED)) << failed.ShortDebugString();
+  const std::string& message = failed.error().message();
+  EXPECT_NE(message.find("the result of "), std::string::npos) << message;
+  EXPECT_NE(message.find(" bytes could not be stored: the store is full (its write-ahead log reached the daemon's "
+                         "file size limit"),
+            std::string::npos)
+      << message;
+  EXPECT_NE(message.find("ending job " + job.id()), std::string::npos) << message;
+  EXPECT_EQ(failed.attempts(), 1u);
+  {
+    grpc::ClientContext ctx;
+    v1::GetResultRequest request;
+    request.set_job_id(job.id());
+    v1::JobResult result;
+    EXPECT_EQ(jobs->GetResult(&ctx, request, &result).error_code(), grpc::StatusCode::FAILED_PRECONDITION);
+  }
+  // A restart queues every job left running: this one is not.
+  datasets.reset();
+  jobs.reset();
+  ASSERT_EQ(daemon.stop(), 0) << daemon.exit_report();
+  daemon.start();
+  jobs = v1::JobService::NewStub(daemon.channel());
+  const v1::Job after = job_of(*jobs, job.id());
+  EXPECT_EQ(after.state(), v1::JOB_STATE_FAILED);
+  EXPECT_EQ(after.attempts(), 1u) << "claimed again";
+  EXPECT_EQ(after.error().message(), message);
+}
+
+// A job whose daemon dies while it runs (kill -9, as an out-of-memory kill
+// would) is run again after the restart, but only max_job_attempts times:
+// the next claim fails it, saying why.
+TEST(JobEndTest, AJobWhoseDaemonDiesEveryTimeFailsAfterMaxJobAttempts) {
+  TempDir dir;
+  // Thousands of passes: far longer than the test, which kills it running.
+  DaemonProcess daemon(dir.path() / "data", {"--max-job-attempts", "2", "--max-result-bytes", "1000000000"});
+  daemon.start();
+  v1::DatasetInfo dataset;
+  {
+    auto datasets = v1::DatasetService::NewStub(daemon.channel());
+    ASSERT_TRUE(upload_dataset(*datasets, "two_tank.csv",
+                               read_file(std::string(RICCATI_TEST_DATA_DIR) + "/two_tank.csv"), {"F1", "F2"},
+                               {"h1", "h2"}, &dataset)
+                    .ok());
+  }
+  auto jobs = v1::JobService::NewStub(daemon.channel());
+  v1::Job job;
+  {
+    grpc::ClientContext ctx;
+    const grpc::Status s = jobs->SubmitIdentification(&ctx, hensen_spec(dataset.id(), 5000), &job);
+    ASSERT_TRUE(s.ok()) << s.error_message();
+  }
+  for (std::uint32_t attempt = 1; attempt <= 2; ++attempt) {
+    v1::Job seen;
+    ASSERT_TRUE(wait_until(
+        [&] {
+          seen = job_of(*jobs, job.id());
+          return seen.state() == v1::JOB_STATE_RUNNING && seen.attempts() == attempt;
+        },
+        kWait, "the job runs, attempt " + std::to_string(attempt)))
+        << seen.ShortDebugString();
+    jobs.reset();
+    daemon.kill_now();
+    daemon.start();
+    jobs = v1::JobService::NewStub(daemon.channel());
+  }
+  v1::Job ended;
+  EXPECT_TRUE(wait_until(
+      [&] {
+        ended = job_of(*jobs, job.id());
+        return ended.state() >= v1::JOB_STATE_SUCCEEDED;
+      },
+      kWait, "the job ends"))
+      << ended.ShortDebugString();
+  EXPECT_EQ(ended.state(), v1::JOB_STATE_FAILED) << ended.ShortDebugString();
+  EXPECT_EQ(ended.error().code(), static_cast<int>(grpc::StatusCode::RESOURCE_EXHAUSTED));
+  EXPECT_NE(ended.error().message().find("limit max_job_attempts = 2 reached: the job was claimed 2 times without "
+                                         "ending: riccatid died or could not store its end each time"),
+            std::string::npos)
+      << ended.error().message();
+  EXPECT_EQ(ended.attempts(), 3u);
 }
 
 }  // namespace

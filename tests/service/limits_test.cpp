@@ -191,6 +191,72 @@ TEST_F(LimitsTest, MeasurementsPerMessage) {
   expect_limit(stream->Finish(), "max_batch = 4");
 }
 
+// A job's result is estimated at submit: one over max_result_bytes used to
+// be computed for minutes and then fail to be stored (a result over SQLite's
+// 1 GB limit, run again and again). 500 samples of the two-tank model's 4
+// parameters make 16000 bytes of trace a pass, plus 28000 once.
+TEST(ResultLimits, AJobWhoseResultWouldBeTooLargeIsRefusedAtSubmit) {
+  TempDir dir;
+  DaemonProcess daemon(dir.path() / "data", {"--max-result-bytes", "1000000"});
+  daemon.start();
+  auto datasets = v1::DatasetService::NewStub(daemon.channel());
+  auto jobs = v1::JobService::NewStub(daemon.channel());
+  v1::DatasetInfo data;
+  ASSERT_TRUE(testing::upload_dataset(*datasets, "data.csv", small_csv(500), {"F1", "F2"}, {"h1", "h2"}, &data).ok());
+  v1::Job job;
+  {
+    grpc::ClientContext ctx;
+    const grpc::Status s = jobs->SubmitIdentification(&ctx, testing::hensen_spec(data.id(), 61), &job);
+    EXPECT_EQ(s.error_code(), grpc::StatusCode::RESOURCE_EXHAUSTED) << s.error_message();
+    EXPECT_NE(s.error_message().find("limit max_result_bytes = 1000000 reached: the job's result would take about "
+                                     "1004000 bytes (61 passes x 4 parameters x 500 samples of estimate traces"),
+              std::string::npos)
+        << s.error_message();
+    EXPECT_NE(s.error_message().find("ask for fewer passes, or a shorter sample range (first_sample, end_sample)"),
+              std::string::npos)
+        << s.error_message();
+  }
+  {
+    grpc::ClientContext ctx;
+    const grpc::Status s = jobs->SubmitIdentification(&ctx, testing::hensen_spec(data.id(), 60), &job);
+    EXPECT_TRUE(s.ok()) << "60 passes, 988000 bytes: " << s.error_message();
+  }
+  {
+    v1::IdentificationSpec ranged = testing::hensen_spec(data.id(), 61);
+    ranged.set_end_sample(250);
+    grpc::ClientContext ctx;
+    const grpc::Status s = jobs->SubmitIdentification(&ctx, ranged, &job);
+    EXPECT_TRUE(s.ok()) << "61 passes over half the samples: " << s.error_message();
+  }
+  // Smoothing over 2000 samples: 1 + 4 x 6 + 2 x 2 values a sample fit;
+  // with the covariance of z (36 more a sample) they do not.
+  v1::DatasetInfo longer;
+  ASSERT_TRUE(testing::upload_dataset(*datasets, "longer.csv", small_csv(2000), {"F1", "F2"}, {"h1", "h2"}, &longer).ok());
+  v1::SmoothingSpec smoothing;
+  smoothing.set_model("two_tank");
+  smoothing.set_dataset_id(longer.id());
+  for (double r : {1e-3, 1e-3}) smoothing.mutable_filter()->mutable_r()->mutable_diagonal()->add_values(r);
+  smoothing.mutable_initial_state()->set_first_measurement(true);
+  for (double v : {20.0, 20.0, 1.0, 1.0}) smoothing.add_theta0(v);
+  for (double v : {0.0, 0.0, 10.0, 10.0, 10.0, 10.0}) smoothing.mutable_p0()->mutable_diagonal()->add_values(v);
+  {
+    grpc::ClientContext ctx;
+    const grpc::Status s = jobs->SubmitSmoothing(&ctx, smoothing, &job);
+    EXPECT_TRUE(s.ok()) << "2000 x 29 values, 464000 bytes: " << s.error_message();
+  }
+  smoothing.set_full_covariance(true);
+  {
+    grpc::ClientContext ctx;
+    const grpc::Status s = jobs->SubmitSmoothing(&ctx, smoothing, &job);
+    EXPECT_EQ(s.error_code(), grpc::StatusCode::RESOURCE_EXHAUSTED) << s.error_message();
+    EXPECT_NE(s.error_message().find("limit max_result_bytes = 1000000 reached: the job's result would take about "
+                                     "1040000 bytes (2000 samples x 65 values (6 states and parameters, with their "
+                                     "full covariance)"),
+              std::string::npos)
+        << s.error_message();
+    EXPECT_NE(s.error_message().find("or no full_covariance"), std::string::npos) << s.error_message();
+  }
+}
 
 // Simulate's work is bounded before it starts and stops when nobody waits:
 // 1e8 RK4 steps are refused naming the limit; a long simulation whose

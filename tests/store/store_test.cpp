@@ -427,11 +427,11 @@ TEST_P(StoreTest, ReleasedJobsAreQueuedAgainAndCancelsReachTheirOwner) {
   for (int i = 0; i < 4; ++i) ASSERT_TRUE(store->put_job(job("job-" + std::to_string(i), "t", i)).is_ok());
   ASSERT_EQ(store->claim_job("a", 60000).value()->id, "job-0");
   ASSERT_EQ(store->claim_job("b", 60000).value()->id, "job-1");
-  EXPECT_EQ(store->release_jobs("a").value(), 1);
+  EXPECT_EQ(store->release_jobs("a", false).value(), 1);
   EXPECT_EQ(store->get_job("t", "job-0").value().state, JobState::kQueued);
   EXPECT_EQ(store->get_job("t", "job-1").value().state, JobState::kRunning) << "b's job is b's";
   EXPECT_EQ(store->claim_job("c", 60000).value()->id, "job-0");
-  EXPECT_EQ(store->release_jobs("").value(), 2) << "every owner's";
+  EXPECT_EQ(store->release_jobs("", false).value(), 2) << "every owner's";
 
   // Queued: cancelled at once. Running: flagged for its owner's next renewal.
   const JobRecord queued = store->cancel_job("t", "job-3").value();
@@ -447,6 +447,35 @@ TEST_P(StoreTest, ReleasedJobsAreQueuedAgainAndCancelsReachTheirOwner) {
   end.state = JobState::kCancelled;
   ASSERT_TRUE(store->finish_job(end, "a", nullptr).is_ok());
   EXPECT_EQ(store->cancel_job("t", running.id).value().state, JobState::kCancelled) << "an ended job stays as it is";
+}
+
+// The retry budget's count: every claim is an attempt, whether the job was
+// queued or taken over from a dead owner; a release by a stopping owner
+// takes its claim back, one after a death (at start) does not.
+TEST_P(StoreTest, EveryClaimOfAJobCountsAsAnAttemptUnlessItsOwnerStoppedIt) {
+  auto store = open();
+  ASSERT_TRUE(store->put_job(job("job-1", "t", 1)).is_ok());
+  EXPECT_EQ(store->get_job("t", "job-1").value().attempts, 0);
+  EXPECT_EQ(store->claim_job("a", 1).value()->attempts, 1);  // a 1 ms lease: "a" died
+  std::this_thread::sleep_for(std::chrono::milliseconds(20));
+  EXPECT_EQ(store->claim_job("b", 60000).value()->attempts, 2) << "a takeover is an attempt";
+  EXPECT_EQ(store->get_job("t", "job-1").value().attempts, 2);
+  EXPECT_EQ(store->release_jobs("b", true).value(), 1);
+  EXPECT_EQ(store->get_job("t", "job-1").value().attempts, 1) << "b stopped it: its claim is taken back";
+  EXPECT_EQ(store->claim_job("c", 60000).value()->attempts, 2);
+  EXPECT_EQ(store->release_jobs("", false).value(), 1);
+  EXPECT_EQ(store->get_job("t", "job-1").value().attempts, 2) << "released at a start after a death: it counts";
+  JobRecord running = store->claim_job("d", 60000).value().value();
+  EXPECT_EQ(running.attempts, 3);
+  running.state = JobState::kFailed;
+  ASSERT_TRUE(store->finish_job(running, "d", nullptr).is_ok());
+  EXPECT_EQ(store->release_jobs("", true).value(), 0);
+  EXPECT_EQ(store->get_job("t", "job-1").value().attempts, 3) << "an ended job keeps its count";
+  // A job stored with a count keeps it (put_job writes every field).
+  JobRecord counted = job("job-2", "t", 2);
+  counted.attempts = 5;
+  ASSERT_TRUE(store->put_job(counted).is_ok());
+  EXPECT_EQ(store->get_job("t", "job-2").value().attempts, 5);
 }
 
 TEST_P(StoreTest, ASessionSnapshotIsHeldByOneInstanceUnderALease) {
@@ -591,7 +620,7 @@ TEST(PostgresStore, StoresOpeningAtOnceOnAnEmptyDatabaseAllSucceed) {
   for (int i = 0; i < kStores; ++i) ASSERT_TRUE(opened[i].is_ok()) << i << ": " << opened[i].status().to_string();
   const pqxx::result versions = schema.exec("SELECT version FROM riccati_schema_migrations ORDER BY version");
   // Each migration applied once, in order.
-  ASSERT_EQ(versions.size(), 4u);  // postgres_store.cpp's migrations
+  ASSERT_EQ(versions.size(), 5u);  // postgres_store.cpp's migrations
   for (int v = 0; v < static_cast<int>(versions.size()); ++v) EXPECT_EQ(versions[v][0].as<int>(), v + 1);
   // And they share one database: what one stores, another reads.
   ASSERT_TRUE(opened[0].value()->put_job_pass("t", "none", 1, "c").code() == StatusCode::kNotFound);

@@ -255,6 +255,33 @@ Status check_against_datasets(const IdentificationJob& job, const std::vector<Da
   return Status::ok();
 }
 
+ResultSize estimated_result_size(const IdentificationJob& job, const std::vector<DatasetRecord>& records,
+                                 const Model& model) {
+  // The first experiment within its sample range (checked by check_against_datasets).
+  const Eigen::Index end = job.filter.end_sample < 0 ? records.front().samples : job.filter.end_sample;
+  const double first = static_cast<double>(end - job.filter.first_sample);
+  const double ny = model.ny(), nx = model.nx(), ntheta = model.ntheta();
+  ResultSize size;
+  size.smaller = "fewer passes, or a shorter sample range (first_sample, end_sample)";
+  if (job.method == IdentificationMethod::kFilter || job.init_passes > 0) {
+    const int passes = job.method == IdentificationMethod::kFilter ? job.filter.passes : job.init_passes;
+    // Each pass's theta trace; t, x_trace, y_model and innovations once.
+    size.bytes += 8 * (passes * ntheta * first + first * (1 + nx + 2 * ny));
+    size.what = std::to_string(passes) + " passes x " + std::to_string(model.ntheta()) + " parameters x " +
+                std::to_string(end - job.filter.first_sample) + " samples of estimate traces";
+  }
+  if (job.method != IdentificationMethod::kFilter) {
+    // Each experiment's t, y_measured, y_model, residuals and mask.
+    double samples = first;
+    for (std::size_t e = 1; e < records.size(); ++e) samples += static_cast<double>(records[e].samples);
+    size.bytes += 8 * samples * (1 + 4 * ny);
+    if (size.what.empty()) size.smaller = "a shorter sample range (first_sample, end_sample), or fewer experiments";
+    size.what += (size.what.empty() ? "" : ", and ") + std::to_string(static_cast<std::int64_t>(samples)) +
+                 " samples x " + std::to_string(1 + 4 * model.ny()) + " values of fitted outputs";
+  }
+  return size;
+}
+
 Result<Eigen::ArrayXXd> make_mask(const v1::SampleMask& mask, const Dataset& bound, const Model& model) {
   const Eigen::Index ny = model.ny(), N = bound.size();
   Eigen::ArrayXXd m = Eigen::ArrayXXd::Ones(ny, N);

@@ -48,6 +48,21 @@ Result<IdentificationJob> identification_from_proto(const v1::IdentificationSpec
 Status check_against_datasets(const IdentificationJob& job, const std::vector<DatasetRecord>& records,
                               const Model& model);
 
+// A job's result as estimated at submit: its doubles' bytes, what makes
+// them ("650 passes x 4 parameters x 50000 samples"), and what would make
+// it smaller, for the message that refuses it.
+struct ResultSize {
+  double bytes = 0;
+  std::string what;
+  std::string smaller;
+};
+
+// An identification's result (job_convert.cpp's to_proto): each filter pass's
+// parameter trace, the last pass's state trace and outputs; for output error
+// and maximum likelihood, each experiment's outputs and residuals.
+ResultSize estimated_result_size(const IdentificationJob& job, const std::vector<DatasetRecord>& records,
+                                 const Model& model);
+
 // The engine's experiment from its spec and its data bound to the model.
 Result<Experiment> make_experiment(const ExperimentSpec& spec, const Dataset& bound, const Model& model);
 

@@ -233,6 +233,7 @@ v1::Job to_proto(const JobRecord& job) {
   set_timestamp(job.created_ms, out.mutable_created());
   if (job.started_ms != 0) set_timestamp(job.started_ms, out.mutable_started());
   if (job.finished_ms != 0) set_timestamp(job.finished_ms, out.mutable_finished());
+  out.set_attempts(static_cast<uint32_t>(job.attempts));
   return out;
 }
 

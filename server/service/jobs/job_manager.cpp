@@ -28,6 +28,18 @@ std::string default_instance_id() {
   return std::string(host) + "-" + suffix;
 }
 
+// RESOURCE_EXHAUSTED (max_result_bytes) naming the estimate and what to
+// change: a result past the store's limit (1 GB for SQLite) would be
+// computed, then fail to be stored.
+Status check_result_size(const ResultSize& size, std::int64_t limit) {
+  if (size.bytes <= static_cast<double>(limit)) return Status::ok();
+  char bytes[32];
+  std::snprintf(bytes, sizeof bytes, "%.0f", size.bytes);
+  return limit_reached("max_result_bytes", limit,
+                       std::string("the job's result would take about ") + bytes + " bytes (" + size.what +
+                           ", 8 bytes each): ask for " + size.smaller + ", or raise max_result_bytes");
+}
+
 }  // namespace
 
 JobManager::JobManager(Store& store, const ModelRegistry& models, int workers, Limits limits, JobQueueOptions queue,
@@ -47,7 +59,9 @@ Status JobManager::start() {
   // (killed, or stopped mid-job); with a shared one, only those of this
   // instance's id: the others belong to live instances or wait for their
   // leases to expire.
-  RICCATI_ASSIGN_OR_RETURN(const int released, store_.release_jobs(queue_.exclusive_store ? "" : instance_));
+  // Their claims count as attempts: their instance died with them.
+  RICCATI_ASSIGN_OR_RETURN(const int released,
+                           store_.release_jobs(queue_.exclusive_store ? "" : instance_, /*stopped=*/false));
   if (released > 0) spdlog::info("jobs queued again count={} (left running by an earlier run)", released);
   spdlog::info("job queue instance={} lease_ms={} poll_ms={}", instance_, queue_.lease.count(), queue_.poll.count());
   std::lock_guard lock(mu_);
@@ -71,7 +85,7 @@ void JobManager::shutdown() {
   if (renewals_.joinable()) renewals_.join();
   // The interrupted jobs go back to the queue now rather than when their
   // leases expire: another instance, or the next start, resumes them.
-  auto released = store_.release_jobs(instance_);
+  auto released = store_.release_jobs(instance_, /*stopped=*/true);
   if (!released.is_ok()) spdlog::warn("interrupted jobs not released error=\"{}\"", released.status().message());
 }
 
@@ -88,6 +102,7 @@ Result<JobRecord> JobManager::submit_identification(const std::string& tenant, c
     datasets.push_back(std::move(record));
   }
   RICCATI_RETURN_IF_ERROR(check_against_datasets(plan, datasets, *model));
+  RICCATI_RETURN_IF_ERROR(check_result_size(estimated_result_size(plan, datasets, *model), limits_.max_result_bytes));
   JobRecord job;
   job.id = new_id("job");
   job.tenant = tenant;
@@ -106,6 +121,22 @@ Result<JobRecord> JobManager::submit_smoothing(const std::string& tenant, const 
   if (end > dataset.samples || end - settings.first_sample < 2) {
     return invalid_argument("the sample range [" + std::to_string(settings.first_sample) + ", " + std::to_string(end) +
                             ") must hold at least two of the dataset's " + std::to_string(dataset.samples) + " samples");
+  }
+  {
+    // Per sample: t, the filtered and smoothed means and deviations of z
+    // (the states, then the parameters), y_model and innovations, and with
+    // full_covariance, P of z.
+    const double samples = static_cast<double>(end - settings.first_sample);
+    const double nz = model->nx() + model->ntheta();
+    const double per_sample = 1 + 4 * nz + 2 * model->ny() + (spec.full_covariance() ? nz * nz : 0);
+    RICCATI_RETURN_IF_ERROR(check_result_size(
+        {8 * samples * per_sample,
+         std::to_string(end - settings.first_sample) + " samples x " + std::to_string(static_cast<int>(per_sample)) +
+             " values (" + std::to_string(static_cast<int>(nz)) + " states and parameters" +
+             (spec.full_covariance() ? ", with their full covariance" : "") + ")",
+         std::string("a shorter sample range (first_sample, end_sample)") +
+             (spec.full_covariance() ? ", or no full_covariance" : "")},
+        limits_.max_result_bytes));
   }
   JobRecord job;
   job.id = new_id("job");
@@ -154,6 +185,13 @@ Result<JobRecord> JobManager::submit_validation(const std::string& tenant, const
     return invalid_argument("initial_state.x0 needs " + std::to_string(model->nx()) +
                             " values (or first_measurement = true)");
   }
+  // Per sample: t, the measured and the simulated outputs.
+  const int per_sample = 1 + 2 * model->ny();
+  RICCATI_RETURN_IF_ERROR(check_result_size({8.0 * static_cast<double>(dataset.samples) * per_sample,
+                                             std::to_string(dataset.samples) + " samples x " +
+                                                 std::to_string(per_sample) + " values",
+                                             "a dataset with fewer samples"},
+                                            limits_.max_result_bytes));
   JobRecord job;
   job.id = new_id("job");
   job.tenant = tenant;
@@ -382,6 +420,20 @@ void JobManager::run(JobRecord job) {
     finish(std::move(job), cancelled("cancelled"), claimed);
     return;
   }
+  if (job.attempts > limits_.max_job_attempts) {
+    // Claimed that often without an end: its run kills riccatid, or its end
+    // cannot be stored. Failing it now is a small write, and the loop ends.
+    const std::string why = job.error_message.empty()
+                                ? "riccatid died or could not store its end each time"
+                                : "the last error: " + job.error_message;
+    spdlog::warn("job failed after too many attempts id={} attempts={} max_job_attempts={}", id, job.attempts - 1,
+                 limits_.max_job_attempts);
+    const Status exhausted = limit_reached("max_job_attempts", limits_.max_job_attempts,
+                                           "the job was claimed " + std::to_string(job.attempts - 1) +
+                                               " times without ending: " + why);
+    finish(std::move(job), exhausted, claimed);
+    return;
+  }
   std::stop_token stop;
   {
     std::lock_guard lock(mu_);
@@ -434,7 +486,18 @@ void JobManager::finish(JobRecord job, const Result<std::string>& result,
     auto it = live_.find(job.id);
     if (it != live_.end()) it->second.ending = true;
   }
-  const Status stored = store_.finish_job(job, instance_, result.is_ok() ? &result.value() : nullptr);
+  Status stored = store_.finish_job(job, instance_, result.is_ok() ? &result.value() : nullptr);
+  if (!stored.is_ok() && stored.code() != StatusCode::kAborted && result.is_ok()) {
+    // The result could not be stored (over the store's size limit, a full
+    // disk): the job fails saying so, a small write without the result,
+    // rather than running again once its lease expires, and failing again.
+    spdlog::warn("job result not stored id={} bytes={} error=\"{}\"", job.id, result.value().size(), stored.message());
+    job.state = JobState::kFailed;
+    job.error_code = static_cast<int>(stored.code());
+    job.error_message =
+        "the result of " + std::to_string(result.value().size()) + " bytes could not be stored: " + stored.message();
+    stored = store_.finish_job(job, instance_, nullptr);
+  }
   // Counted before watchers here hear of the end, so that what they see
   // next on /metrics includes it.
   if (stored.is_ok() && metrics_ != nullptr) {
@@ -447,12 +510,13 @@ void JobManager::finish(JobRecord job, const Result<std::string>& result,
   changed_.notify_all();
   if (!stored.is_ok()) {
     // ABORTED: another instance holds it now and writes the end itself.
-    // Otherwise the store failed: the lease expires and the job runs again.
+    // Otherwise the store failed: the lease expires and the job runs again,
+    // up to max_job_attempts times.
     spdlog::warn("job end not stored id={} error=\"{}\"", job.id, stored.message());
-  } else if (outcome.is_ok()) {
+  } else if (job.state == JobState::kSucceeded) {
     spdlog::info("job succeeded id={}", job.id);
   } else {
-    spdlog::info("job ended id={} state={} error=\"{}\"", job.id, job_state_name(job.state), outcome.message());
+    spdlog::info("job ended id={} state={} error=\"{}\"", job.id, job_state_name(job.state), job.error_message);
   }
 }
 

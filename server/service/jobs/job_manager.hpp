@@ -132,7 +132,7 @@ class JobManager {
 
   Store& store_;
   const ModelRegistry& models_;
-  const Limits limits_;  // max_jobs, max_tenant_jobs, max_passes
+  const Limits limits_;  // max_jobs, max_tenant_jobs, max_passes, max_result_bytes, max_job_attempts
   const int worker_count_;
   const JobQueueOptions queue_;
   const std::string instance_;
