@@ -6,6 +6,7 @@
 #include <atomic>
 #include <cmath>
 #include <fstream>
+#include <mutex>
 #include <sstream>
 #include <thread>
 
@@ -304,25 +305,37 @@ TEST(SimulateLimits, WorkIsBoundedAtTheStartAndStopsAtTheDeadline) {
       testing::kWait, "a small simulation taken once the one past its deadline has stopped"));
   EXPECT_LT(std::chrono::steady_clock::now() - after_deadline, std::chrono::seconds(testing::kSanitized ? 60 : 5));
 
-  // One running (cancelled by its client below) keeps a second out.
-  std::atomic<bool> started{false};
-  grpc::ClientContext long_ctx;
+  // One running (cancelled by its client below) keeps a second out. The
+  // long one tries again while a probe holds the only place.
+  std::atomic<bool> done{false};
+  std::unique_ptr<grpc::ClientContext> long_ctx;
+  std::mutex long_mu;
   std::thread running([&] {
-    started = true;
-    v1::SimulateResponse r;
-    (void)models->Simulate(&long_ctx, request(3001, 100'000), &r);
+    while (!done) {
+      {
+        std::lock_guard lock(long_mu);
+        long_ctx = std::make_unique<grpc::ClientContext>();
+      }
+      v1::SimulateResponse r;
+      const grpc::Status s = models->Simulate(long_ctx.get(), request(3001, 100'000), &r);
+      if (s.error_code() != grpc::StatusCode::RESOURCE_EXHAUSTED) break;
+    }
   });
   grpc::Status refused;
   EXPECT_TRUE(testing::wait_until(
       [&] {
         grpc::ClientContext ctx;
         refused = models->Simulate(&ctx, request(10, 10), &response);
-        return started && !refused.ok();
+        return !refused.ok();
       },
       testing::kWait, "a second simulation refused while one runs"));
   EXPECT_EQ(refused.error_code(), grpc::StatusCode::RESOURCE_EXHAUSTED) << refused.error_message();
   EXPECT_NE(refused.error_message().find("max_simulations = 1"), std::string::npos) << refused.error_message();
-  long_ctx.TryCancel();
+  done = true;
+  {
+    std::lock_guard lock(long_mu);
+    long_ctx->TryCancel();
+  }
   running.join();
 }
 
