@@ -441,17 +441,25 @@ TEST(UploadLimits, TheQuotaHoldsForConcurrentUploadsAndUploadsInFlightAreCapped)
   DaemonProcess capped(dir.path() / "data2", {"--max-uploads", "2"});
   capped.start();
   auto capped_datasets = v1::DatasetService::NewStub(capped.channel());
-  std::vector<std::unique_ptr<grpc::ClientContext>> contexts;
-  std::vector<std::unique_ptr<grpc::ClientWriter<v1::UploadDatasetRequest>>> open;
-  v1::DatasetInfo info[3];
-  for (int i = 0; i < 2; ++i) {
-    contexts.push_back(std::make_unique<grpc::ClientContext>());
-    open.push_back(capped_datasets->UploadDataset(contexts.back().get(), &info[i]));
-    ASSERT_TRUE(open.back()->Write(testing::upload_header("open.csv", {"F1", "F2"}, {"h1", "h2"})));
-  }
+  std::vector<std::unique_ptr<grpc::ClientContext>> contexts(2);
+  std::vector<std::unique_ptr<grpc::ClientWriter<v1::UploadDatasetRequest>>> open(2);
+  v1::DatasetInfo info[2];
+  v1::UploadDatasetRequest nothing;
+  nothing.set_chunk("");
+  // Two uploads held open. A probe may take a place before one of them is
+  // read, which is then refused: it is opened again until both hold.
+  auto hold_open = [&](std::size_t i) {
+    if (open[i] != nullptr && open[i]->Write(nothing)) return;
+    if (open[i] != nullptr) open[i]->Finish();
+    contexts[i] = std::make_unique<grpc::ClientContext>();
+    open[i] = capped_datasets->UploadDataset(contexts[i].get(), &info[i]);
+    open[i]->Write(testing::upload_header("open.csv", {"F1", "F2"}, {"h1", "h2"}));
+  };
   grpc::Status third;
   EXPECT_TRUE(testing::wait_until(
       [&] {
+        hold_open(0);
+        hold_open(1);
         v1::DatasetInfo ignored;
         third = testing::upload_dataset(*capped_datasets, "third.csv", csv, {"F1", "F2"}, {"h1", "h2"}, &ignored);
         return !third.ok();
