@@ -1,6 +1,14 @@
 #include "engine/status.hpp"
 
+#include <cstdio>
+
 namespace riccati {
+
+std::string message_number(double v, int significant) {
+  char text[32];
+  std::snprintf(text, sizeof text, "%.*g", significant, v);
+  return text;
+}
 
 const char* status_code_name(StatusCode code) {
   switch (code) {

@@ -57,6 +57,9 @@ inline Status failed_precondition(std::string m) { return {StatusCode::kFailedPr
 inline Status internal_error(std::string m) { return {StatusCode::kInternal, std::move(m)}; }
 inline Status cancelled(std::string m) { return {StatusCode::kCancelled, std::move(m)}; }
 
+// A number as messages show it: %g with `significant` digits.
+std::string message_number(double v, int significant = 6);
+
 // A value or the Status that explains why there is none.
 template <typename T>
 class [[nodiscard]] Result {

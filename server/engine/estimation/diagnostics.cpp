@@ -34,11 +34,7 @@ using NoThrowPolicy =
 
 std::string size_text(const Eigen::MatrixXd& m) { return std::to_string(m.rows()) + " x " + std::to_string(m.cols()); }
 
-std::string number(double value, int significant = 4) {
-  char text[32];
-  std::snprintf(text, sizeof text, "%.*g", significant, value);
-  return text;
-}
+std::string number(double value, int significant = 4) { return message_number(value, significant); }
 
 // The first non-finite value, by sample then row, so the message points at
 // the earliest trouble.

@@ -8,11 +8,6 @@
 namespace riccati {
 namespace {
 
-std::string number(double v) {
-  char buffer[32];
-  std::snprintf(buffer, sizeof buffer, "%.6g", v);
-  return buffer;
-}
 
 }  // namespace
 
@@ -55,16 +50,16 @@ Status validate(const ParameterSettings& p, const Model& model) {
     const double lo = p.lower[i], hi = p.upper[i], v = p.theta0[i];
     if (!std::isfinite(v)) return invalid_argument("theta0 of " + name + " is not finite");
     if (std::isnan(lo) || std::isnan(hi) || lo > hi) {
-      return invalid_argument("the bounds of " + name + " are not an interval: [" + number(lo) + ", " + number(hi) +
+      return invalid_argument("the bounds of " + name + " are not an interval: [" + message_number(lo) + ", " + message_number(hi) +
                               "]");
     }
     if (v < lo || v > hi) {
-      return invalid_argument("theta0 of " + name + " = " + number(v) + " is outside its bounds [" + number(lo) +
-                              ", " + number(hi) + "]");
+      return invalid_argument("theta0 of " + name + " = " + message_number(v) + " is outside its bounds [" + message_number(lo) +
+                              ", " + message_number(hi) + "]");
     }
     if (p.log_scale[static_cast<std::size_t>(i)] && !(lo > 0.0)) {
       return invalid_argument(name + " is estimated on a log scale, so it needs a positive lower bound (it has " +
-                              number(lo) + ")");
+                              message_number(lo) + ")");
     }
   }
   return Status::ok();
@@ -133,7 +128,7 @@ void warn_active_bounds(const ParameterSettings& p, EstimationResult* r) {
     const double v = r->theta[i], tolerance = 1e-9 * std::max(1.0, std::abs(v));
     const char* which = std::abs(v - p.lower[i]) <= tolerance ? "lower" : std::abs(v - p.upper[i]) <= tolerance ? "upper" : nullptr;
     if (which != nullptr) {
-      r->warnings.push_back(names[static_cast<std::size_t>(i)] + " ended on its " + which + " bound " + number(v) +
+      r->warnings.push_back(names[static_cast<std::size_t>(i)] + " ended on its " + which + " bound " + message_number(v) +
                             ": the best fit may lie beyond it");
     }
   }

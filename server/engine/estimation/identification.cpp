@@ -10,11 +10,6 @@ namespace riccati {
 
 namespace {
 
-std::string number(double v) {
-  char buffer[32];
-  std::snprintf(buffer, sizeof buffer, "%.6g", v);
-  return buffer;
-}
 
 // The samples a run filters: [first, end) of the bound dataset.
 struct SampleRange {
@@ -203,7 +198,7 @@ Result<IdentificationResult> identify(ModelPtr model, const Dataset& data, const
   for (Eigen::Index i = 0; i < hits.size(); ++i) {
     if (hits[i] == 0) continue;
     result.warnings.push_back(result.param_names[static_cast<std::size_t>(i)] + " was held at a bound (" +
-                              number(settings.theta_lower[i]) + " or " + number(settings.theta_upper[i]) + ") after " +
+                              message_number(settings.theta_lower[i]) + " or " + message_number(settings.theta_upper[i]) + ") after " +
                               std::to_string(hits[i]) + " samples of the last pass");
   }
   const PassResult& last = result.passes.back();

@@ -128,15 +128,10 @@ class ExperimentCost final : public ceres::CostFunction {
   mutable std::array<Simulation, 2> simulations_;  // the latest first
 };
 
-std::string number(double v) {
-  char buffer[32];
-  std::snprintf(buffer, sizeof buffer, "%.6g", v);
-  return buffer;
-}
 
 std::string join(const Eigen::VectorXd& v) {
   std::string out;
-  for (Eigen::Index i = 0; i < v.size(); ++i) out += (i > 0 ? ", " : "") + number(v[i]);
+  for (Eigen::Index i = 0; i < v.size(); ++i) out += (i > 0 ? ", " : "") + message_number(v[i]);
   return out;
 }
 

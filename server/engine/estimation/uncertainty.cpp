@@ -5,6 +5,8 @@
 #include <cstdio>
 #include <limits>
 
+#include "engine/status.hpp"
+
 namespace riccati {
 namespace {
 
@@ -12,11 +14,7 @@ constexpr double kRelativeEigenvalue = 1e-8;  // IDENTIFICATION.md
 constexpr double kCorrelation = 0.99;
 constexpr double kZ95 = 1.959963984540054;
 
-std::string number(double v) {
-  char buffer[32];
-  std::snprintf(buffer, sizeof buffer, "%.4g", v);
-  return buffer;
-}
+std::string number(double v) { return message_number(v, 4); }
 
 }  // namespace
 

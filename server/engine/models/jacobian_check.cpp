@@ -39,9 +39,7 @@ Status central_differences(const Values& values, const Eigen::VectorXd& z, Eigen
 std::string vector_text(const Eigen::VectorXd& v) {
   std::string s = "[";
   for (Eigen::Index i = 0; i < v.size(); ++i) {
-    char buf[32];
-    std::snprintf(buf, sizeof buf, "%s%.6g", i > 0 ? ", " : "", v[i]);
-    s += buf;
+    s += (i > 0 ? ", " : "") + message_number(v[i]);
   }
   return s + "]";
 }
