@@ -33,6 +33,8 @@ int job_show(Client& c, const std::string& id) {
     std::printf("%s\n", to_json(job).c_str());
   } else {
     std::printf("%s\n", job_line(job).c_str());
+    // Claimed more than once: an instance died with it, or could not store its end.
+    if (job.attempts() > 1) std::printf("  attempts: %u\n", job.attempts());
     if (job.has_error()) std::printf("  error: %s\n", job.error().message().c_str());
   }
   return kExitOk;
