@@ -33,12 +33,19 @@ double worst_relative_error(const Eigen::VectorXd& a, const Eigen::VectorXd& tru
   return ((a - truth).array() / truth.array()).abs().maxCoeff();
 }
 
+// The shipped noise-free two-tank record, bound to the model, from its first
+// measurement.
+Experiment two_tank_experiment(const Model& model) {
+  Experiment e;
+  e.data = bind_dataset(model, read_csv_file(RICCATI_TEST_DATA_DIR "/two_tank.csv",
+                                             ColumnMapping{"t", {"F1", "F2"}, {"h1", "h2"}}).value()).value();
+  e.x0 = e.data.y.col(0);
+  return e;
+}
+
 TEST(OutputError, TwoTankFromHensensStartRecoversTheTruth) {
   const ModelPtr model = registry().get("two_tank").value();
-  const Dataset raw = read_csv_file(RICCATI_TEST_DATA_DIR "/two_tank.csv", ColumnMapping{"t", {"F1", "F2"}, {"h1", "h2"}}).value();
-  Experiment e;
-  e.data = bind_dataset(*model, raw).value();
-  e.x0 = e.data.y.col(0);
+  const Experiment e = two_tank_experiment(*model);
   OutputErrorSettings s;
   s.parameters = default_parameters(*model, Eigen::Vector4d(20, 20, 1, 1));
   auto r = output_error(model, {e}, s);
@@ -229,10 +236,7 @@ TEST(OutputError, ParametersTheDataCannotTellApartAreNamedNotGivenFalsePrecision
 
 TEST(OutputError, BadSettingsAreRefusedNamingTheParameter) {
   const ModelPtr model = registry().get("two_tank").value();
-  Experiment e;
-  e.data = bind_dataset(*model, read_csv_file(RICCATI_TEST_DATA_DIR "/two_tank.csv",
-                                              ColumnMapping{"t", {"F1", "F2"}, {"h1", "h2"}}).value()).value();
-  e.x0 = e.data.y.col(0);
+  const Experiment e = two_tank_experiment(*model);
   OutputErrorSettings s;
   s.parameters = default_parameters(*model, Eigen::Vector4d(20, 20, 1, 1));
   s.parameters.upper[1] = 10.0;  // theta0 of A2 = 20 is above it
@@ -262,10 +266,7 @@ TEST(OutputError, BadSettingsAreRefusedNamingTheParameter) {
 // with which values.
 TEST(OutputError, ASimulationThatFailsFromTheStartSaysWhereAndWithWhichValues) {
   const ModelPtr model = registry().get("two_tank").value();
-  Experiment e;
-  e.data = bind_dataset(*model, read_csv_file(RICCATI_TEST_DATA_DIR "/two_tank.csv",
-                                              ColumnMapping{"t", {"F1", "F2"}, {"h1", "h2"}}).value()).value();
-  e.x0 = e.data.y.col(0);
+  const Experiment e = two_tank_experiment(*model);
   OutputErrorSettings s;
   s.parameters = default_parameters(*model, Eigen::Vector4d(1e-308, 5, 0.08, 0.13));
   const auto r = output_error(model, {e}, s);
