@@ -28,6 +28,8 @@ struct Limits {
   std::int64_t max_uploads = 16;                       // uploads in flight, all tenants
   std::int64_t max_result_bytes = 256ll << 20;         // a job's result, as estimated at submit
   std::int64_t max_job_attempts = 3;                   // claims of one job that did not end it
+  std::int64_t max_streams = 4096;                     // long-lived calls open, all tenants
+  std::int64_t max_tenant_streams = 256;               // long-lived calls open, one tenant
 };
 
 struct LimitSpec {
@@ -57,6 +59,10 @@ inline constexpr LimitSpec kLimitSpecs[] = {
      "Largest result of one job (bytes), as estimated at submit from its samples, passes and model"},
     {"max_job_attempts", &Limits::max_job_attempts,
      "Most times a job is claimed without ending (its instance died, or could not store its end) before it fails"},
+    {"max_streams", &Limits::max_streams,
+     "Most long-lived calls open at once (session streams, job watches, uploads), all tenants"},
+    {"max_tenant_streams", &Limits::max_tenant_streams,
+     "Most long-lived calls open at once (session streams, job watches, uploads) of one tenant"},
 };
 
 // RESOURCE_EXHAUSTED: "limit <key> = <limit> reached: <what>".

@@ -936,6 +936,23 @@ TEST_F(DaemonTest, BadInputGetsClearErrorsAndTheDaemonKeepsServing) {
     EXPECT_NE(s.error_message().find("a message of the upload of empty-message.csv is empty"), std::string::npos)
         << s.error_message();
   }
+  // A declared size the bytes do not match: more, or fewer (cut short).
+  for (const std::uint64_t declared : {10ull, 1000ull}) {
+    grpc::ClientContext ctx;
+    auto writer = datasets_->UploadDataset(&ctx, &info);
+    v1::UploadDatasetRequest header = testing::upload_header("sized.csv", {"u"}, {"y"});
+    header.mutable_header()->set_size_bytes(declared);
+    writer->Write(header);
+    v1::UploadDatasetRequest chunk;
+    chunk.set_chunk("t,u,y\n0,1,2\n1,1,2\n");
+    writer->Write(chunk);
+    writer->WritesDone();
+    s = writer->Finish();
+    EXPECT_EQ(s.error_code(), grpc::StatusCode::INVALID_ARGUMENT) << s.error_message();
+    EXPECT_NE(s.error_message().find(declared == 10 ? "sends more than the 10 bytes" : "ended after 18 of the 1000 bytes"),
+              std::string::npos)
+        << s.error_message();
+  }
 
   // Unknown model; wrong sizes.
   const std::string dataset = upload_two_tank();

@@ -78,7 +78,7 @@ void JobManager::shutdown() {
     for (auto& [id, job] : live_) job.stop.request_stop();
   }
   work_ready_.notify_all();
-  changed_.notify_all();
+  notify_changed();
   stopped_.notify_all();
   for (auto& w : workers_) w.join();
   workers_.clear();
@@ -289,47 +289,43 @@ std::uint64_t stored_version(const JobRecord& job) {
 
 }  // namespace
 
-Result<JobRecord> JobManager::wait_for_change(const std::string& tenant, const std::string& id,
-                                              std::uint64_t* version,
-                                              std::chrono::steady_clock::time_point deadline) {
-  // Not running here: the store has it. How often a watcher reads it.
-  constexpr auto kStorePoll = std::chrono::milliseconds(200);
-  std::unique_lock lock(mu_);
-  for (;;) {
+Result<std::optional<JobRecord>> JobManager::poll(const std::string& tenant, const std::string& id,
+                                                  std::uint64_t* version, bool* running_here) {
+  *running_here = false;
+  {
+    std::lock_guard lock(mu_);
     if (stopping_) {
       return Status(StatusCode::kUnavailable, "riccatid is shutting down; the job goes on after it restarts: watch again");
     }
     auto it = live_.find(id);
-    if (it != live_.end() && it->second.record.tenant == tenant) {
-      // Until its end is stored, or while it is being stored (then the store
-      // is read: it has the end and the result together, or neither).
-      changed_.wait_until(lock, deadline, [&] {
-        auto found = live_.find(id);
-        return stopping_ || found == live_.end() ||
-               (found->second.ending ? false : found->second.version != *version);
-      });
-      if (stopping_) continue;
-      auto found = live_.find(id);
-      if (found != live_.end() && !found->second.ending) {
-        *version = found->second.version;
-        return found->second.record;
-      }
+    // While its end is being stored, the store is read: it has the end and
+    // the result together, or neither.
+    if (it != live_.end() && it->second.record.tenant == tenant && !it->second.ending) {
+      *running_here = true;
+      if (it->second.version == *version) return std::optional<JobRecord>();
+      *version = it->second.version;
+      return std::optional<JobRecord>(it->second.record);
     }
-    lock.unlock();
-    RICCATI_ASSIGN_OR_RETURN(JobRecord stored, store_.get_job(tenant, id));
-    const std::uint64_t v = stored_version(stored);
-    if (v != *version || is_terminal(stored.state) || std::chrono::steady_clock::now() >= deadline) {
-      *version = v;
-      return stored;
-    }
-    lock.lock();
-    // A claim by a worker here ends the wait early (changed_ is notified).
-    changed_.wait_until(lock, std::min(deadline, std::chrono::steady_clock::now() + kStorePoll),
-                        [&] {
-                          auto found = live_.find(id);
-                          return stopping_ || (found != live_.end() && !found->second.ending);
-                        });
   }
+  RICCATI_ASSIGN_OR_RETURN(JobRecord stored, store_.get_job(tenant, id));
+  const std::uint64_t v = stored_version(stored);
+  if (v == *version) return std::optional<JobRecord>();
+  *version = v;
+  return std::optional<JobRecord>(std::move(stored));
+}
+
+void JobManager::set_change_listener(std::function<void()> listener) {
+  std::lock_guard lock(mu_);
+  change_listener_ = std::move(listener);
+}
+
+void JobManager::notify_changed() {
+  std::function<void()> listener;
+  {
+    std::lock_guard lock(mu_);
+    listener = change_listener_;
+  }
+  if (listener) listener();
 }
 
 template <typename Change>
@@ -343,7 +339,7 @@ std::optional<JobRecord> JobManager::update(const std::string& id, Change&& chan
     ++it->second.version;
     copy = it->second.record;
   }
-  changed_.notify_all();
+  notify_changed();
   return copy;
 }
 
@@ -442,7 +438,7 @@ void JobManager::run(JobRecord job) {
     stop = live.stop.get_token();
     if (stopping_) live.stop.request_stop();
   }
-  changed_.notify_all();
+  notify_changed();
   spdlog::info("job started id={} kind={} instance={}", id, job_kind_name(job.kind), instance_);
 
   Result<std::string> result = execute(job, stop);
@@ -464,7 +460,7 @@ void JobManager::run(JobRecord job) {
       std::lock_guard lock(mu_);
       live_.erase(id);
     }
-    changed_.notify_all();
+    notify_changed();
     return;
   }
   finish(std::move(outcome.record), result, claimed);
@@ -507,7 +503,7 @@ void JobManager::finish(JobRecord job, const Result<std::string>& result,
     std::lock_guard lock(mu_);
     live_.erase(job.id);  // watchers read the end from the store
   }
-  changed_.notify_all();
+  notify_changed();
   if (!stored.is_ok()) {
     // ABORTED: another instance holds it now and writes the end itself.
     // Otherwise the store failed: the lease expires and the job runs again,
