@@ -1329,6 +1329,122 @@ TEST(DaemonMetrics, ThePrometheusEndpointCountsWhatHappened) {
   EXPECT_EQ(daemon.stop(), 0) << daemon.exit_report();
 }
 
+// Jobs and results used to grow without end (3,066 small jobs made a 943 MB
+// database in 75 s): DeleteJob, a quota on results, retention by count.
+TEST(JobRetention, DeletedAndOldJobsGiveTheirRoomBackAndTheStoreSizeIsMeasured) {
+  TempDir dir;
+  const int port = free_port();
+  ASSERT_GT(port, 0);
+  const std::string metrics = "127.0.0.1:" + std::to_string(port);
+  auto run_to_end = [](v1::JobService::Stub& jobs, const std::string& dataset, int passes) {
+    grpc::ClientContext ctx;
+    v1::Job job;
+    const grpc::Status s = jobs.SubmitIdentification(&ctx, testing::hensen_spec(dataset, passes), &job);
+    if (!s.ok()) return s;
+    grpc::ClientContext watch_ctx;
+    v1::WatchJobRequest watch;
+    watch.set_id(job.id());
+    auto reader = jobs.WatchJob(&watch_ctx, watch);
+    v1::Job last;
+    while (reader->Read(&last)) {
+    }
+    EXPECT_EQ(last.state(), v1::JOB_STATE_SUCCEEDED) << last.ShortDebugString();
+    return grpc::Status(grpc::StatusCode::OK, job.id());  // the id, in the message
+  };
+  auto get = [](v1::JobService::Stub& jobs, const std::string& id) {
+    grpc::ClientContext ctx;
+    v1::GetJobRequest request;
+    request.set_id(id);
+    v1::Job job;
+    return jobs.GetJob(&ctx, request, &job).error_code();
+  };
+  auto remove = [](v1::JobService::Stub& jobs, const std::string& id) {
+    grpc::ClientContext ctx;
+    v1::DeleteJobRequest request;
+    request.set_id(id);
+    v1::DeleteJobResponse response;
+    return jobs.DeleteJob(&ctx, request, &response);
+  };
+  auto results_bytes = [&] {
+    return sample_value(http_get(port, "/metrics"), R"(riccati_store_bytes{part="results"})");
+  };
+
+  // Retention by count: the two newest ended jobs stay.
+  std::string dataset;
+  double one_result = 0;
+  {
+    DaemonProcess daemon(dir.path() / "data", {"--metrics-listen", metrics, "--max-tenant-jobs-kept", "2"});
+    daemon.start();
+    auto datasets = v1::DatasetService::NewStub(daemon.channel());
+    auto jobs = v1::JobService::NewStub(daemon.channel());
+    v1::DatasetInfo info;
+    ASSERT_TRUE(testing::upload_dataset(*datasets, "two_tank.csv", read_file(kData + "/two_tank.csv"), {"F1", "F2"},
+                                        {"h1", "h2"}, &info)
+                    .ok());
+    dataset = info.id();
+    EXPECT_EQ(sample_value(http_get(port, "/metrics"), R"(riccati_store_bytes{part="results"})"), 0);
+    std::vector<std::string> ended;
+    for (int i = 0; i < 3; ++i) {
+      const grpc::Status s = run_to_end(*jobs, dataset, 1);
+      ASSERT_TRUE(s.ok()) << s.error_message();
+      ended.push_back(s.error_message());
+      if (i == 0) one_result = results_bytes();
+    }
+    EXPECT_GT(one_result, 1000);
+    // The oldest, past max_tenant_jobs_kept (deleted once the third's end is stored: soon after its watch hears it).
+    EXPECT_TRUE(testing::wait_until([&] { return get(*jobs, ended[0]) == grpc::StatusCode::NOT_FOUND; }, kWait,
+                                    "the oldest job deleted"));
+    EXPECT_EQ(get(*jobs, ended[1]), grpc::StatusCode::OK);
+    EXPECT_EQ(get(*jobs, ended[2]), grpc::StatusCode::OK);
+    EXPECT_EQ(results_bytes(), 2 * one_result);
+    const std::string page = http_get(port, "/metrics");
+    EXPECT_GT(sample_value(page, R"(riccati_store_bytes{part="database"})"),
+              sample_value(page, R"(riccati_store_bytes{part="datasets"})"));
+    EXPECT_EQ(sample_value(page, R"(riccati_store_bytes{part="datasets"})"), info.size_bytes());
+
+    // DeleteJob: an ended job goes with its result; a running one must be cancelled first.
+    ASSERT_TRUE(remove(*jobs, ended[1]).ok());
+    EXPECT_EQ(get(*jobs, ended[1]), grpc::StatusCode::NOT_FOUND);
+    EXPECT_EQ(results_bytes(), one_result);
+    EXPECT_EQ(remove(*jobs, ended[1]).error_code(), grpc::StatusCode::NOT_FOUND);
+    grpc::ClientContext ctx;
+    v1::Job running;
+    ASSERT_TRUE(jobs->SubmitIdentification(&ctx, testing::hensen_spec(dataset, 2000), &running).ok());
+    const grpc::Status refused = remove(*jobs, running.id());
+    EXPECT_EQ(refused.error_code(), grpc::StatusCode::FAILED_PRECONDITION) << refused.error_message();
+    EXPECT_NE(refused.error_message().find("cancel it"), std::string::npos) << refused.error_message();
+    grpc::ClientContext cancel_ctx;
+    v1::CancelJobRequest cancel;
+    cancel.set_id(running.id());
+    ASSERT_TRUE(jobs->CancelJob(&cancel_ctx, cancel, &running).ok());
+    EXPECT_TRUE(testing::wait_until([&] { return remove(*jobs, running.id()).ok(); }, kWait,
+                                    "the cancelled job deleted once it has ended"));
+    ASSERT_TRUE(remove(*jobs, ended[2]).ok());
+    datasets.reset();
+    jobs.reset();
+  }
+
+  // The quota on results: the stored ones and the new one's estimate. With
+  // room for one and a half results, a second is refused until the first
+  // is deleted.
+  DaemonProcess daemon(dir.path() / "data",
+                       {"--metrics-listen", metrics, "--max-tenant-result-bytes",
+                        std::to_string(static_cast<std::int64_t>(1.5 * one_result))});
+  daemon.start();
+  auto jobs = v1::JobService::NewStub(daemon.channel());
+  const grpc::Status first = run_to_end(*jobs, dataset, 1);
+  ASSERT_TRUE(first.ok()) << first.error_message();
+  grpc::ClientContext ctx;
+  v1::Job job;
+  const grpc::Status over = jobs->SubmitIdentification(&ctx, testing::hensen_spec(dataset, 1), &job);
+  EXPECT_EQ(over.error_code(), grpc::StatusCode::RESOURCE_EXHAUSTED) << over.error_message();
+  EXPECT_NE(over.error_message().find("max_tenant_result_bytes"), std::string::npos) << over.error_message();
+  EXPECT_NE(over.error_message().find("DeleteJob"), std::string::npos) << over.error_message();
+  ASSERT_TRUE(remove(*jobs, first.error_message()).ok());
+  EXPECT_TRUE(run_to_end(*jobs, dataset, 1).ok());
+  jobs.reset();
+}
+
 TEST(DaemonConfig, IdleSessionsExpireAndBadConfigFilesAreRefused) {
   TempDir dir;
   DaemonProcess daemon(dir.path() / "data", {"--session-idle-timeout", "1"});

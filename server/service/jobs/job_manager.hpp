@@ -85,6 +85,9 @@ class JobManager {
   Result<JobRecord> submit_validation(const std::string& tenant, const v1::ValidationSpec& spec);
   Result<JobRecord> submit_smoothing(const std::string& tenant, const v1::SmoothingSpec& spec);
   Result<JobRecord> cancel(const std::string& tenant, const std::string& id);
+  // Deletes an ended job with its result; FAILED_PRECONDITION while it is
+  // queued or running.
+  Status remove(const std::string& tenant, const std::string& id);
   Result<JobRecord> get(const std::string& tenant, const std::string& id);
   // The tenant's jobs, oldest first, with the progress of those running here.
   Result<std::vector<JobRecord>> list(const std::string& tenant);
@@ -100,10 +103,11 @@ class JobManager {
   // store again later.
   Result<std::optional<JobRecord>> poll(const std::string& tenant, const std::string& id, std::uint64_t* version,
                                         bool* running_here);
-  // Called (on the thread that made it) after every change of a job running
-  // here and at shutdown; empty: none. The watch pump
+  // Called (on the thread that made it) with the job's id after every
+  // change of a job running here (its claim here and its end included), and
+  // with an empty id at shutdown; empty: none. The watch pump
   // (service/rpc/job_service.cpp) wakes on it.
-  void set_change_listener(std::function<void()> listener);
+  void set_change_listener(std::function<void(const std::string& id)> listener);
 
   static constexpr std::chrono::milliseconds kProgressInterval{100};
 
@@ -121,7 +125,12 @@ class JobManager {
     bool ending = false;
   };
 
-  Result<JobRecord> enqueue(JobRecord record);
+  // Stores the job as queued, within the jobs' limits and the tenant's
+  // result quota (with `result_bytes`, the estimate of its result).
+  Result<JobRecord> enqueue(JobRecord record, double result_bytes);
+  // Retention: deletes the ended jobs past max_tenant_jobs_kept or
+  // max_job_age_days, every tenant's.
+  void delete_old_jobs();
   void worker_loop();
   void lease_loop();
   void run(JobRecord job);
@@ -138,12 +147,14 @@ class JobManager {
   // watchers; returns the changed record (nullopt: not running here).
   template <typename Change>
   std::optional<JobRecord> update(const std::string& id, Change&& change);
-  // Tells the change listener that a job running here changed.
-  void notify_changed();
+  // Tells the change listener that job `id` changed (empty: every job).
+  void notify_changed(const std::string& id);
 
   Store& store_;
   const ModelRegistry& models_;
-  const Limits limits_;  // max_jobs, max_tenant_jobs, max_passes, max_result_bytes, max_job_attempts
+  // max_jobs, max_tenant_jobs, max_passes, max_result_bytes, max_job_attempts,
+  // max_tenant_result_bytes, max_tenant_jobs_kept, max_job_age_days
+  const Limits limits_;
   const int worker_count_;
   const JobQueueOptions queue_;
   const std::string instance_;
@@ -151,7 +162,7 @@ class JobManager {
 
   std::mutex submit_mu_;  // a limit check and the insert it allows go together
   std::mutex mu_;
-  std::function<void()> change_listener_;  // a running job changed, or shutdown
+  std::function<void(const std::string&)> change_listener_;  // a running job changed, or shutdown
   std::condition_variable work_ready_;  // a job was submitted here, or shutdown (workers)
   std::condition_variable stopped_;     // shutdown (the renewal thread)
   std::map<std::string, LiveJob> live_;  // the jobs running on this instance

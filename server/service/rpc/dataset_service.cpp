@@ -48,7 +48,7 @@ class DatasetServiceImpl::UploadReactor final : public grpc::ServerReadReactor<v
       : service_(service), context_(context), tenant_(service.auth_.tenant(*context)), response_(response) {
     Result<StreamSlot> slot = service_.slots_.acquire(tenant_, "upload");
     if (!slot.is_ok()) {
-      Finish(to_grpc(slot.status()));
+      end_with(to_grpc(slot.status()));
       return;
     }
     slot_ = std::move(slot.value());
@@ -58,32 +58,32 @@ class DatasetServiceImpl::UploadReactor final : public grpc::ServerReadReactor<v
   void OnReadDone(bool ok) override {
     if (!ok) return end();
     if (!ticket_) {
-      if (!part_.has_header()) return Finish(to_grpc(invalid_argument("the first message of an upload must be its header")));
+      if (!part_.has_header()) return end_with(to_grpc(invalid_argument("the first message of an upload must be its header")));
       upload_ = upload_from_header(part_.header());
       Result<UploadTicket> ticket = service_.datasets_.begin_upload(tenant_, upload_.name);
-      if (!ticket.is_ok()) return Finish(to_grpc(ticket.status()));
+      if (!ticket.is_ok()) return end_with(to_grpc(ticket.status()));
       ticket_.emplace(std::move(ticket.value()));
       declared_ = static_cast<std::int64_t>(std::min<std::uint64_t>(part_.header().size_bytes(), INT64_MAX));
       if (declared_ > 0) {
         const Status room = ticket_->grow(declared_);
-        if (!room.is_ok()) return Finish(to_grpc(room));
+        if (!room.is_ok()) return end_with(to_grpc(room));
         upload_.bytes.reserve(static_cast<std::size_t>(declared_));
       }
       return StartRead(&part_);
     }
-    if (part_.has_header()) return Finish(to_grpc(invalid_argument("only one header per upload")));
+    if (part_.has_header()) return end_with(to_grpc(invalid_argument("only one header per upload")));
     if (!part_.has_chunk()) {
-      return Finish(to_grpc(invalid_argument("a message of the upload of " + upload_.name +
+      return end_with(to_grpc(invalid_argument("a message of the upload of " + upload_.name +
                                              " is empty: after the header, every message carries a chunk")));
     }
     const auto bytes = static_cast<std::int64_t>(upload_.bytes.size() + part_.chunk().size());
     if (declared_ > 0 && bytes > declared_) {
-      return Finish(to_grpc(invalid_argument("the upload of " + upload_.name + " sends more than the " +
+      return end_with(to_grpc(invalid_argument("the upload of " + upload_.name + " sends more than the " +
                                              std::to_string(declared_) + " bytes its header declared (size_bytes)")));
     }
     if (declared_ == 0) {
       const Status room = ticket_->grow(bytes);
-      if (!room.is_ok()) return Finish(to_grpc(room));
+      if (!room.is_ok()) return end_with(to_grpc(room));
     }
     upload_.bytes += part_.chunk();
     StartRead(&part_);
@@ -95,25 +95,33 @@ class DatasetServiceImpl::UploadReactor final : public grpc::ServerReadReactor<v
   }
 
  private:
+  // Gives back the upload's room and place before the client hears the
+  // status, so that a client that goes on at once finds them free.
+  void end_with(const grpc::Status& status) {
+    ticket_.reset();
+    slot_ = StreamSlot();
+    Finish(status);
+  }
+
   // The client is done sending, or gone.
   void end() {
-    if (!ticket_) return Finish(to_grpc(invalid_argument("the first message of an upload must be its header")));
+    if (!ticket_) return end_with(to_grpc(invalid_argument("the first message of an upload must be its header")));
     // A read also ends when the client cancels or its deadline passes: what
     // arrived may be cut at a line boundary and parse, so store nothing.
     if (context_->IsCancelled()) {
-      return Finish({grpc::StatusCode::CANCELLED, "upload of " + upload_.name + " cancelled by the client: nothing stored"});
+      return end_with({grpc::StatusCode::CANCELLED, "upload of " + upload_.name + " cancelled by the client: nothing stored"});
     }
     if (declared_ > 0 && static_cast<std::int64_t>(upload_.bytes.size()) != declared_) {
-      return Finish(to_grpc(invalid_argument("the upload of " + upload_.name + " ended after " +
+      return end_with(to_grpc(invalid_argument("the upload of " + upload_.name + " ended after " +
                                              std::to_string(upload_.bytes.size()) + " of the " +
                                              std::to_string(declared_) + " bytes its header declared: nothing stored")));
     }
     storing_ = std::thread([this] {
       const Result<DatasetRecord> stored = service_.datasets_.upload(*ticket_, upload_);
       upload_.bytes = std::string();  // freed now rather than when the call is done
-      if (!stored.is_ok()) return Finish(to_grpc(stored.status()));
+      if (!stored.is_ok()) return end_with(to_grpc(stored.status()));
       *response_ = to_proto(stored.value());
-      Finish(grpc::Status::OK);
+      end_with(grpc::Status::OK);
     });
   }
 

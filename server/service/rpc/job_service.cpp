@@ -88,9 +88,11 @@ class JobServiceImpl::WatchReactor final : public grpc::ServerWriteReactor<v1::J
   }
 
   // The pump's side, with watches_mu_ held unless said otherwise.
-  bool due(bool jobs_changed, std::chrono::steady_clock::time_point now) const {
+  // Whether to poll it now: it is new or a write ended, its job changed
+  // here (`changed`: the ids, "" for all), or the store is due.
+  bool due(const std::set<std::string>& changed, std::chrono::steady_clock::time_point now) const {
     if (finished_ || writing_ || polling_) return false;
-    return recheck_ || (jobs_changed && running_here_) || now >= next_store_read_;
+    return recheck_ || changed.count(id_) > 0 || changed.count("") > 0 || now >= next_store_read_;
   }
   void begin_poll() {
     polling_ = true;
@@ -108,7 +110,8 @@ class JobServiceImpl::WatchReactor final : public grpc::ServerWriteReactor<v1::J
       spdlog::debug("watch ended job={} status=\"{}\"", id_, polled.status().to_string());
       return finish(to_grpc(polled.status()));
     }
-    if (!running_here_) next_store_read_ = now + kStorePoll;
+    // Changes here come through the listener; elsewhere, through the store.
+    next_store_read_ = now + kStorePoll;
     if (!polled->has_value()) return;
     message_ = to_proto(**polled);
     wrote_end_ = is_terminal((*polled)->state);
@@ -128,6 +131,7 @@ class JobServiceImpl::WatchReactor final : public grpc::ServerWriteReactor<v1::J
       return;
     }
     finished_ = true;
+    slot_ = StreamSlot();  // free before the client hears the status
     Finish(status);
   }
   // Finishes with the status that waited for the poll or write; whether it did.
@@ -156,9 +160,10 @@ class JobServiceImpl::WatchReactor final : public grpc::ServerWriteReactor<v1::J
 
 JobServiceImpl::JobServiceImpl(const Authenticator& auth, JobManager& jobs, StreamSlots& slots)
     : auth_(auth), jobs_(jobs), slots_(slots) {
-  jobs_.set_change_listener([this] {
+  jobs_.set_change_listener([this](const std::string& id) {
     std::lock_guard lock(watches_mu_);
-    jobs_changed_ = true;
+    if (watches_.empty()) return;
+    changed_jobs_.insert(id);
     pump_wake_ = true;
     watches_changed_.notify_all();
   });
@@ -188,11 +193,11 @@ void JobServiceImpl::pump() {
                               [&] { return stop_pump_ || pump_wake_; });
     if (stop_pump_) return;
     pump_wake_ = false;
-    const bool jobs_changed = std::exchange(jobs_changed_, false);
+    const std::set<std::string> changed = std::exchange(changed_jobs_, {});
     const auto now = std::chrono::steady_clock::now();
     std::vector<WatchReactor*> due;
     for (WatchReactor* watch : watches_) {
-      if (watch->due(jobs_changed, now)) {
+      if (watch->due(changed, now)) {
         watch->begin_poll();
         due.push_back(watch);
       }
@@ -248,6 +253,11 @@ grpc::Status JobServiceImpl::GetResult(grpc::ServerContext* context, const v1::G
     return to_grpc(internal_error("stored result of job " + request->job_id() + " is unreadable"));
   }
   return grpc::Status::OK;
+}
+
+grpc::Status JobServiceImpl::DeleteJob(grpc::ServerContext* context, const v1::DeleteJobRequest* request,
+                                       v1::DeleteJobResponse*) {
+  return to_grpc(jobs_.remove(auth_.tenant(*context), request->id()));
 }
 
 }  // namespace riccati::service

@@ -7,6 +7,7 @@
 #include <condition_variable>
 #include <mutex>
 #include <set>
+#include <string>
 #include <thread>
 
 #include "riccati/v1/jobs.grpc.pb.h"
@@ -33,6 +34,7 @@ class JobServiceImpl final : public v1::JobService::WithCallbackMethod_WatchJob<
   grpc::Status ListJobs(grpc::ServerContext*, const v1::ListJobsRequest*, v1::ListJobsResponse*) override;
   grpc::Status CancelJob(grpc::ServerContext*, const v1::CancelJobRequest*, v1::Job*) override;
   grpc::Status GetResult(grpc::ServerContext*, const v1::GetResultRequest*, v1::JobResult*) override;
+  grpc::Status DeleteJob(grpc::ServerContext*, const v1::DeleteJobRequest*, v1::DeleteJobResponse*) override;
 
   // Ends every open watch with UNAVAILABLE and refuses new ones; returns
   // once all have ended or `deadline` has passed.
@@ -53,7 +55,7 @@ class JobServiceImpl final : public v1::JobService::WithCallbackMethod_WatchJob<
   std::set<WatchReactor*> watches_;          // open watches, for the pump and drain()
   bool draining_ = false;
   bool pump_wake_ = false;     // a watch is due, or may be
-  bool jobs_changed_ = false;  // a job running here changed since the pump's last round
+  std::set<std::string> changed_jobs_;  // jobs that changed here since the pump's last round ("": all)
   bool stop_pump_ = false;
   std::thread pump_;
 };

@@ -161,6 +161,7 @@ class SessionServiceImpl::StreamReactor final : public grpc::ServerBidiReactor<v
       session_->detach();
       service_.sessions_.save(*session_);
     }
+    slot_ = StreamSlot();
     Finish(status);
   }
 
