@@ -785,6 +785,38 @@ TEST(DaemonFaults, AFailingModelEndsOnlyItsOwnSessionAndJob) {
   EXPECT_TRUE(good->Finish().ok());
 }
 
+// An INTERNAL error (here a plugin that throws) is the daemon's or a
+// plugin's fault, not the request's: the client gets an incident id to quote
+// with the message, and the log has the same id.
+TEST(DaemonFaults, AnInternalErrorGivesTheClientAnIncidentIdThatTheLogHas) {
+  TempDir dir;
+  const auto models = dir.path() / "models";
+  std::filesystem::create_directories(models);
+  std::filesystem::copy_file(std::string(RICCATI_TEST_BAD_PLUGIN_DIR) + "/throwing_f.so", models / "throwing_f.so");
+  DaemonProcess daemon(dir.path() / "data", {"--models-dir", models.string(), "--log-level", "info"});
+  const auto log = dir.path() / "riccatid.log";
+  daemon.set_log_file(log);
+  daemon.start();
+  auto models_stub = v1::ModelService::NewStub(daemon.channel());
+  v1::SimulateRequest request;
+  request.set_model("throwing_f");
+  request.add_x0(0.0);
+  for (double t : {0.0, 0.1, 0.2}) request.add_t(t);
+  request.mutable_u()->set_cols(3);  // no inputs, three samples
+  grpc::ClientContext ctx;
+  v1::SimulateResponse response;
+  const grpc::Status s = models_stub->Simulate(&ctx, request, &response);
+  ASSERT_EQ(s.error_code(), grpc::StatusCode::INTERNAL) << s.error_message();
+  const auto at = s.error_message().find("incident-");
+  ASSERT_NE(at, std::string::npos) << s.error_message();
+  const std::string incident = s.error_message().substr(at, s.error_message().find(':', at) - at);
+  EXPECT_NE(s.error_message().find("deliberate exception from throwing_f"), std::string::npos) << s.error_message();
+  models_stub.reset();
+  EXPECT_EQ(daemon.stop(), 0) << daemon.exit_report();
+  const std::string logged = read_file(log);
+  EXPECT_NE(logged.find("internal error incident=" + incident), std::string::npos) << incident << "\n" << logged;
+}
+
 // A model whose hand-written Jacobian has a sign wrong
 // (bad_plugins/wrong_jacobian.cpp) loads and runs, as it must: only the check
 // can tell. GetModel says which entry disagrees, and an identification job

@@ -408,7 +408,8 @@ void JobManager::renew(const JobRecord& job) {
   if (renewed.is_ok() && !renewed.value()) return;
   std::lock_guard lock(mu_);
   auto it = live_.find(job.id);
-  if (it == live_.end()) return;
+  // Its end was stored meanwhile (the store answers ABORTED for an ended job).
+  if (it == live_.end() || it->second.ending) return;
   if (renewed.is_ok()) {  // a client cancelled it through another instance
     it->second.cancel_requested = true;
     it->second.stop.request_stop();
