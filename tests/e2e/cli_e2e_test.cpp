@@ -548,6 +548,13 @@ TEST_F(CliTest, HealthPrintsServingAndExitsZero) {
   r = riccati("--json health");
   EXPECT_EQ(r.exit_code, 0) << last_stderr();
   EXPECT_EQ(nlohmann::json::parse(r.out)["status"], "SERVING") << r.out;
+  // Each riccati.v1 service by its full name.
+  for (const char* service : {"riccati.v1.ModelService", "riccati.v1.DatasetService", "riccati.v1.JobService",
+                              "riccati.v1.SessionService"}) {
+    r = riccati(std::string("health --service ") + service);
+    EXPECT_EQ(r.exit_code, 0) << service << ": " << last_stderr();
+    EXPECT_EQ(r.out, "SERVING\n") << service;
+  }
   // A service the daemon does not report on: not found (4), said on both streams.
   r = riccati("health --service no.such.Service");
   EXPECT_EQ(r.exit_code, 4);

@@ -81,6 +81,6 @@ def test_an_unreachable_daemon_says_so(tmp_path):
         with riccati.Client(address, timeout=10) as c:
             with pytest.raises(riccati.Unavailable) as e:
                 c.models()
-    assert f"cannot reach riccatid at {address}" in e.value.message
+    assert e.value.message == f"cannot reach riccatid at {address} (connection refused); is it running?"
     assert "is it running?" in e.value.message
     assert os.environ.get("RICCATI_SERVER") is None

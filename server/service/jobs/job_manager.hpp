@@ -112,7 +112,7 @@ class JobManager {
     bool ending = false;
   };
 
-  Result<JobRecord> enqueue(JobRecord record);
+  Result<JobRecord> enqueue(JobRecord record, const std::string& request_id);
   void worker_loop();
   void lease_loop();
   void run(JobRecord job);

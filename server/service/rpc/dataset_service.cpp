@@ -13,6 +13,7 @@ DatasetUpload upload_from_header(const v1::UploadHeader& header) {
   if (!header.time_column().empty()) upload.mapping.time = header.time_column();
   upload.mapping.inputs.assign(header.input_columns().begin(), header.input_columns().end());
   upload.mapping.outputs.assign(header.output_columns().begin(), header.output_columns().end());
+  upload.request_id = header.request_id();
   return upload;
 }
 
@@ -39,6 +40,11 @@ grpc::Status DatasetServiceImpl::UploadDataset(grpc::ServerContext* context,
   v1::UploadDatasetRequest part;
   if (!reader->Read(&part) || !part.has_header()) {
     return to_grpc(invalid_argument("the first message of an upload must be its header"));
+  }
+  if (!v1::DatasetFormat_IsValid(part.header().format())) {
+    return to_grpc(invalid_argument("format " + std::to_string(part.header().format()) +
+                                    " is unknown (expected " + api::enum_choice_list(*v1::DatasetFormat_descriptor()) +
+                                    ", or unspecified: from the name's extension)"));
   }
   DatasetUpload upload = upload_from_header(part.header());
   Result<UploadTicket> ticket = datasets_.begin_upload(auth_.tenant(*context), upload.name);

@@ -14,6 +14,7 @@ grpc::Status SessionServiceImpl::CreateSession(grpc::ServerContext* context, con
   auto session = sessions_.create(auth_.tenant(*context), *request);
   if (!session.is_ok()) return to_grpc(session.status());
   *response = session.value()->info();
+  response->set_instance(sessions_.instance_id());  // it serves the session: it created or resumed it
   return grpc::Status::OK;
 }
 
@@ -22,6 +23,7 @@ grpc::Status SessionServiceImpl::GetSession(grpc::ServerContext* context, const 
   auto session = sessions_.get(auth_.tenant(*context), request->id());
   if (!session.is_ok()) return to_grpc(session.status());
   *response = session.value()->info();
+  response->set_instance(sessions_.instance_id());  // it serves the session: it created or resumed it
   return grpc::Status::OK;
 }
 
@@ -73,10 +75,12 @@ class SessionServiceImpl::StreamReactor final : public grpc::ServerBidiReactor<v
       // The measurements left are not answered; the session keeps its time.
       if (stopping_.load(std::memory_order_relaxed)) break;
       const auto began = std::chrono::steady_clock::now();
+      // One result per measurement, even past a divergence: those after it
+      // get the divergence as their error, and the stream ends once this
+      // response is written.
       v1::MeasurementResult* result = response_.add_results();
       diverged_ = session_->process(m, full_covariance_, result);
       service_.metrics_.measurement(result->has_estimate(), std::chrono::steady_clock::now() - began);
-      if (!diverged_.is_ok()) break;
     }
     service_.sessions_.after_batch(*session_);  // hands a snapshot to the writer when one is due
     std::lock_guard lock(mu_);

@@ -1,5 +1,6 @@
 """riccati.Client: riccatid's API from Python, named as the CLI names it."""
 import os
+import uuid
 
 import grpc
 import numpy as np
@@ -87,6 +88,17 @@ class Client:
         except grpc.RpcError as e:
             raise self._error(e, what) from None
 
+    def _create(self, what, method, request):
+        """A creating call, tried again (up to twice) when riccatid could not be
+        reached or the deadline passed: the request carries a request_id, so a
+        retry gets the object the first try made, never a second one."""
+        for attempt in range(3):
+            try:
+                return method(request, timeout=self.timeout, metadata=self._metadata)
+            except grpc.RpcError as e:
+                if attempt == 2 or e.code() not in (grpc.StatusCode.UNAVAILABLE, grpc.StatusCode.DEADLINE_EXCEEDED):
+                    raise self._error(e, what) from None
+
     def _stream_call(self, method, request):
         return method(request, metadata=self._metadata)
 
@@ -128,24 +140,23 @@ class Client:
 
     # ------------------------------------------------------------ datasets
 
-    def upload(self, data, inputs=None, outputs=None, time="t", name=None):
+    def upload(self, data, inputs=None, outputs=None, time="t", name=None, request_id=None):
         """Stores a dataset: a CSV or MAT file's path, a pandas DataFrame (a time
         column, else its index, and the columns named by inputs and outputs), or
-        (t, u, y) numpy arrays with a sample per row. Returns a Dataset (its .id)."""
+        (t, u, y) numpy arrays with a sample per row. Returns a Dataset (its .id).
+        request_id (default: a new UUID) makes a retry get the same dataset."""
         file_name, content, inputs, outputs, time = _data.as_upload(data, inputs, outputs, time)
         header = datasets_pb2.UploadHeader(name=name or file_name, time_column=time,
-                                           input_columns=list(inputs or []), output_columns=list(outputs or []))
+                                           input_columns=list(inputs or []), output_columns=list(outputs or []),
+                                           request_id=request_id or str(uuid.uuid4()))
 
         def parts():
             yield datasets_pb2.UploadDatasetRequest(header=header)
             for start in range(0, len(content), _CHUNK):
                 yield datasets_pb2.UploadDatasetRequest(chunk=content[start:start + _CHUNK])
 
-        try:
-            info = self._datasets.UploadDataset(parts(), timeout=self.timeout, metadata=self._metadata)
-        except grpc.RpcError as e:
-            raise self._error(e, "uploading " + (name or file_name)) from None
-        return Dataset(info)
+        return Dataset(self._create("uploading " + (name or file_name),
+                                    lambda _, **kw: self._datasets.UploadDataset(parts(), **kw), None))
 
     def dataset(self, id):
         return Dataset(self._call("dataset " + id, self._datasets.GetDataset, datasets_pb2.GetDatasetRequest(id=id)))
@@ -192,19 +203,24 @@ class Client:
                              jobs_pb2.GetResultRequest(job_id=job_id))
         return results.from_proto(message, self.model(model))
 
-    def submit_identification(self, model, ds, inputs=None, outputs=None, **settings):
+    def submit_identification(self, model, ds, inputs=None, outputs=None, request_id=None, **settings):
         """Submits an identification; returns its Job (watch(), cancel(), result()).
 
         ds: a Dataset, its id, or data to upload (see upload(); inputs and
         outputs name its columns). The settings are keywords named as the CLI's
         flags of `riccati identify` (see riccati._settings): method, filter,
         passes, theta0, p0, q, r, x0, hold, integrator, substeps, bound, fix,
-        experiment (more records: datasets, ids or data), ..."""
+        experiment (more records: datasets, ids or data), ...
+
+        request_id (default: a new UUID) names the request: a retry with it
+        (this client retries once riccatid is unreachable or the deadline
+        passed) gets the job the first try made."""
         _settings.check_keywords(settings, _settings.IDENTIFY_KEYWORDS, "identify")
         dataset = self._dataset_id(ds, inputs, outputs)
         more = [self._dataset_id(e, inputs, outputs) for e in settings.get("experiment") or ()]
         spec = _settings.identification_spec(model, dataset, more, settings)
-        return Job(self, self._call("submitting the identification", self._jobs.SubmitIdentification, spec))
+        spec.request_id = request_id or str(uuid.uuid4())
+        return Job(self, self._create("submitting the identification", self._jobs.SubmitIdentification, spec))
 
     def identify(self, model, ds, progress=None, **settings):
         """Identifies the model's parameters on the dataset and waits: the
@@ -212,7 +228,7 @@ class Client:
         for "oe" and "ml"). progress(job), if given, is called as the job runs."""
         return self.submit_identification(model, ds, **settings).result(progress)
 
-    def submit_validation(self, model, ds, params, inputs=None, outputs=None, **settings):
+    def submit_validation(self, model, ds, params, inputs=None, outputs=None, request_id=None, **settings):
         """Submits a validation: the model simulated with `params` over the dataset's inputs.
 
         params: an identification's Job, its id or its result (riccatid takes
@@ -232,27 +248,31 @@ class Client:
                 names = list(self.model(model).param_names)
                 params = params.reindex(names) if set(params.index) == set(names) else params
             spec.theta.values.extend(np.atleast_1d(np.asarray(params, dtype=float)).tolist())
-        return Job(self, self._call("submitting the validation", self._jobs.SubmitValidation, spec))
+        spec.request_id = request_id or str(uuid.uuid4())
+        return Job(self, self._create("submitting the validation", self._jobs.SubmitValidation, spec))
 
     def validate(self, model, ds, params, progress=None, **settings):
         """Validates and waits: a ValidationResult (.fits, .to_frame())."""
         return self.submit_validation(model, ds, params, **settings).result(progress)
 
-    def submit_smoothing(self, model, ds, inputs=None, outputs=None, full_covariance=False, **settings):
+    def submit_smoothing(self, model, ds, inputs=None, outputs=None, full_covariance=False, request_id=None,
+                         **settings):
         """Submits fixed-interval smoothing (the EKF's RTS smoother, or the UKF's); settings as `riccati smooth`."""
         _settings.check_keywords(settings, _settings.SMOOTH_KEYWORDS, "smooth")
         spec = _settings.smoothing_spec(model, self._dataset_id(ds, inputs, outputs), settings, full_covariance)
-        return Job(self, self._call("submitting the smoothing", self._jobs.SubmitSmoothing, spec))
+        spec.request_id = request_id or str(uuid.uuid4())
+        return Job(self, self._create("submitting the smoothing", self._jobs.SubmitSmoothing, spec))
 
     def smooth(self, model, ds, progress=None, **settings):
         return self.submit_smoothing(model, ds, **settings).result(progress)
 
     # ------------------------------------------------------------ sessions
 
-    def session(self, model, close=True, full_covariance=False, batch=100, **settings):
+    def session(self, model, close=True, full_covariance=False, batch=100, request_id=None, **settings):
         """Creates a filter session (use it in a `with` block); settings as
         `riccati stream`'s flags: filter, x0, theta0, p0, q, r, hold, integrator, ..."""
         _settings.check_keywords(settings, _settings.RUN_KEYWORDS, "session")
-        info = self._call("creating the session", self._sessions.CreateSession,
-                          _settings.session_request(model, settings))
+        request = _settings.session_request(model, settings)
+        request.request_id = request_id or str(uuid.uuid4())
+        info = self._create("creating the session", self._sessions.CreateSession, request)
         return Session(self, info, self.model(model), close=close, full_covariance=full_covariance, batch=batch)

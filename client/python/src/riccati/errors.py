@@ -105,8 +105,11 @@ def from_rpc_error(e, what="", server=""):
     """The exception for a grpc.RpcError."""
     code = e.code() if hasattr(e, "code") else grpc.StatusCode.UNKNOWN
     message = e.details() if hasattr(e, "details") else str(e)
-    if code == grpc.StatusCode.UNAVAILABLE and server and not message.startswith("riccatid"):
-        # What gRPC says of a connection it could not make ("failed to connect to all addresses; ...").
-        if "connect" in (message or "").lower():
-            message = f"cannot reach riccatid at {server} ({message}); is it running?"
+    if code == grpc.StatusCode.UNAVAILABLE and server and "ailed to connect" in (message or ""):
+        # gRPC's words for a connection it could not make ("failed to connect to all addresses; last
+        # error: UNKNOWN: ipv4:127.0.0.1:7531: Failed to connect to remote host: Connection refused"):
+        # the cause after the last colon, as the CLI says it.
+        cause = message.rsplit(":", 1)[-1].strip()
+        cause = cause[:1].lower() + cause[1:]
+        message = f"cannot reach riccatid at {server} ({cause}); is it running?"
     return error_for(code, message or "", what)

@@ -34,13 +34,13 @@ class Progress:
 
 
 def _progress(p):
-    return Progress(pass_number=getattr(p, "pass"), passes=p.passes, sample=p.sample, samples=p.samples,
+    return Progress(pass_number=p.pass_number, passes=p.passes, sample=p.sample, samples=p.samples,
                     theta=tuple(p.theta), iteration=p.iteration, cost=p.cost)
 
 
 class Job:
     """A job as riccatid last said it was: id, state ("queued", "running",
-    "succeeded", "failed", "cancelled"), progress, error (code, message)."""
+    "cancelling", "succeeded", "failed", "cancelled"), progress, error (code, message)."""
 
     def __init__(self, client, message):
         self._client = client
