@@ -843,6 +843,29 @@ TEST(Unreachable, TheMessageNamesTheAddressAndTheCause) {
   EXPECT_EQ(unreachable_message("10.0.0.7:7531", other), "riccatid is shutting down");
 }
 
+TEST(Commands, AnUnknownOneIsNamedWithTheNearest) {
+  CliRun run = riccati("modles");
+  EXPECT_EQ(run.exit_code, 2);
+  EXPECT_EQ(run.out, "riccati: unknown command \"modles\"; did you mean \"models\"? (riccati --help lists the commands)\n");
+  run = riccati("--json idnetify --model two_tank");
+  EXPECT_EQ(run.exit_code, 2);
+  EXPECT_NE(run.out.find("did you mean \"identify\"?"), std::string::npos) << run.out;
+  run = riccati("frobnicate");
+  EXPECT_EQ(run.out, "riccati: unknown command \"frobnicate\" (riccati --help lists the commands)\n");
+  EXPECT_NE(riccati("").out.find("A subcommand is required"), std::string::npos) << "no word: CLI11's usage";
+}
+
+TEST(Commands, GlobalFlagsAfterTheCommand) {
+  // --server, --timeout and --json after the command (and after its own subcommand).
+  CliRun run = riccati_raw("models --server 127.0.0.1:1 --timeout 1 --json");
+  EXPECT_EQ(run.exit_code, 3) << run.out;
+  EXPECT_NE(run.out.find("cannot reach riccatid at 127.0.0.1:1"), std::string::npos) << run.out;
+  run = riccati_raw("models show two_tank --server=127.0.0.1:1 --timeout 1");
+  EXPECT_NE(run.out.find("cannot reach riccatid at 127.0.0.1:1"), std::string::npos) << run.out;
+  run = riccati_raw("job show job-1 --timeout 1 --server 127.0.0.1:1");
+  EXPECT_NE(run.out.find("cannot reach riccatid at 127.0.0.1:1"), std::string::npos) << run.out;
+}
+
 TEST(ExitCodes, FollowTheStatusCode) {
   EXPECT_EQ(exit_code_for(grpc::StatusCode::OK), kExitOk);
   EXPECT_EQ(exit_code_for(grpc::StatusCode::NOT_FOUND), kExitNotFound);
