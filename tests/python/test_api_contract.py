@@ -301,3 +301,37 @@ def test_the_client_names_every_creation(client, two_tank_csv):
     a = client.submit_identification("two_tank", ds, request_id="py-identify-1", **settings)
     assert client.submit_identification("two_tank", ds, request_id="py-identify-1", **settings).id == a.id
     assert client.submit_identification("two_tank", ds, **settings).id != a.id  # a new UUID each call
+
+
+def test_error_code_is_the_enum_of_grpc_codes():
+    field = common_pb2.Error.DESCRIPTOR.fields_by_name["code"]
+    assert field.enum_type is not None and field.enum_type.full_name == "riccati.v1.Code"
+    for code in grpc.StatusCode:
+        assert field.enum_type.values_by_number[code.value[0]].name == "CODE_" + code.name
+    # The same bytes as the int32 it was.
+    assert common_pb2.Error(code=common_pb2.CODE_NOT_FOUND).SerializeToString()[:2] == bytes([1 << 3 | 0, 5])
+
+
+def test_close_session_ends_its_stream(daemon):
+    import queue
+    channel, _, _, _, sessions = _stubs(daemon.address)
+    with channel:
+        request = sessions_pb2.CreateSessionRequest(model="two_tank", theta0=[20, 20, 1, 1])
+        request.initial_state.first_measurement = True
+        request.filter.r.scalar = 1e-3
+        request.p0.scalar = 1.0
+        session = sessions.CreateSession(request, timeout=30)
+        requests = queue.Queue()
+        requests.put(sessions_pb2.StreamRequest(open=sessions_pb2.StreamOpen(session_id=session.id)))
+        batch = sessions_pb2.MeasurementBatch()
+        batch.measurements.add(t=0, u=[0.1, 0.03], y=[0.4, 0.15])
+        requests.put(sessions_pb2.StreamRequest(batch=batch))
+        end = object()
+        responses = sessions.Stream(iter(requests.get, end), timeout=60)
+        assert next(responses).results[0].WhichOneof("outcome") == "estimate"
+        sessions.CloseSession(sessions_pb2.CloseSessionRequest(id=session.id), timeout=30)
+        with pytest.raises(grpc.RpcError) as e:
+            next(responses)  # the stream ends without another batch sent
+        requests.put(end)
+        assert e.value.code() == grpc.StatusCode.FAILED_PRECONDITION
+        assert f"session {session.id} was closed" in e.value.details()

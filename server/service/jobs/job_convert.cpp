@@ -230,7 +230,7 @@ v1::Job to_proto(const JobRecord& job) {
   p->set_iteration(static_cast<uint32_t>(job.iteration));
   p->set_cost(job.cost);
   if (job.error_code != 0) {
-    out.mutable_error()->set_code(job.error_code);
+    out.mutable_error()->set_code(static_cast<v1::Code>(job.error_code));
     out.mutable_error()->set_message(job.error_message);
   }
   set_timestamp(job.created_ms, out.mutable_created());

@@ -35,11 +35,6 @@ grpc::Status SessionServiceImpl::ListSessions(grpc::ServerContext* context, cons
   return grpc::Status::OK;
 }
 
-grpc::Status SessionServiceImpl::CloseSession(grpc::ServerContext* context, const v1::CloseSessionRequest* request,
-                                              v1::CloseSessionResponse*) {
-  return to_grpc(sessions_.close(auth_.tenant(*context), request->id()));
-}
-
 class SessionServiceImpl::StreamReactor final : public grpc::ServerBidiReactor<v1::StreamRequest, v1::StreamResponse> {
  public:
   StreamReactor(SessionServiceImpl& service, grpc::CallbackServerContext* context)
@@ -117,6 +112,17 @@ class SessionServiceImpl::StreamReactor final : public grpc::ServerBidiReactor<v
     delete this;
   }
 
+  // CloseSession of the session this stream is attached to.
+  void end_if_on(const std::string& session_id) {
+    {
+      std::lock_guard lock(mu_);
+      if (session_ == nullptr || session_->id() != session_id) return;
+    }
+    stopping_ = true;
+    finish({grpc::StatusCode::FAILED_PRECONDITION,
+            "session " + session_id + " was closed (CloseSession): its stream ends; create a new session"});
+  }
+
   void drain() {
     stopping_ = true;
     finish({grpc::StatusCode::UNAVAILABLE,
@@ -176,6 +182,17 @@ class SessionServiceImpl::StreamReactor final : public grpc::ServerBidiReactor<v
   std::atomic<bool> stopping_{false};  // set from other threads: OnCancel, drain()
   std::optional<grpc::Status> pending_finish_;
 };
+
+grpc::Status SessionServiceImpl::CloseSession(grpc::ServerContext* context, const v1::CloseSessionRequest* request,
+                                              v1::CloseSessionResponse*) {
+  const Status closed = sessions_.close(auth_.tenant(*context), request->id());
+  if (closed.is_ok()) {
+    // A stream attached to it ends now, not at its next batch.
+    std::lock_guard lock(streams_mu_);
+    for (StreamReactor* stream : streams_) stream->end_if_on(request->id());
+  }
+  return to_grpc(closed);
+}
 
 grpc::ServerBidiReactor<v1::StreamRequest, v1::StreamResponse>* SessionServiceImpl::Stream(
     grpc::CallbackServerContext* context) {
