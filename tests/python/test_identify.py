@@ -165,3 +165,12 @@ def test_a_cancelled_job_raises_job_failed(client, two_tank_csv):
     assert job.state == "cancelled"
     assert e.value.code.name == "CANCELLED"
     assert job.progress.pass_number < 4000
+
+
+def test_columns_named_as_the_models_need_no_mapping(client, two_tank_csv):
+    settings = dict(passes=2, theta0=[20, 20, 1, 1], p0=[0, 0, 10, 10, 10, 10], r=1e-3)
+    named = client.identify("two_tank", two_tank_csv, **settings)
+    mapped = client.identify("two_tank", two_tank_csv, **settings, **IO)
+    np.testing.assert_array_equal(named.theta.to_numpy(), mapped.theta.to_numpy())
+    uploaded = client.job(named.job_id).proto.identification.dataset_id
+    assert client.dataset(uploaded).input_names == ["F1", "F2"]

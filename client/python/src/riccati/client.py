@@ -177,12 +177,16 @@ class Client:
         return pd.DataFrame(np.column_stack([u.T, y.T]), index=pd.Index(list(data.t), name="t"),
                             columns=list(data.info.input_names) + list(data.info.output_names))
 
-    def _dataset_id(self, ds, inputs=None, outputs=None):
-        """A dataset's id: a Dataset, an id, or data to upload (a path to a file, a DataFrame, arrays)."""
+    def _dataset_id(self, ds, inputs=None, outputs=None, model=None):
+        """A dataset's id: a Dataset, an id, or data to upload (a path to a file, a DataFrame, arrays),
+        its columns named by inputs and outputs, or, when neither is given, as the model's."""
         if isinstance(ds, Dataset):
             return ds.id
         if isinstance(ds, str) and not os.path.isfile(ds):
             return ds
+        if inputs is None and outputs is None and model is not None:
+            info = self.model(model)
+            inputs, outputs = list(info.input_names), list(info.output_names)
         return self.upload(ds, inputs=inputs, outputs=outputs).id
 
     # ------------------------------------------------------------ jobs
@@ -216,8 +220,8 @@ class Client:
         (this client retries once riccatid is unreachable or the deadline
         passed) gets the job the first try made."""
         _settings.check_keywords(settings, _settings.IDENTIFY_KEYWORDS, "identify")
-        dataset = self._dataset_id(ds, inputs, outputs)
-        more = [self._dataset_id(e, inputs, outputs) for e in settings.get("experiment") or ()]
+        dataset = self._dataset_id(ds, inputs, outputs, model)
+        more = [self._dataset_id(e, inputs, outputs, model) for e in settings.get("experiment") or ()]
         spec = _settings.identification_spec(model, dataset, more, settings)
         spec.request_id = request_id or str(uuid.uuid4())
         return Job(self, self._create("submitting the identification", self._jobs.SubmitIdentification, spec))
@@ -236,7 +240,7 @@ class Client:
         Series by name). Settings as `riccati validate`'s flags: x0, hold,
         integrator, substeps, rtol, atol, estimate, estimate_x0 (samples)."""
         _settings.check_keywords(settings, _settings.VALIDATE_KEYWORDS, "validate")
-        spec = _settings.validation_spec(model, self._dataset_id(ds, inputs, outputs), settings)
+        spec = _settings.validation_spec(model, self._dataset_id(ds, inputs, outputs, model), settings)
         if isinstance(params, Job):
             spec.identification_job_id = params.id
         elif isinstance(params, results._Result):
@@ -259,7 +263,8 @@ class Client:
                          **settings):
         """Submits fixed-interval smoothing (the EKF's RTS smoother, or the UKF's); settings as `riccati smooth`."""
         _settings.check_keywords(settings, _settings.SMOOTH_KEYWORDS, "smooth")
-        spec = _settings.smoothing_spec(model, self._dataset_id(ds, inputs, outputs), settings, full_covariance)
+        spec = _settings.smoothing_spec(model, self._dataset_id(ds, inputs, outputs, model), settings,
+                                        full_covariance)
         spec.request_id = request_id or str(uuid.uuid4())
         return Job(self, self._create("submitting the smoothing", self._jobs.SubmitSmoothing, spec))
 
