@@ -24,6 +24,10 @@ packages=(
   libgtest-dev libgmock-dev                             # GoogleTest
   libbenchmark-dev                                      # Google Benchmark
   libceres-dev                                          # Ceres Solver: the least squares of output error and maximum likelihood
+  python3-grpcio python3-protobuf                       # the Python client (client/python): gRPC, messages (stubs: protoc above)
+  python3-numpy python3-pandas                          # its arrays and frames
+  python3-pip python3-setuptools python3-pytest         # installing it from source (no other registry) and its tests
+  python3-matplotlib                                    # docs/python.md's example (its figure), run as a test
 )
 
 # "fuzz": also what scripts/fuzz.sh needs (clang with libFuzzer and the sanitizers' runtime).

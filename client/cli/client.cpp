@@ -1,5 +1,6 @@
 #include "client.hpp"
 
+#include <cctype>
 #include <chrono>
 #include <cstdio>
 
@@ -16,7 +17,7 @@ int exit_code_for(grpc::StatusCode code) {
 }
 
 Client::Client(const Connection& connection, double timeout, bool json_output)
-    : timeout_s(timeout), json(json_output), token_(connection.token) {
+    : timeout_s(timeout), json(json_output), server_(connection.server), token_(connection.token) {
   grpc::ChannelArguments args;
   args.SetMaxReceiveMessageSize(-1);  // results of long identifications are large
   connection.apply(&args);
@@ -25,7 +26,6 @@ Client::Client(const Connection& connection, double timeout, bool json_output)
   datasets = v1::DatasetService::NewStub(channel);
   jobs = v1::JobService::NewStub(channel);
   sessions = v1::SessionService::NewStub(channel);
-  health = grpc::health::v1::Health::NewStub(channel);
 }
 
 std::unique_ptr<grpc::ClientContext> Client::context() const {
@@ -41,8 +41,28 @@ std::unique_ptr<grpc::ClientContext> Client::stream_context() const {
   return ctx;
 }
 
+std::string unreachable_message(const std::string& server, const grpc::Status& status) {
+  const std::string& message = status.error_message();
+  if (status.error_code() != grpc::StatusCode::UNAVAILABLE ||
+      message.find("ailed to connect") == std::string::npos) {
+    return message;
+  }
+  // gRPC's own words ("failed to connect to all addresses; last error: UNKNOWN:
+  // ipv4:127.0.0.1:7531: Failed to connect to remote host: Connection refused"):
+  // the cause, after the last colon.
+  std::string cause = message.substr(message.rfind(':') + 1);
+  cause.erase(0, cause.find_first_not_of(' '));
+  if (!cause.empty()) cause[0] = static_cast<char>(std::tolower(static_cast<unsigned char>(cause[0])));
+  return "cannot reach riccatid at " + server + " (" + cause + "); is it running?";
+}
+
 int Client::fail(const std::string& what, const grpc::Status& status) const {
-  std::fprintf(stderr, "riccati: %s: %s\n", what.c_str(), status.error_message().c_str());
+  const std::string message = unreachable_message(server_, status);
+  if (message.rfind("cannot reach riccatid", 0) == 0) {
+    std::fprintf(stderr, "riccati: %s\n", message.c_str());
+  } else {
+    std::fprintf(stderr, "riccati: %s: %s\n", what.c_str(), message.c_str());
+  }
   return exit_code_for(status.error_code());
 }
 

@@ -9,7 +9,6 @@
 #include <string>
 
 #include "connection.hpp"
-#include "grpc/health/v1/health.grpc.pb.h"
 #include "riccati/v1/datasets.grpc.pb.h"
 #include "riccati/v1/jobs.grpc.pb.h"
 #include "riccati/v1/models.grpc.pb.h"
@@ -27,6 +26,10 @@ enum ExitCode : int {
 
 int exit_code_for(grpc::StatusCode code);
 
+// What a failed call says: gRPC's message, or, when riccatid could not be
+// reached, "cannot reach riccatid at HOST:PORT (connection refused); is it running?".
+std::string unreachable_message(const std::string& server, const grpc::Status& status);
+
 struct Client {
   Client(const Connection& connection, double timeout_s, bool json);
 
@@ -35,7 +38,6 @@ struct Client {
   std::unique_ptr<v1::DatasetService::Stub> datasets;
   std::unique_ptr<v1::JobService::Stub> jobs;
   std::unique_ptr<v1::SessionService::Stub> sessions;
-  std::unique_ptr<grpc::health::v1::Health::Stub> health;
   double timeout_s;
   bool json;
 
@@ -49,6 +51,7 @@ struct Client {
   grpc::Status get_model(const std::string& name, v1::ModelInfo* out) const;
 
  private:
+  std::string server_;
   std::string token_;
 };
 

@@ -1,7 +1,10 @@
 // riccati: the command line of the riccati estimation service.
 #include <CLI/CLI.hpp>
+#include <algorithm>
 #include <cstdio>
 #include <cstdlib>
+#include <string>
+#include <vector>
 
 #include "commands/commands.hpp"
 
@@ -19,6 +22,51 @@ bool settings_from(const std::string& config, const RunFlags& flags, RunSettings
   return true;
 }
 
+// Edit distance, for "did you mean".
+std::size_t distance(const std::string& a, const std::string& b) {
+  std::vector<std::size_t> row(b.size() + 1);
+  for (std::size_t j = 0; j <= b.size(); ++j) row[j] = j;
+  for (std::size_t i = 1; i <= a.size(); ++i) {
+    std::size_t diagonal = row[0];
+    row[0] = i;
+    for (std::size_t j = 1; j <= b.size(); ++j) {
+      const std::size_t up = row[j];
+      row[j] = std::min({row[j] + 1, row[j - 1] + 1, diagonal + (a[i - 1] == b[j - 1] ? 0 : 1)});
+      diagonal = up;
+    }
+  }
+  return row[b.size()];
+}
+
+// The first word of the command line that is not a global option (or its
+// value), when it names no command: "unknown command ...; did you mean ...?"
+// rather than CLI11's "A subcommand is required". Empty: no such word.
+std::string unknown_command(const CLI::App& app, int argc, char** argv) {
+  for (int i = 1; i < argc; ++i) {
+    const std::string word = argv[i];
+    if (word.rfind("-", 0) == 0) {
+      const CLI::Option* option = word.find('=') == std::string::npos ? app.get_option_no_throw(word) : nullptr;
+      if (option != nullptr && option->get_expected_min() > 0) ++i;  // its value
+      continue;
+    }
+    for (const CLI::App* sub : app.get_subcommands({})) {
+      if (sub->check_name(word)) return "";
+    }
+    std::string nearest;
+    std::size_t best = 3;  // at most two edits away
+    for (const CLI::App* sub : app.get_subcommands({})) {
+      const std::size_t d = distance(word, sub->get_name());
+      if (d < best || (sub->get_name().rfind(word, 0) == 0 && nearest.empty())) {
+        best = std::min(best, d);
+        nearest = sub->get_name();
+      }
+    }
+    return "unknown command \"" + word + "\"" + (nearest.empty() ? "" : "; did you mean \"" + nearest + "\"?") +
+           " (riccati --help lists the commands)";
+  }
+  return "";
+}
+
 }  // namespace
 
 int main(int argc, char** argv) {
@@ -32,6 +80,9 @@ int main(int argc, char** argv) {
       "tls_server_name); the server defaults to 127.0.0.1:7531. The token is never a flag: it stays out of\n"
       "shell history.");
   app.require_subcommand(1);
+  // Global flags are taken after the command too (riccati models --json):
+  // what a command does not know falls through to here.
+  app.fallthrough();
   ConnectionFlags connection_flags;
   bool json = false;
   double timeout = 30.0;
@@ -156,6 +207,10 @@ int main(int argc, char** argv) {
   simulate_cmd->add_option("--x0", sim.x0, "Initial state (default: zeros)");
   simulate_cmd->add_option("--output,-o", sim.output, "Write to this file");
 
+  if (const std::string unknown = unknown_command(app, argc, argv); !unknown.empty()) {
+    std::fprintf(stderr, "riccati: %s\n", unknown.c_str());
+    return kExitUsage;
+  }
   try {
     app.parse(argc, argv);
   } catch (const CLI::ParseError& e) {
@@ -192,7 +247,7 @@ int main(int argc, char** argv) {
       std::fprintf(stderr, "riccati: --truth: %s\n", error.c_str());
       return kExitUsage;
     }
-    return result(client, job_id, format, output, truth);
+    return result(client, job_id, json && format == "table" ? "json" : format, output, truth);
   }
   if (*validate_cmd) {
     if (!settings_from("", val_flags, &val.settings)) return kExitUsage;

@@ -51,7 +51,7 @@ std::string job_kind(const v1::Job& j) {
 std::string progress_text(const v1::JobProgress& p) {
   // OE and ML report the optimiser's iterations once it runs (passes first, with --init-passes).
   if (p.iteration() > 0) return "iteration " + std::to_string(p.iteration()) + ", cost " + format("%.6g", p.cost());
-  if (p.passes() > 0) return "pass " + std::to_string(p.pass()) + "/" + std::to_string(p.passes());
+  if (p.passes() > 0) return "pass " + std::to_string(p.pass_number()) + "/" + std::to_string(p.passes());
   return "";
 }
 

@@ -71,7 +71,7 @@ grpc::Status to_grpc(const Status& status) {
 
 v1::Error to_error(const Status& status) {
   v1::Error e;
-  e.set_code(static_cast<int>(status.code()));
+  e.set_code(static_cast<v1::Code>(status.code()));  // the same numbers
   e.set_message(client_message(status));
   return e;
 }

@@ -180,6 +180,14 @@ Status Daemon::start() {
   if (server_ == nullptr || port_ == 0) {
     return {StatusCode::kUnavailable, "cannot listen on " + config_.listen + " (address in use or invalid?)"};
   }
+  // grpc.health.v1: the daemon as a whole ("") and each riccati.v1 service
+  // under its full name are SERVING from now until shutdown.
+  if (grpc::HealthCheckServiceInterface* health = server_->GetHealthCheckService(); health != nullptr) {
+    for (const char* service : {v1::ModelService::service_full_name(), v1::DatasetService::service_full_name(),
+                                v1::JobService::service_full_name(), v1::SessionService::service_full_name()}) {
+      health->SetServingStatus(service, true);
+    }
+  }
   spdlog::info("riccatid listening address={} port={} security=\"{}\" workers={} models={}", config_.listen, port_,
                security, workers, models_.models().size());
   if (!config_.metrics_listen.empty()) {
@@ -204,6 +212,11 @@ void Daemon::shutdown(std::chrono::milliseconds grace) {
   if (server_ != nullptr) {
     spdlog::info("riccatid shutting down grace_ms={}", grace.count());
     const auto deadline = std::chrono::steady_clock::now() + grace;
+    // Health checks answer NOT_SERVING from now on (every service), so load
+    // balancers stop sending calls while the grace period runs.
+    if (grpc::HealthCheckServiceInterface* health = server_->GetHealthCheckService(); health != nullptr) {
+      health->Shutdown();
+    }
     // Streams and watches would otherwise hold the server until the grace
     // ends: end them now with UNAVAILABLE. Their sessions' snapshots are
     // stored and released, for any instance to resume. Workers stop between

@@ -11,7 +11,14 @@ Result<IntegratorSettings> from_proto(const v1::IntegratorSettings& s) {
   IntegratorSettings out;
   RICCATI_RETURN_IF_ERROR(enum_from_proto(s.kind(), *v1::IntegratorKind_descriptor(), &parse_integrator_kind,
                                           "integrator.kind", &out.kind));
-  if (s.substeps() != 0) out.substeps = static_cast<int>(std::min<uint32_t>(s.substeps(), 1000001));
+  // The engine's range (validate) is 1 to 1000000; a larger count is named
+  // here as given, not as it would be once narrowed to an int.
+  constexpr uint32_t kMostSubsteps = 1000000;
+  if (s.substeps() > kMostSubsteps) {
+    return invalid_argument("integrator.substeps " + std::to_string(s.substeps()) + " is over the most, " +
+                            std::to_string(kMostSubsteps) + " (use fewer, or an adaptive integrator)");
+  }
+  if (s.substeps() != 0) out.substeps = static_cast<int>(s.substeps());
   if (s.rtol() != 0.0) out.rtol = s.rtol();
   if (s.atol() != 0.0) out.atol = s.atol();
   if (s.max_steps() != 0) out.max_steps = static_cast<long>(std::min<uint64_t>(s.max_steps(), 1000000000));

@@ -110,6 +110,16 @@ const std::vector<const char*> kMigrations = {
     R"sql(
     ALTER TABLE jobs ADD COLUMN attempts INTEGER NOT NULL DEFAULT 0;
     )sql",
+    // 6: clients' request ids, for idempotent creation (claim_request_id).
+    R"sql(
+    CREATE TABLE request_ids (
+      tenant TEXT NOT NULL,
+      request_id TEXT NOT NULL,
+      kind TEXT NOT NULL,
+      object_id TEXT NOT NULL,
+      created_ms BIGINT NOT NULL,
+      PRIMARY KEY (tenant, request_id));
+    )sql",
 };
 
 // Leases are read against the database's clock, so that instances on hosts
@@ -655,6 +665,27 @@ class PostgresStore final : public Store {
           pqxx::binarystring(result), job_id, tenant);
       if (r.affected_rows() == 0) return not_found("no job " + job_id);
       return Status::ok();
+    });
+  }
+
+  Result<std::string> claim_request_id(const std::string& tenant, const std::string& request_id,
+                                       const std::string& kind, const std::string& object_id) override {
+    // The insert's row, or the row that was there. A row another instance
+    // committed while this statement ran is not in the statement's snapshot
+    // (ON CONFLICT waited for it): then a second statement reads it.
+    return run<pqxx::nontransaction>("storing request id " + request_id, true, [&](auto& tx) -> Result<std::string> {
+      pqxx::result r = tx.exec_params(
+          "WITH inserted AS (INSERT INTO request_ids (tenant, request_id, kind, object_id, created_ms) VALUES ($1, $2, "
+          "$3, $4, " RICCATI_PG_NOW_MS ") ON CONFLICT (tenant, request_id) DO NOTHING RETURNING kind, object_id) "
+          "SELECT kind, object_id FROM inserted UNION ALL SELECT kind, object_id FROM request_ids WHERE tenant = $1 "
+          "AND request_id = $2",
+          tenant, request_id, kind, object_id);
+      if (r.empty()) {
+        r = tx.exec_params("SELECT kind, object_id FROM request_ids WHERE tenant = $1 AND request_id = $2", tenant,
+                           request_id);
+      }
+      if (r.empty()) return internal_error("request id " + request_id + " was neither stored nor found");
+      return named_object(request_id, r[0][0].as<std::string>(), r[0][1].as<std::string>(), kind);
     });
   }
 

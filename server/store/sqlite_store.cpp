@@ -102,6 +102,16 @@ const std::vector<const char*> kMigrations = {
     R"sql(
     ALTER TABLE jobs ADD COLUMN attempts INTEGER NOT NULL DEFAULT 0;
     )sql",
+    // 7: clients' request ids, for idempotent creation (claim_request_id).
+    R"sql(
+    CREATE TABLE request_ids (
+      tenant TEXT NOT NULL,
+      request_id TEXT NOT NULL,
+      kind TEXT NOT NULL,
+      object_id TEXT NOT NULL,
+      created_ms INTEGER NOT NULL,
+      PRIMARY KEY (tenant, request_id));
+    )sql",
 };
 
 // Names never contain the ASCII unit separator, so it can join them.
@@ -409,6 +419,22 @@ class SqliteStore final : public Store {
         .integer(j.finished_ms).text(j.owner).integer(j.lease_until_ms).integer(j.cancel_requested ? 1 : 0)
         .integer(j.iteration).real(j.cost).integer(j.attempts);
     return done(q, "storing job " + j.id);
+  }
+
+  Result<std::string> claim_request_id(const std::string& tenant, const std::string& request_id,
+                                       const std::string& kind, const std::string& object_id) override {
+    std::lock_guard lock(mu_);
+    {
+      Statement q(db_.get(),
+                  "INSERT INTO request_ids (tenant, request_id, kind, object_id, created_ms) VALUES (?, ?, ?, ?, ?) "
+                  "ON CONFLICT (tenant, request_id) DO NOTHING");
+      q.text(tenant).text(request_id).text(kind).text(object_id).integer(wall_clock_ms());
+      RICCATI_RETURN_IF_ERROR(done(q, "storing request id " + request_id));
+    }
+    Statement q(db_.get(), "SELECT kind, object_id FROM request_ids WHERE tenant = ? AND request_id = ?");
+    q.text(tenant).text(request_id);
+    if (q.step() != SQLITE_ROW) return error("reading request id " + request_id);
+    return named_object(request_id, q.column_text(0), q.column_text(1), kind);
   }
 
   Status update_job(const JobRecord& j) override {

@@ -79,4 +79,13 @@ Status session_held_elsewhere(const std::string& id, const std::string& holder, 
               " s more): open its stream there, or here once that instance has stopped"};
 }
 
+Result<std::string> named_object(const std::string& request_id, const std::string& stored_kind,
+                                 const std::string& object_id, const std::string& kind) {
+  if (stored_kind != kind) {
+    return invalid_argument("request_id \"" + request_id + "\" was given to create " + stored_kind + " " + object_id +
+                            ", not a " + kind + ": give each request its own id");
+  }
+  return object_id;
+}
+
 }  // namespace riccati

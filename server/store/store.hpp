@@ -116,6 +116,11 @@ struct StoreUsage {
   std::int64_t result_bytes = 0;    // job results, every tenant's
 };
 
+// claim_request_id's answer from what is stored for `request_id`: the
+// object id, or INVALID_ARGUMENT when it names another kind than `kind`.
+Result<std::string> named_object(const std::string& request_id, const std::string& stored_kind,
+                                 const std::string& object_id, const std::string& kind);
+
 class Store {
  public:
   virtual ~Store() = default;
@@ -133,6 +138,18 @@ class Store {
   // replaces state, progress, error and times of an existing job (NOT_FOUND),
   // whoever holds it (the job queue below is what workers use).
   virtual Status put_job(const JobRecord& job) = 0;
+
+  // Idempotent creation. A client's `request_id` (per tenant) names, from
+  // the first call on, the object of `kind` ("job", "dataset", "session")
+  // whose id that call gave (`object_id`): returns the id the request_id
+  // names, object_id for the first call and the first call's for every
+  // later one. The caller then creates the object under that id, unless it
+  // exists (put_job and put_dataset refuse an id twice with ALREADY_EXISTS),
+  // so one object comes of a request however often it is retried, however
+  // the retries overlap. A request_id that names another kind of object is
+  // INVALID_ARGUMENT.
+  virtual Result<std::string> claim_request_id(const std::string& tenant, const std::string& request_id,
+                                               const std::string& kind, const std::string& object_id) = 0;
   virtual Status update_job(const JobRecord& job) = 0;
   virtual Result<JobRecord> get_job(const std::string& tenant, const std::string& id) = 0;
   // Oldest first.

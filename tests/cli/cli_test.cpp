@@ -106,9 +106,9 @@ struct CliRun {
   int exit_code;
   std::string out;
 };
-CliRun riccati(const std::string& args) {
-  const std::string command = "HOME=" + std::filesystem::temp_directory_path().string() + " " + RICCATI_CLI_BIN +
-                              " --server 127.0.0.1:1 --timeout 1 " + args + " 2>&1";
+CliRun riccati_raw(const std::string& args) {
+  const std::string command =
+      "HOME=" + std::filesystem::temp_directory_path().string() + " " + RICCATI_CLI_BIN + " " + args + " 2>&1";
   CliRun run{0, ""};
   std::FILE* pipe = popen(command.c_str(), "r");
   std::array<char, 4096> buffer;
@@ -118,6 +118,7 @@ CliRun riccati(const std::string& args) {
   run.exit_code = WIFEXITED(status) ? WEXITSTATUS(status) : -1;
   return run;
 }
+CliRun riccati(const std::string& args) { return riccati_raw("--server 127.0.0.1:1 --timeout 1 " + args); }
 
 // The names in the last "(a, b, c)" of the line of `text` that has `flag`.
 std::vector<std::string> listed_after(const std::string& text, const std::string& flag) {
@@ -791,13 +792,13 @@ TEST(ResultTables, EachKindOfResultHasItsTableAndJobsTheirProgress) {
 
   v1::Job job = parse_text<v1::Job>(R"pb(
     id: "job-1" state: JOB_STATE_RUNNING identification { model: "two_tank" method: IDENTIFICATION_METHOD_ML }
-    progress { pass: 2 passes: 2 sample: 2000 samples: 2000 iteration: 7 cost: -4779.23 }
+    progress { pass_number: 2 passes: 2 sample: 2000 samples: 2000 iteration: 7 cost: -4779.23 }
   )pb");
   EXPECT_NE(job_line(job).find("identification  running    two_tank             iteration 7, cost -4779.23"),
             std::string::npos)
       << job_line(job);
   job = parse_text<v1::Job>(R"pb(
-    id: "job-2" state: JOB_STATE_QUEUED smoothing { model: "rotating_arm" } progress { pass: 1 passes: 2 }
+    id: "job-2" state: JOB_STATE_QUEUED smoothing { model: "rotating_arm" } progress { pass_number: 1 passes: 2 }
   )pb");
   EXPECT_NE(job_line(job).find("smoothing       queued     rotating_arm         pass 1/2"), std::string::npos)
       << job_line(job);
@@ -822,6 +823,47 @@ TEST(Lists, ParseNumbersStrictly) {
   EXPECT_EQ(v, (std::vector<double>{1, 2.5, -3e-2}));
   EXPECT_FALSE(parse_list("1,x", &v, &error));
   EXPECT_NE(error.find("\"x\" is not a number"), std::string::npos);
+}
+
+// Nothing listens on 127.0.0.1:1 (riccati() above): the message says so in
+// words, with the address, for every command that calls riccatid.
+TEST(Unreachable, TheMessageNamesTheAddressAndTheCause) {
+  for (const std::string args : {"models", "health", "jobs"}) {
+    const CliRun run = riccati(args);
+    EXPECT_EQ(run.exit_code, 3) << args << ": " << run.out;
+    EXPECT_EQ(run.out, "riccati: cannot reach riccatid at 127.0.0.1:1 (connection refused); is it running?\n")
+        << args;
+  }
+  const grpc::Status refused(grpc::StatusCode::UNAVAILABLE,
+                             "failed to connect to all addresses; last error: UNKNOWN: ipv4:10.0.0.7:7531: Failed to "
+                             "connect to remote host: No route to host");
+  EXPECT_EQ(unreachable_message("10.0.0.7:7531", refused),
+            "cannot reach riccatid at 10.0.0.7:7531 (no route to host); is it running?");
+  const grpc::Status other(grpc::StatusCode::UNAVAILABLE, "riccatid is shutting down");
+  EXPECT_EQ(unreachable_message("10.0.0.7:7531", other), "riccatid is shutting down");
+}
+
+TEST(Commands, AnUnknownOneIsNamedWithTheNearest) {
+  CliRun run = riccati("modles");
+  EXPECT_EQ(run.exit_code, 2);
+  EXPECT_EQ(run.out, "riccati: unknown command \"modles\"; did you mean \"models\"? (riccati --help lists the commands)\n");
+  run = riccati("--json idnetify --model two_tank");
+  EXPECT_EQ(run.exit_code, 2);
+  EXPECT_NE(run.out.find("did you mean \"identify\"?"), std::string::npos) << run.out;
+  run = riccati("frobnicate");
+  EXPECT_EQ(run.out, "riccati: unknown command \"frobnicate\" (riccati --help lists the commands)\n");
+  EXPECT_NE(riccati("").out.find("A subcommand is required"), std::string::npos) << "no word: CLI11's usage";
+}
+
+TEST(Commands, GlobalFlagsAfterTheCommand) {
+  // --server, --timeout and --json after the command (and after its own subcommand).
+  CliRun run = riccati_raw("models --server 127.0.0.1:1 --timeout 1 --json");
+  EXPECT_EQ(run.exit_code, 3) << run.out;
+  EXPECT_NE(run.out.find("cannot reach riccatid at 127.0.0.1:1"), std::string::npos) << run.out;
+  run = riccati_raw("models show two_tank --server=127.0.0.1:1 --timeout 1");
+  EXPECT_NE(run.out.find("cannot reach riccatid at 127.0.0.1:1"), std::string::npos) << run.out;
+  run = riccati_raw("job show job-1 --timeout 1 --server 127.0.0.1:1");
+  EXPECT_NE(run.out.find("cannot reach riccatid at 127.0.0.1:1"), std::string::npos) << run.out;
 }
 
 TEST(ExitCodes, FollowTheStatusCode) {

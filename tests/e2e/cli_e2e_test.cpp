@@ -102,6 +102,25 @@ TEST_F(CliTest, UploadIdentifyAndValidateTheTwoTank) {
   }
 }
 
+// A file whose columns are named as the model's inputs and outputs needs no
+// --inputs and --outputs: the same identification as with them.
+TEST_F(CliTest, ColumnsNamedAsTheModelsNeedNoMapping) {
+  const std::string settings = " --passes 2 --theta0 20,20,1,1 --p0 0,0,10,10,10,10 --r 1e-3";
+  const CliRun named = riccati("--json identify --model two_tank --data " + kData + "/two_tank.csv" + settings);
+  ASSERT_EQ(named.exit_code, 0) << last_stderr();
+  const CliRun mapped = riccati("--json identify --model two_tank --data " + kData +
+                                "/two_tank.csv --inputs F1,F2 --outputs h1,h2" + settings);
+  ASSERT_EQ(mapped.exit_code, 0) << last_stderr();
+  EXPECT_EQ(nlohmann::json::parse(named.out)["identification"]["theta_mean"],
+            nlohmann::json::parse(mapped.out)["identification"]["theta_mean"]);
+  const CliRun datasets = riccati("--json data list");
+  ASSERT_EQ(datasets.exit_code, 0) << last_stderr();
+  for (const auto& d : nlohmann::json::parse(datasets.out)["datasets"]) {
+    EXPECT_EQ(d["input_names"], nlohmann::json::parse(R"(["F1", "F2"])"));
+    EXPECT_EQ(d["output_names"], nlohmann::json::parse(R"(["h1", "h2"])"));
+  }
+}
+
 TEST_F(CliTest, ExitCodesAndMessagesForBadInput) {
   // A missing column: refused by the daemon (1) with the column named.
   CliRun r = riccati("data upload " + kData + "/two_tank.csv --inputs F1,F9 --outputs h1,h2");
@@ -548,6 +567,13 @@ TEST_F(CliTest, HealthPrintsServingAndExitsZero) {
   r = riccati("--json health");
   EXPECT_EQ(r.exit_code, 0) << last_stderr();
   EXPECT_EQ(nlohmann::json::parse(r.out)["status"], "SERVING") << r.out;
+  // Each riccati.v1 service by its full name.
+  for (const char* service : {"riccati.v1.ModelService", "riccati.v1.DatasetService", "riccati.v1.JobService",
+                              "riccati.v1.SessionService"}) {
+    r = riccati(std::string("health --service ") + service);
+    EXPECT_EQ(r.exit_code, 0) << service << ": " << last_stderr();
+    EXPECT_EQ(r.out, "SERVING\n") << service;
+  }
   // A service the daemon does not report on: not found (4), said on both streams.
   r = riccati("health --service no.such.Service");
   EXPECT_EQ(r.exit_code, 4);

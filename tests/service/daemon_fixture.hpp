@@ -447,7 +447,7 @@ class DaemonTest : public ::testing::Test {
     v1::Job job;
     const auto seen = [&] {
       job = get_job(id);
-      return (job.state() == v1::JOB_STATE_RUNNING && job.progress().pass() >= passes) ||
+      return (job.state() == v1::JOB_STATE_RUNNING && job.progress().pass_number() >= passes) ||
              job.state() >= v1::JOB_STATE_SUCCEEDED;
     };
     EXPECT_TRUE(wait_until(seen, kWait,

@@ -158,7 +158,7 @@ TEST_F(DaemonTest, IdentificationJobEqualsTheEngineInProcess) {
   EXPECT_EQ(submitted.state(), v1::JOB_STATE_QUEUED);
   const v1::Job done = wait_for(submitted.id());
   ASSERT_EQ(done.state(), v1::JOB_STATE_SUCCEEDED) << done.error().message();
-  EXPECT_EQ(done.progress().pass(), 10u);
+  EXPECT_EQ(done.progress().pass_number(), 10u);
   const v1::JobResult result = result_of(submitted.id());
   ASSERT_TRUE(result.has_identification());
 
@@ -395,9 +395,9 @@ TEST_F(DaemonTest, KillDashNineMidJobResumesFromTheLastCompletedPass) {
     auto reader = jobs_->WatchJob(&ctx, watch);
     v1::Job job;
     while (reader->Read(&job)) {
-      if (job.progress().pass() >= 10) break;
+      if (job.progress().pass_number() >= 10) break;
     }
-    pass_at_kill = job.progress().pass();
+    pass_at_kill = job.progress().pass_number();
     ASSERT_GE(pass_at_kill, 10u) << "the job ended before it could be killed: " << job.ShortDebugString();
     EXPECT_EQ(daemon_->kill_now(), 128 + SIGKILL);
     ctx.TryCancel();
@@ -415,8 +415,8 @@ TEST_F(DaemonTest, KillDashNineMidJobResumesFromTheLastCompletedPass) {
     watch.set_id(slow.id());
     auto reader = jobs_->WatchJob(&ctx, watch);
     while (reader->Read(&done)) {
-      if (first_pass_after == 0 && done.progress().pass() > 0) first_pass_after = done.progress().pass();
-      EXPECT_GE(done.progress().pass() + 1, pass_at_kill) << "the job started over";
+      if (first_pass_after == 0 && done.progress().pass_number() > 0) first_pass_after = done.progress().pass_number();
+      EXPECT_GE(done.progress().pass_number() + 1, pass_at_kill) << "the job started over";
     }
     ASSERT_TRUE(reader->Finish().ok());
   }
@@ -919,7 +919,7 @@ TEST_F(DaemonTest, CancelStopsARunningJob) {
   ASSERT_TRUE(jobs_->CancelJob(&ctx, cancel, &job).ok());
   const v1::Job done = wait_for(slow.id());
   EXPECT_EQ(done.state(), v1::JOB_STATE_CANCELLED);
-  EXPECT_LT(done.progress().pass(), static_cast<std::uint32_t>(kEndlessPasses));
+  EXPECT_LT(done.progress().pass_number(), static_cast<std::uint32_t>(kEndlessPasses));
   grpc::ClientContext ctx2;
   v1::GetResultRequest get;
   get.set_job_id(slow.id());
@@ -1126,7 +1126,7 @@ TEST_F(DaemonTest, AStreamAndAJobDoNotBlockEachOther) {
   // far from its last pass) was still running on the worker pool.
   const v1::Job job = get_job(slow.id());
   EXPECT_EQ(job.state(), v1::JOB_STATE_RUNNING);
-  EXPECT_LT(job.progress().pass(), static_cast<std::uint32_t>(kEndlessPasses));
+  EXPECT_LT(job.progress().pass_number(), static_cast<std::uint32_t>(kEndlessPasses));
   grpc::ClientContext cancel_ctx;
   v1::CancelJobRequest cancel;
   cancel.set_id(slow.id());

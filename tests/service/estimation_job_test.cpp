@@ -262,7 +262,7 @@ TEST_F(EstimationJobTest, SmoothingJobIsCloserToTheTruthThanItsFilter) {
   }
   const v1::Job done = wait_for(job.id());
   EXPECT_EQ(done.state(), v1::JOB_STATE_SUCCEEDED);
-  EXPECT_EQ(done.progress().pass(), 2u) << "the backward pass";
+  EXPECT_EQ(done.progress().pass_number(), 2u) << "the backward pass";
   EXPECT_EQ(done.progress().sample(), done.progress().samples());
   const v1::JobResult result = result_of(job.id());
   ASSERT_TRUE(result.has_smoothing());

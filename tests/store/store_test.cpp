@@ -398,6 +398,36 @@ TEST_P(StoreTest, ConcurrentWritersAndReaders) {
   EXPECT_EQ(store->list_jobs("t").value().size(), 200u);
 }
 
+// Idempotent creation: the first claim of a request id names the object;
+// every later one, however they overlap, gets that name; tenants apart.
+TEST_P(StoreTest, ARequestIdNamesOneObjectForEveryClaim) {
+  auto store = open();
+  ASSERT_EQ(store->claim_request_id("t", "req-1", "job", "job-a").value(), "job-a");
+  EXPECT_EQ(store->claim_request_id("t", "req-1", "job", "job-b").value(), "job-a");
+  EXPECT_EQ(store->claim_request_id("u", "req-1", "job", "job-c").value(), "job-c") << "request ids are per tenant";
+  const auto other_kind = store->claim_request_id("t", "req-1", "dataset", "ds-d");
+  ASSERT_EQ(other_kind.status().code(), StatusCode::kInvalidArgument);
+  EXPECT_NE(other_kind.status().message().find("job job-a"), std::string::npos) << other_kind.status().message();
+  // A second insert of the id it names is refused: the object is created once.
+  ASSERT_TRUE(store->put_job(job("job-a", "t", 1)).is_ok());
+  EXPECT_EQ(store->put_job(job("job-a", "t", 2)).code(), StatusCode::kAlreadyExists);
+  // Claims at once from several threads (over the pool's connections, on PostgreSQL): one name.
+  constexpr int kClaims = 8;
+  std::vector<std::string> named(kClaims);
+  std::vector<std::thread> threads;
+  std::latch go(kClaims);
+  for (int i = 0; i < kClaims; ++i) {
+    threads.emplace_back([&, i] {
+      go.arrive_and_wait();
+      auto claimed = store->claim_request_id("t", "req-2", "session", "ses-" + std::to_string(i));
+      named[i] = claimed.is_ok() ? claimed.value() : claimed.status().to_string();
+    });
+  }
+  for (auto& t : threads) t.join();
+  EXPECT_EQ(std::set<std::string>(named.begin(), named.end()).size(), 1u) << named[0];
+  EXPECT_EQ(named[0].rfind("ses-", 0), 0u) << named[0];
+}
+
 TEST_P(StoreTest, TheJobQueueHandsOutEachJobOnceOldestFirst) {
   auto store = open();
   EXPECT_FALSE(store->claim_job("a", 60000).value().has_value());
@@ -700,7 +730,7 @@ TEST(PostgresStore, StoresOpeningAtOnceOnAnEmptyDatabaseAllSucceed) {
   for (int i = 0; i < kStores; ++i) ASSERT_TRUE(opened[i].is_ok()) << i << ": " << opened[i].status().to_string();
   const pqxx::result versions = schema.exec("SELECT version FROM riccati_schema_migrations ORDER BY version");
   // Each migration applied once, in order.
-  ASSERT_EQ(versions.size(), 5u);  // postgres_store.cpp's migrations
+  ASSERT_EQ(versions.size(), 6u);  // postgres_store.cpp's migrations
   for (int v = 0; v < static_cast<int>(versions.size()); ++v) EXPECT_EQ(versions[v][0].as<int>(), v + 1);
   // And they share one database: what one stores, another reads.
   ASSERT_TRUE(opened[0].value()->put_job_pass("t", "none", 1, "c").code() == StatusCode::kNotFound);

@@ -33,9 +33,11 @@ int data_show(Client& c, const std::string& id);
 int data_delete(Client& c, const std::string& id);
 // Whether `path` is a file here (rather than the id of something riccatid keeps).
 bool is_local_file(const std::string& path);
-// The dataset `data` names: uploaded first when it is a local file.
+// The dataset `data` names: uploaded first when it is a local file, its
+// columns named by `inputs` and `outputs`, or, when neither is given, by the
+// names of `model`'s inputs and outputs.
 int dataset_for(Client& c, const std::string& data, const std::vector<std::string>& inputs,
-                const std::vector<std::string>& outputs, std::string* id);
+                const std::vector<std::string>& outputs, std::string* id, const std::string& model = "");
 
 int identify(Client& c, const RunSettings& s, bool wait);
 int jobs_list(Client& c);

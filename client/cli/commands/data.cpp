@@ -108,12 +108,19 @@ int data_delete(Client& c, const std::string& id) {
 }
 
 int dataset_for(Client& c, const std::string& data, const std::vector<std::string>& inputs,
-                const std::vector<std::string>& outputs, std::string* id) {
+                const std::vector<std::string>& outputs, std::string* id, const std::string& model) {
   if (!is_local_file(data)) {
     *id = data;
     return kExitOk;
   }
   UploadOptions upload{data, std::filesystem::path(data).filename().string(), "t", inputs, outputs};
+  if (inputs.empty() && outputs.empty() && !model.empty()) {
+    // The file's columns named as the model's inputs and outputs.
+    v1::ModelInfo info;
+    if (const grpc::Status s = c.get_model(model, &info); !s.ok()) return c.fail("model " + model, s);
+    upload.inputs.assign(info.input_names().begin(), info.input_names().end());
+    upload.outputs.assign(info.output_names().begin(), info.output_names().end());
+  }
   const int rc = data_upload(c, upload, id);
   if (rc == kExitOk) std::fprintf(stderr, "uploaded %s as dataset %s\n", data.c_str(), id->c_str());
   return rc;

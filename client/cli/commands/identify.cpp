@@ -17,12 +17,14 @@ int identify(Client& c, const RunSettings& settings, bool wait) {
   }
   // Experiment 1 (--data), then the others (--experiment), uploaded where they are files.
   std::string dataset;
-  if (const int rc = dataset_for(c, *settings.data, settings.inputs, settings.outputs, &dataset); rc != kExitOk) {
+  if (const int rc = dataset_for(c, *settings.data, settings.inputs, settings.outputs, &dataset, *settings.model);
+      rc != kExitOk) {
     return rc;
   }
   std::vector<std::string> more(settings.experiments.size());
   for (std::size_t e = 0; e < more.size(); ++e) {
-    const int rc = dataset_for(c, settings.experiments[e], settings.inputs, settings.outputs, &more[e]);
+    const int rc =
+        dataset_for(c, settings.experiments[e], settings.inputs, settings.outputs, &more[e], *settings.model);
     if (rc != kExitOk) return rc;
   }
   const v1::IdentificationSpec spec = to_identification_spec(settings, dataset, more);

@@ -81,21 +81,21 @@ int watch_until_done(Client& c, const std::string& id, v1::Job* last) {
       // OE and ML: the optimiser's iterations, whose number is not known ahead.
       std::fprintf(stderr, "\r%s   ", progress_text(p).c_str());
     } else if (tty && p.samples() > 0 && p.passes() > 0) {
-      const double done = ((p.pass() > 0 ? p.pass() - 1 : 0) + double(p.sample()) / double(p.samples())) / p.passes();
+      const double done = ((p.pass_number() > 0 ? p.pass_number() - 1 : 0) + double(p.sample()) / double(p.samples())) / p.passes();
       const int width = 30;
       const int filled = static_cast<int>(done * width);
       std::string theta;
       for (double v : p.theta()) theta += format(" %.5g", v);
       std::fprintf(stderr, "\r[%-*s] pass %u/%u sample %llu/%llu theta%s   ", width, std::string(filled, '#').c_str(),
-                   p.pass(), p.passes(), static_cast<unsigned long long>(p.sample()),
+                   p.pass_number(), p.passes(), static_cast<unsigned long long>(p.sample()),
                    static_cast<unsigned long long>(p.samples()), theta.c_str());
     } else if (!tty && !c.json && p.iteration() > last_iteration_printed) {
       std::fprintf(stderr, "%s\n", progress_text(p).c_str());
       last_iteration_printed = p.iteration();
-    } else if (!tty && !c.json && p.iteration() == 0 && p.pass() != last_pass_printed && p.sample() == p.samples() &&
-               p.pass() > 0) {
-      std::fprintf(stderr, "pass %u/%u done\n", p.pass(), p.passes());
-      last_pass_printed = p.pass();
+    } else if (!tty && !c.json && p.iteration() == 0 && p.pass_number() != last_pass_printed && p.sample() == p.samples() &&
+               p.pass_number() > 0) {
+      std::fprintf(stderr, "pass %u/%u done\n", p.pass_number(), p.passes());
+      last_pass_printed = p.pass_number();
     }
   }
   if (tty) std::fprintf(stderr, "\n");

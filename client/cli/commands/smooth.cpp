@@ -12,7 +12,9 @@ int smooth(Client& c, const SmoothOptions& o) {
     return kExitUsage;
   }
   std::string dataset;
-  if (const int rc = dataset_for(c, *s.data, s.inputs, s.outputs, &dataset); rc != kExitOk) return rc;
+  if (const int rc = dataset_for(c, *s.data, s.inputs, s.outputs, &dataset, s.model.value_or("")); rc != kExitOk) {
+    return rc;
+  }
   v1::SmoothingSpec spec = to_smoothing_spec(s, dataset);
   if (!o.params.empty()) {
     std::vector<double> theta;

@@ -64,7 +64,10 @@ bool resolve_parameters(Client& c, const std::string& params, std::optional<int>
 int validate(Client& c, const ValidateOptions& o) {
   const RunSettings& s = o.settings;
   std::string dataset;
-  if (const int rc = dataset_for(c, s.data.value_or(""), s.inputs, s.outputs, &dataset); rc != kExitOk) return rc;
+  if (const int rc = dataset_for(c, s.data.value_or(""), s.inputs, s.outputs, &dataset, s.model.value_or(""));
+      rc != kExitOk) {
+    return rc;
+  }
   v1::ValidationSpec spec = to_validation_spec(s, dataset);
   std::string error;
   std::vector<double> theta;

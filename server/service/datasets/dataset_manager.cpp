@@ -102,6 +102,14 @@ Result<DatasetRecord> DatasetManager::upload(UploadTicket& ticket, const Dataset
 
   DatasetRecord record;
   record.id = new_id("ds");
+  if (!upload.request_id.empty()) {
+    // A retry of an upload that was stored gets that dataset.
+    RICCATI_ASSIGN_OR_RETURN(record.id, store_.claim_request_id(tenant, upload.request_id, "dataset", record.id));
+    if (Result<DatasetRecord> made = store_.get_dataset(tenant, record.id);
+        made.is_ok() || made.status().code() != StatusCode::kNotFound) {
+      return made;
+    }
+  }
   record.tenant = tenant;
   record.name = name;
   record.format = format == DatasetFormat::kMat ? "mat" : "csv";
@@ -112,7 +120,11 @@ Result<DatasetRecord> DatasetManager::upload(UploadTicket& ticket, const Dataset
   record.t_end = data.t[data.size() - 1];
   record.size_bytes = size;
   record.created_ms = now_ms();
-  RICCATI_RETURN_IF_ERROR(store_.put_dataset(record, data));
+  const Status put = store_.put_dataset(record, data);
+  if (put.code() == StatusCode::kAlreadyExists && !upload.request_id.empty()) {
+    return store_.get_dataset(tenant, record.id);  // a retry of the same upload stored it first
+  }
+  RICCATI_RETURN_IF_ERROR(put);
   {
     std::lock_guard lock(mu_);
     in_flight_bytes_[tenant] -= std::exchange(ticket.bytes_, 0);

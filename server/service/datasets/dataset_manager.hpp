@@ -24,6 +24,7 @@ struct DatasetUpload {
   std::optional<DatasetFormat> format;  // none: from the name's extension (.mat, else CSV)
   ColumnMapping mapping;
   std::string bytes;                    // the whole file
+  std::string request_id;               // the client's, for an idempotent upload; empty: none
 };
 
 class DatasetManager;

@@ -211,7 +211,10 @@ v1::JobState to_proto(JobState state) {
 v1::Job to_proto(const JobRecord& job) {
   v1::Job out;
   out.set_id(job.id);
-  out.set_state(to_proto(job.state));
+  // A running job asked to cancel is CANCELLING until it stops (between two
+  // samples here, at its next lease renewal on another instance).
+  out.set_state(job.state == JobState::kRunning && job.cancel_requested ? v1::JOB_STATE_CANCELLING
+                                                                         : to_proto(job.state));
   switch (job.kind) {
     case JobKind::kIdentification: out.mutable_identification()->ParseFromString(job.spec); break;
     case JobKind::kValidation: out.mutable_validation()->ParseFromString(job.spec); break;
@@ -219,7 +222,7 @@ v1::Job to_proto(const JobRecord& job) {
     case JobKind::kUnknown: break;  // a newer riccatid's: its spec is not ours to read
   }
   v1::JobProgress* p = out.mutable_progress();
-  p->set_pass(static_cast<uint32_t>(job.pass));
+  p->set_pass_number(static_cast<uint32_t>(job.pass));
   p->set_passes(static_cast<uint32_t>(job.passes));
   p->set_sample(static_cast<uint64_t>(job.sample));
   p->set_samples(static_cast<uint64_t>(job.samples));
@@ -227,7 +230,7 @@ v1::Job to_proto(const JobRecord& job) {
   p->set_iteration(static_cast<uint32_t>(job.iteration));
   p->set_cost(job.cost);
   if (job.error_code != 0) {
-    out.mutable_error()->set_code(job.error_code);
+    out.mutable_error()->set_code(static_cast<v1::Code>(job.error_code));
     out.mutable_error()->set_message(job.error_message);
   }
   set_timestamp(job.created_ms, out.mutable_created());

@@ -112,7 +112,7 @@ Result<JobRecord> JobManager::submit_identification(const std::string& tenant, c
   job.passes = plan.method == IdentificationMethod::kFilter ? plan.filter.passes : plan.init_passes;
   job.samples = datasets.front().samples;
   job.spec = spec.SerializeAsString();
-  return enqueue(std::move(job), result_size.bytes);
+  return enqueue(std::move(job), result_size.bytes, spec.request_id());
 }
 
 Result<JobRecord> JobManager::submit_smoothing(const std::string& tenant, const v1::SmoothingSpec& spec) {
@@ -147,10 +147,14 @@ Result<JobRecord> JobManager::submit_smoothing(const std::string& tenant, const 
   job.passes = 2;  // forward and back
   job.samples = end - settings.first_sample;
   job.spec = spec.SerializeAsString();
-  return enqueue(std::move(job), result_size.bytes);
+  return enqueue(std::move(job), result_size.bytes, spec.request_id());
 }
 
 Result<JobRecord> JobManager::submit_validation(const std::string& tenant, const v1::ValidationSpec& spec) {
+  if (!v1::EstimateChoice_IsValid(spec.estimate())) {
+    return invalid_argument("estimate " + std::to_string(spec.estimate()) + " is unknown (expected " +
+                            api::enum_choice_list(*v1::EstimateChoice_descriptor()) + ")");
+  }
   RICCATI_ASSIGN_OR_RETURN(const ModelPtr model, models_.get(spec.model()));
   RICCATI_ASSIGN_OR_RETURN(const ValidationSettings settings, from_proto(spec));
   RICCATI_ASSIGN_OR_RETURN(const DatasetRecord dataset, store_.get_dataset(tenant, spec.dataset_id()));
@@ -199,12 +203,19 @@ Result<JobRecord> JobManager::submit_validation(const std::string& tenant, const
   job.kind = JobKind::kValidation;
   job.samples = dataset.samples;
   job.spec = spec.SerializeAsString();
-  return enqueue(std::move(job), result_size.bytes);
+  return enqueue(std::move(job), result_size.bytes, spec.request_id());
 }
 
-Result<JobRecord> JobManager::enqueue(JobRecord job, double result_bytes) {
+Result<JobRecord> JobManager::enqueue(JobRecord job, double result_bytes, const std::string& request_id) {
   job.state = JobState::kQueued;
   job.created_ms = now_ms();
+  if (!request_id.empty()) {
+    // A retry of a request that made a job gets that job.
+    RICCATI_ASSIGN_OR_RETURN(job.id, store_.claim_request_id(job.tenant, request_id, "job", job.id));
+    if (Result<JobRecord> made = get(job.tenant, job.id); made.is_ok() || made.status().code() != StatusCode::kNotFound) {
+      return made;
+    }
+  }
   {
     std::lock_guard submit(submit_mu_);
     // Queued or running, on every instance sharing the store.
@@ -220,14 +231,18 @@ Result<JobRecord> JobManager::enqueue(JobRecord job, double result_bytes) {
                            "this tenant has that many jobs queued or running; wait for one to end or cancel one");
     }
     // The tenant's stored results and this one's estimate: within its quota.
-    RICCATI_ASSIGN_OR_RETURN(const std::int64_t stored, store_.result_bytes(job.tenant));
-    if (static_cast<double>(stored) + result_bytes > static_cast<double>(limits_.max_tenant_result_bytes)) {
+    RICCATI_ASSIGN_OR_RETURN(const std::int64_t results, store_.result_bytes(job.tenant));
+    if (static_cast<double>(results) + result_bytes > static_cast<double>(limits_.max_tenant_result_bytes)) {
       return limit_reached("max_tenant_result_bytes", limits_.max_tenant_result_bytes,
-                           "this tenant's results take " + std::to_string(stored) + " bytes, and this job's about " +
+                           "this tenant's results take " + std::to_string(results) + " bytes, and this job's about " +
                                std::to_string(static_cast<std::int64_t>(result_bytes)) +
                                " more: delete jobs it no longer needs (DeleteJob, riccati job delete ID)");
     }
-    RICCATI_RETURN_IF_ERROR(store_.put_job(job));
+    const Status stored = store_.put_job(job);
+    if (stored.code() == StatusCode::kAlreadyExists && !request_id.empty()) {
+      return get(job.tenant, job.id);  // a retry of the same request stored it first
+    }
+    RICCATI_RETURN_IF_ERROR(stored);
   }
   {
     std::lock_guard lock(mu_);
@@ -273,6 +288,7 @@ Result<JobRecord> JobManager::cancel(const std::string& tenant, const std::strin
     auto it = live_.find(id);
     if (it != live_.end() && it->second.record.tenant == tenant && !it->second.ending) {
       it->second.cancel_requested = true;
+      it->second.record.cancel_requested = true;  // shown as CANCELLING until it stops
       it->second.stop.request_stop();
       return it->second.record;
     }
@@ -412,6 +428,7 @@ void JobManager::renew(const JobRecord& job) {
   if (it == live_.end() || it->second.ending) return;
   if (renewed.is_ok()) {  // a client cancelled it through another instance
     it->second.cancel_requested = true;
+    it->second.record.cancel_requested = true;
     it->second.stop.request_stop();
   } else if (renewed.status().code() == StatusCode::kAborted) {
     spdlog::warn("job lease lost id={} instance={}: another instance runs it", job.id, instance_);

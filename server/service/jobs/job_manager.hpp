@@ -126,8 +126,9 @@ class JobManager {
   };
 
   // Stores the job as queued, within the jobs' limits and the tenant's
-  // result quota (with `result_bytes`, the estimate of its result).
-  Result<JobRecord> enqueue(JobRecord record, double result_bytes);
+  // result quota (with `result_bytes`, the estimate of its result); a
+  // retry with the same `request_id` gets the job the first call made.
+  Result<JobRecord> enqueue(JobRecord record, double result_bytes, const std::string& request_id);
   // Retention: deletes the ended jobs past max_tenant_jobs_kept or
   // max_job_age_days, every tenant's.
   void delete_old_jobs();

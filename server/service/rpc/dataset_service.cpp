@@ -18,6 +18,7 @@ DatasetUpload upload_from_header(const v1::UploadHeader& header) {
   if (!header.time_column().empty()) upload.mapping.time = header.time_column();
   upload.mapping.inputs.assign(header.input_columns().begin(), header.input_columns().end());
   upload.mapping.outputs.assign(header.output_columns().begin(), header.output_columns().end());
+  upload.request_id = header.request_id();
   return upload;
 }
 
@@ -59,6 +60,12 @@ class DatasetServiceImpl::UploadReactor final : public grpc::ServerReadReactor<v
     if (!ok) return end();
     if (!ticket_) {
       if (!part_.has_header()) return end_with(to_grpc(invalid_argument("the first message of an upload must be its header")));
+      if (!v1::DatasetFormat_IsValid(part_.header().format())) {
+        return end_with(to_grpc(invalid_argument("format " + std::to_string(part_.header().format()) +
+                                                 " is unknown (expected " +
+                                                 api::enum_choice_list(*v1::DatasetFormat_descriptor()) +
+                                                 ", or unspecified: from the name's extension)")));
+      }
       upload_ = upload_from_header(part_.header());
       Result<UploadTicket> ticket = service_.datasets_.begin_upload(tenant_, upload_.name);
       if (!ticket.is_ok()) return end_with(to_grpc(ticket.status()));

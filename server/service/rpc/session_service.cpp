@@ -14,6 +14,7 @@ grpc::Status SessionServiceImpl::CreateSession(grpc::ServerContext* context, con
   auto session = sessions_.create(auth_.tenant(*context), *request);
   if (!session.is_ok()) return to_grpc(session.status());
   *response = session.value()->info();
+  response->set_instance(sessions_.instance_id());  // it serves the session: it created or resumed it
   return grpc::Status::OK;
 }
 
@@ -22,6 +23,7 @@ grpc::Status SessionServiceImpl::GetSession(grpc::ServerContext* context, const 
   auto session = sessions_.get(auth_.tenant(*context), request->id());
   if (!session.is_ok()) return to_grpc(session.status());
   *response = session.value()->info();
+  response->set_instance(sessions_.instance_id());  // it serves the session: it created or resumed it
   return grpc::Status::OK;
 }
 
@@ -31,11 +33,6 @@ grpc::Status SessionServiceImpl::ListSessions(grpc::ServerContext* context, cons
   if (!listed.is_ok()) return to_grpc(listed.status());
   for (v1::SessionInfo& info : listed.value()) *response->add_sessions() = std::move(info);
   return grpc::Status::OK;
-}
-
-grpc::Status SessionServiceImpl::CloseSession(grpc::ServerContext* context, const v1::CloseSessionRequest* request,
-                                              v1::CloseSessionResponse*) {
-  return to_grpc(sessions_.close(auth_.tenant(*context), request->id()));
 }
 
 class SessionServiceImpl::StreamReactor final : public grpc::ServerBidiReactor<v1::StreamRequest, v1::StreamResponse> {
@@ -79,10 +76,12 @@ class SessionServiceImpl::StreamReactor final : public grpc::ServerBidiReactor<v
       // The measurements left are not answered; the session keeps its time.
       if (stopping_.load(std::memory_order_relaxed)) break;
       const auto began = std::chrono::steady_clock::now();
+      // One result per measurement, even past a divergence: those after it
+      // get the divergence as their error, and the stream ends once this
+      // response is written.
       v1::MeasurementResult* result = response_.add_results();
       diverged_ = session_->process(m, full_covariance_, result);
       service_.metrics_.measurement(result->has_estimate(), std::chrono::steady_clock::now() - began);
-      if (!diverged_.is_ok()) break;
     }
     service_.sessions_.after_batch(*session_);  // hands a snapshot to the writer when one is due
     std::lock_guard lock(mu_);
@@ -117,6 +116,17 @@ class SessionServiceImpl::StreamReactor final : public grpc::ServerBidiReactor<v
       service_.streams_done_.notify_all();
     }
     delete this;
+  }
+
+  // CloseSession of the session this stream is attached to.
+  void end_if_on(const std::string& session_id) {
+    {
+      std::lock_guard lock(mu_);
+      if (session_ == nullptr || session_->id() != session_id) return;
+    }
+    stopping_ = true;
+    finish({grpc::StatusCode::FAILED_PRECONDITION,
+            "session " + session_id + " was closed (CloseSession): its stream ends; create a new session"});
   }
 
   void drain() {
@@ -180,6 +190,17 @@ class SessionServiceImpl::StreamReactor final : public grpc::ServerBidiReactor<v
   std::atomic<bool> stopping_{false};  // set from other threads: OnCancel, drain()
   std::optional<grpc::Status> pending_finish_;
 };
+
+grpc::Status SessionServiceImpl::CloseSession(grpc::ServerContext* context, const v1::CloseSessionRequest* request,
+                                              v1::CloseSessionResponse*) {
+  const Status closed = sessions_.close(auth_.tenant(*context), request->id());
+  if (closed.is_ok()) {
+    // A stream attached to it ends now, not at its next batch.
+    std::lock_guard lock(streams_mu_);
+    for (StreamReactor* stream : streams_) stream->end_if_on(request->id());
+  }
+  return to_grpc(closed);
+}
 
 grpc::ServerBidiReactor<v1::StreamRequest, v1::StreamResponse>* SessionServiceImpl::Stream(
     grpc::CallbackServerContext* context) {

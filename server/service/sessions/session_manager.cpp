@@ -125,9 +125,22 @@ Status SessionManager::check_limits(const std::string& tenant) const {
 
 Result<std::shared_ptr<Session>> SessionManager::create(const std::string& tenant,
                                                         const v1::CreateSessionRequest& request) {
-  RICCATI_ASSIGN_OR_RETURN(std::shared_ptr<Session> session, build(new_id("ses"), tenant, request, now_ms()));
+  std::string id = new_id("ses");
+  if (!request.request_id().empty() && store_ != nullptr) {
+    // A retry of a request that made a session gets that session (here, or
+    // resumed from its snapshot).
+    RICCATI_ASSIGN_OR_RETURN(id, store_->claim_request_id(tenant, request.request_id(), "session", id));
+    if (Result<std::shared_ptr<Session>> made = get(tenant, id);
+        made.is_ok() || made.status().code() != StatusCode::kNotFound) {
+      return made;
+    }
+  }
+  RICCATI_ASSIGN_OR_RETURN(std::shared_ptr<Session> session, build(id, tenant, request, now_ms()));
   {
     std::lock_guard lock(mu_);
+    if (auto made = sessions_.find(id); made != sessions_.end() && made->second->tenant() == tenant) {
+      return made->second;  // a retry of the same request made it meanwhile
+    }
     RICCATI_RETURN_IF_ERROR(check_limits(tenant));
     sessions_[session->id()] = session;
   }

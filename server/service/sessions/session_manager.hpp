@@ -72,6 +72,8 @@ class SessionManager {
   Result<std::shared_ptr<Session>> create(const std::string& tenant, const v1::CreateSessionRequest& request);
   // A session here, or one resumed from its snapshot in the store.
   Result<std::shared_ptr<Session>> get(const std::string& tenant, const std::string& id);
+  // This instance's id: the SessionInfo.instance of the sessions it serves.
+  const std::string& instance_id() const { return options_.instance_id; }
   // The tenant's sessions, by id: those here, and those that the store
   // holds for other instances or for none (ListSessions).
   Result<std::vector<v1::SessionInfo>> list(const std::string& tenant);

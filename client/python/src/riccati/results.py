@@ -1,0 +1,239 @@
+"""Results of jobs, as pandas objects indexed by the model's names.
+
+Every result keeps the message riccatid sent as `.proto` (riccati.v1 types),
+for anything not shown here.
+"""
+import numpy as np
+import pandas as pd
+
+from ._settings import enum_name
+from .v1 import jobs_pb2
+
+# The two-sided 95 % quantile of the normal distribution (the iterated
+# filter's intervals; output error and likelihood send their own).
+Z95 = 1.959963984540054
+
+
+def matrix(m):
+    """A riccati.v1.Matrix (column-major) as a numpy array of rows x cols."""
+    return np.asarray(m.values, dtype=float).reshape((m.cols, m.rows)).T if m.rows and m.cols else \
+        np.zeros((m.rows, m.cols))
+
+
+def _names(names, count, prefix):
+    names = list(names)
+    return names if len(names) == count else [f"{prefix}{i + 1}" for i in range(count)]
+
+
+def _series(values, names, name):
+    values = np.asarray(values, dtype=float)
+    return pd.Series(values, index=pd.Index(_names(names, len(values), "p"), name="parameter"), name=name)
+
+
+def _correlation(covariance):
+    std = np.sqrt(np.clip(np.diag(covariance), 0.0, None))
+    with np.errstate(divide="ignore", invalid="ignore"):
+        out = covariance / np.outer(std, std)
+    return out
+
+
+def _frame(m, columns, t):
+    """A variables x N matrix as a frame indexed by time, a column per variable."""
+    a = matrix(m)
+    return pd.DataFrame(a.T, index=pd.Index(t, name="t"), columns=_names(columns, a.shape[0], "v"))
+
+
+def _fits(fits):
+    return pd.DataFrame({"rmse": [f.rmse for f in fits], "fit_percent": [f.fit_percent for f in fits],
+                         "vaf_percent": [f.vaf_percent for f in fits], "rrse": [f.rrse for f in fits]},
+                        index=pd.Index([f.name for f in fits], name="output"))
+
+
+class _Result:
+    def __init__(self, job_id, message, model):
+        self.job_id = job_id
+        self.proto = message
+        self.model = model  # riccati.v1.ModelInfo of the job's model
+
+    def __repr__(self):
+        return f"<{type(self).__name__} of job {self.job_id}>"
+
+
+class IdentificationResult(_Result):
+    """The iterated filter's result (method "filter", the 1999 toolbox's multi-pass rule).
+
+    - theta: the mean over the last pass (what the toolbox reports), a Series by parameter
+    - theta_final: the estimate at the end of the last pass
+    - std: sqrt(diag P) of the parameters at the end
+    - ci: theta -/+ 1.96 std (columns lower, upper), the normal 95 % interval
+    - covariance, correlation: of the parameters at the end (DataFrames)
+    - traces: the estimate after every sample of every pass, a DataFrame
+      indexed by (pass, t), a column per parameter (the toolbox's Trace)
+    - passes: per pass, its final and mean estimate, NIS and innovation RMS
+    - to_frame(): the last pass by sample: states, model outputs (Ymod), innovations
+    """
+
+    def __init__(self, job_id, message, model):
+        super().__init__(job_id, message, model)
+        r = message
+        names = list(r.param_names)
+        self.param_names = names
+        self.theta = _series(r.theta_mean, names, "theta")
+        self.theta_final = _series(r.theta, names, "theta_final")
+        self.std = _series(r.theta_std, names, "std")
+        self.ci = pd.DataFrame({"lower": self.theta - Z95 * self.std, "upper": self.theta + Z95 * self.std})
+        p = matrix(r.covariance)
+        n = len(names)
+        block = p[-n:, -n:] if p.shape[0] >= n and n > 0 else np.zeros((n, n))
+        index = pd.Index(names, name="parameter")
+        self.covariance = pd.DataFrame(block, index=index, columns=names)
+        self.correlation = pd.DataFrame(_correlation(block), index=index, columns=names)
+        self.warnings = list(r.warnings)
+        t = np.asarray(r.t, dtype=float)
+        traces = []
+        for k, p_result in enumerate(r.passes, 1):
+            trace = matrix(p_result.theta_trace)
+            times = t if trace.shape[1] == len(t) else np.arange(trace.shape[1], dtype=float)
+            traces.append(pd.DataFrame(trace.T, columns=names,
+                                       index=pd.MultiIndex.from_arrays([np.full(len(times), k), times],
+                                                                       names=["pass", "t"])))
+        self.traces = pd.concat(traces) if traces else pd.DataFrame(columns=names)
+        self.passes = pd.DataFrame(
+            [{"nis_mean": p_result.nis_mean,
+              **{f"final_{n_}": v for n_, v in zip(names, p_result.theta_final)},
+              **{f"mean_{n_}": v for n_, v in zip(names, p_result.theta_mean)},
+              **{f"innovation_rms_{o}": v for o, v in zip(model.output_names, p_result.innovation_rms)}}
+             for p_result in r.passes], index=pd.Index(range(1, len(r.passes) + 1), name="pass"))
+
+    def to_frame(self):
+        r = self.proto
+        t = np.asarray(r.t, dtype=float)
+        parts = [_frame(r.x_trace, self.model.state_names, t),
+                 _frame(r.y_model, [f"model_{o}" for o in self.model.output_names], t),
+                 _frame(r.innovations, [f"innovation_{o}" for o in self.model.output_names], t)]
+        return pd.concat(parts, axis=1)
+
+
+class ExperimentFit(_Result):
+    """What an output-error or likelihood estimate does on one record."""
+
+    def __init__(self, job_id, message, model):
+        super().__init__(job_id, message, model)
+        e = message
+        self.dataset_id = e.dataset_id
+        states = pd.Index(_names(model.state_names, len(e.x0), "x"), name="state")
+        self.x0 = pd.Series(list(e.x0), index=states, name="x0")
+        self.x0_std = pd.Series(list(e.x0_std), index=states[:len(e.x0_std)], name="std")
+        self.fits = _fits(e.fits)
+        self.diagnostics = e.diagnostics
+
+    def to_frame(self):
+        """By sample: each output measured, the model's, the normalised residual and whether it was used."""
+        e = self.proto
+        t = np.asarray(e.t, dtype=float)
+        outputs = list(self.model.output_names)
+        parts = [_frame(e.y_measured, outputs, t), _frame(e.y_model, [f"model_{o}" for o in outputs], t),
+                 _frame(e.residuals, [f"residual_{o}" for o in outputs], t)]
+        used = _frame(e.mask, [f"used_{o}" for o in outputs], t).astype(bool)
+        return pd.concat(parts + [used], axis=1)
+
+
+class EstimationResult(_Result):
+    """An output-error ("oe") or maximum-likelihood ("ml") identification.
+
+    - theta, std: Series by parameter (std 0 for a fixed one, inf for one the data do not determine)
+    - ci: the 95 % intervals (columns lower, upper); fixed: a boolean Series
+    - covariance, correlation: DataFrames by parameter
+    - traces: the criterion after each iteration (a DataFrame indexed by iteration)
+    - experiments: an ExperimentFit per record; fits: their fits, by (experiment, output)
+    - to_frame(): by sample, measured and model outputs and residuals (indexed
+      by (experiment, t) when there are several records)
+    """
+
+    def __init__(self, job_id, message, model):
+        super().__init__(job_id, message, model)
+        r = message
+        names = list(r.param_names)
+        self.method = enum_name(jobs_pb2.IdentificationMethod.DESCRIPTOR, r.method)
+        self.param_names = names
+        self.theta = _series(r.theta, names, "theta")
+        self.std = _series(r.theta_std, names, "std")
+        index = pd.Index(names, name="parameter")
+        self.ci = pd.DataFrame({"lower": list(r.ci_lower), "upper": list(r.ci_upper)}, index=index)
+        self.fixed = pd.Series(list(r.fixed), index=index, name="fixed", dtype=bool)
+        self.covariance = pd.DataFrame(matrix(r.covariance), index=index, columns=names)
+        self.correlation = pd.DataFrame(matrix(r.correlation), index=index, columns=names)
+        self.warnings = list(r.warnings)
+        self.cost = r.cost
+        self.converged = r.converged
+        self.iterations = r.iterations
+        self.termination = r.termination
+        self.traces = pd.DataFrame({"cost": list(r.cost_history)},
+                                   index=pd.Index(range(1, len(r.cost_history) + 1), name="iteration"))
+        self.experiments = [ExperimentFit(job_id, e, model) for e in r.experiments]
+        self.fits = pd.concat([e.fits for e in self.experiments], keys=range(1, len(self.experiments) + 1),
+                              names=["experiment"]) if self.experiments else _fits([])
+        if len(self.experiments) == 1:
+            self.fits = self.experiments[0].fits
+        self.init_passes = (IdentificationResult(job_id, r.init_passes, model)
+                            if r.HasField("init_passes") and len(r.init_passes.passes) > 0 else None)
+
+    def to_frame(self):
+        frames = [e.to_frame() for e in self.experiments]
+        if len(frames) == 1:
+            return frames[0]
+        return pd.concat(frames, keys=range(1, len(frames) + 1), names=["experiment"])
+
+
+class ValidationResult(_Result):
+    """The model simulated over a dataset's inputs and compared with its outputs.
+
+    - theta: the parameters simulated with; x0: the initial states
+    - fits: a DataFrame by output: rmse, fit_percent (MATLAB's compare), vaf_percent, rrse
+    - to_frame(): by sample, each output measured and simulated_<output>
+    """
+
+    def __init__(self, job_id, message, model):
+        super().__init__(job_id, message, model)
+        r = message
+        self.theta = _series(r.theta, model.param_names, "theta")
+        self.x0 = pd.Series(list(r.x0), index=pd.Index(_names(model.state_names, len(r.x0), "x"), name="state"),
+                            name="x0")
+        self.fits = _fits(r.fits)
+        self.parameters_from = r.parameters_from
+        self.x0_from = r.x0_from
+
+    def to_frame(self):
+        r = self.proto
+        t = np.asarray(r.t, dtype=float)
+        outputs = list(self.model.output_names)
+        return pd.concat([_frame(r.y_measured, outputs, t),
+                          _frame(r.y_simulated, [f"simulated_{o}" for o in outputs], t)], axis=1)
+
+
+class SmoothingResult(_Result):
+    """States and parameters given every sample: to_frame() has the smoothed
+    estimate and std_<name> by sample; filtered() the forward filter's."""
+
+    def __init__(self, job_id, message, model):
+        super().__init__(job_id, message, model)
+        self.names = list(message.names)
+
+    def _pair(self, z, std):
+        t = np.asarray(self.proto.t, dtype=float)
+        return pd.concat([_frame(z, self.names, t), _frame(std, [f"std_{n}" for n in self.names], t)], axis=1)
+
+    def to_frame(self):
+        return self._pair(self.proto.z_smoothed, self.proto.std_smoothed)
+
+    def filtered(self):
+        return self._pair(self.proto.z_filtered, self.proto.std_filtered)
+
+
+def from_proto(job_result, model):
+    kind = job_result.WhichOneof("result")
+    wrap = {"identification": IdentificationResult, "estimation": EstimationResult,
+            "validation": ValidationResult, "smoothing": SmoothingResult}.get(kind)
+    if wrap is None:
+        raise ValueError(f"job {job_result.job_id}: a result this client does not know ({kind})")
+    return wrap(job_result.job_id, getattr(job_result, kind), model)

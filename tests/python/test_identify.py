@@ -1,0 +1,176 @@
+"""Identification, validation and jobs through a real riccatid."""
+import json
+import os
+import subprocess
+
+import numpy as np
+import pandas as pd
+import pytest
+
+import riccati
+from conftest import CLI, DATA
+
+# Hensen's settings (examples/two_tank_hensen.yaml), keyword for flag.
+HENSEN = dict(filter="ekf", passes=10, x0="first", theta0=[20, 20, 1, 1], p0=[0, 0, 10, 10, 10, 10], q=0,
+              r=[1e-3, 1e-3], hold="zoh", integrator="rk4", substeps=10)
+IO = dict(inputs=["F1", "F2"], outputs=["h1", "h2"])
+
+
+@pytest.fixture(scope="module")
+def truth():
+    with open(os.path.join(DATA, "two_tank.json")) as f:
+        reference = json.load(f)
+    return pd.Series(reference["parameters"])[reference["parameter_order"]]
+
+
+@pytest.fixture(scope="module")
+def hensen(daemon, two_tank_csv):
+    """Hensen's identification, once for the module: (client, dataset, job, result, progress seen)."""
+    c = riccati.Client(daemon.address)
+    ds = c.upload(two_tank_csv, **IO)
+    seen = []
+    job = c.submit_identification("two_tank", ds, **HENSEN)
+    result = job.result(progress=seen.append)
+    yield c, ds, job, result, [(j.state, j.progress) for j in seen]
+    c.close()
+
+
+def test_identify_finds_the_true_parameters(hensen, truth):
+    _, _, job, res, _ = hensen
+    assert isinstance(res, riccati.IdentificationResult)
+    assert list(res.theta.index) == ["A1", "A2", "k1", "k2"]
+    # Hensen's noiseless record: every parameter within 2 % of the truth it was simulated with.
+    error = (res.theta - truth) / truth
+    assert (error.abs() < 0.02).all(), error
+    assert (res.std > 0).all() and (res.std < 0.01 * res.theta).all()
+    assert job.state == "succeeded"
+
+
+def test_result_is_what_riccatid_sent(hensen):
+    _, _, _, res, _ = hensen
+    r = res.proto
+    np.testing.assert_array_equal(res.theta.to_numpy(), list(r.theta_mean))
+    np.testing.assert_array_equal(res.theta_final.to_numpy(), list(r.theta))
+    np.testing.assert_array_equal(res.std.to_numpy(), list(r.theta_std))
+    # The parameters' covariance is the lower right block of P (nz x nz, column-major), by index.
+    nz = r.covariance.rows
+    assert nz == 6
+    for i in range(4):
+        for j in range(4):
+            assert res.covariance.iloc[i, j] == r.covariance.values[(2 + i) + (2 + j) * nz]
+    np.testing.assert_allclose(np.diag(res.correlation), 1.0, rtol=1e-12)
+    c01 = res.covariance.iloc[0, 1] / np.sqrt(res.covariance.iloc[0, 0] * res.covariance.iloc[1, 1])
+    assert res.correlation.loc["A1", "A2"] == pytest.approx(c01, rel=1e-12)
+    # The normal 95 % interval about the reported estimate.
+    assert (res.ci["lower"] < res.theta).all() and (res.theta < res.ci["upper"]).all()
+    np.testing.assert_allclose(res.ci["upper"] - res.ci["lower"], 2 * 1.959963984540054 * res.std, rtol=1e-12)
+
+
+def test_traces_are_every_pass_sample_by_sample(hensen):
+    _, _, _, res, _ = hensen
+    samples = len(res.proto.t)
+    assert samples == 2000
+    assert res.traces.shape == (10 * samples, 4)
+    for k in range(1, 11):
+        last = res.traces.loc[k].iloc[-1]
+        np.testing.assert_array_equal(last.to_numpy(), list(res.proto.passes[k - 1].theta_final))
+    # The toolbox's estimate is the last pass's mean, which the trace gives independently.
+    np.testing.assert_allclose(res.traces.loc[10].mean().to_numpy(), res.theta.to_numpy(), rtol=1e-9)
+    frame = res.to_frame()
+    assert list(frame.columns) == ["h1", "h2", "model_h1", "model_h2", "innovation_h1", "innovation_h2"]
+    assert len(frame) == samples and frame.index[0] == 0.0
+
+
+def test_progress_callback_sees_the_job_run_to_its_end(hensen):
+    _, _, _, _, seen = hensen
+    assert seen[-1][0] == "succeeded"
+    assert seen[-1][1].pass_number == 10 and seen[-1][1].passes == 10
+    fractions = [p.fraction for state, p in seen if state == "running"]
+    assert fractions == sorted(fractions)
+
+
+def test_the_cli_reads_the_same_result(hensen, daemon):
+    _, _, job, res, _ = hensen
+    out = subprocess.run([CLI, "--server", daemon.address, "result", job.id, "--format", "json"], check=True,
+                         capture_output=True, text=True).stdout
+    cli = json.loads(out)["identification"]
+    assert cli["param_names"] == list(res.theta.index)
+    assert cli["theta_mean"] == res.theta.tolist()
+    assert cli["theta_std"] == res.std.tolist()
+
+
+def test_validate_fits_agree_with_the_simulated_outputs(hensen):
+    c, ds, job, res, _ = hensen
+    fit = c.validate("two_tank", ds, job)
+    assert isinstance(fit, riccati.ValidationResult)
+    np.testing.assert_array_equal(fit.theta.to_numpy(), res.theta.to_numpy())  # the job's reported estimate
+    frame = fit.to_frame()
+    # MATLAB's compare: 100 (1 - |y - yhat| / |y - mean(y)|), recomputed from the samples.
+    for o in ("h1", "h2"):
+        y, yhat = frame[o].to_numpy(), frame[f"simulated_{o}"].to_numpy()
+        expected = 100 * (1 - np.linalg.norm(y - yhat) / np.linalg.norm(y - y.mean()))
+        assert fit.fits.loc[o, "fit_percent"] == pytest.approx(expected, rel=1e-9)
+        assert fit.fits.loc[o, "rmse"] == pytest.approx(np.sqrt(np.mean((y - yhat) ** 2)), rel=1e-9)
+        assert fit.fits.loc[o, "fit_percent"] > 99
+    # The measured outputs are the uploaded ones.
+    data = pd.read_csv(os.path.join(DATA, "two_tank.csv"), float_precision="round_trip")
+    np.testing.assert_array_equal(frame["h1"].to_numpy(), data["h1"].to_numpy())
+    # Given values: the same simulation.
+    again = c.validate("two_tank", ds, res.theta)
+    np.testing.assert_array_equal(again.to_frame().to_numpy(), frame.to_numpy())
+
+
+def test_output_error_with_intervals(client, truth):
+    noisy = os.path.join(DATA, "two_tank_noisy.csv")
+    res = client.identify("two_tank", noisy, method="oe", theta0=[20, 20, 1, 1], output_sigma=[0.005, 0.005],
+                          estimate_x0=True, **IO)
+    assert isinstance(res, riccati.EstimationResult)
+    assert res.method == "oe" and res.converged
+    # The truth lies within a few standard errors (the noise is that of the record).
+    assert (((res.theta - truth) / res.std).abs() < 4).all()
+    assert (res.ci["lower"] < res.theta).all() and (res.theta < res.ci["upper"]).all()
+    assert res.correlation.loc["A1", "A1"] == pytest.approx(1.0)
+    assert res.correlation.shape == (4, 4)
+    assert len(res.traces) == res.iterations or len(res.traces) == res.iterations + 1
+    assert res.traces["cost"].iloc[-1] == pytest.approx(res.cost)
+    frame = res.to_frame()
+    assert {"h1", "model_h1", "residual_h1", "used_h1"} <= set(frame.columns)
+    assert res.experiments[0].x0.index.tolist() == ["h1", "h2"]
+    assert set(res.fits.index) == {"h1", "h2"}
+
+
+def test_refusals_carry_the_code_and_message(client, two_tank_csv):
+    with pytest.raises(riccati.NotFound) as e:
+        client.identify("no_such_model", two_tank_csv, **IO)
+    assert e.value.code.name == "NOT_FOUND" and "no_such_model" in e.value.message
+    with pytest.raises(riccati.InvalidArgument) as e:
+        client.identify("two_tank", two_tank_csv, r=[1e-3, 1e-3, 1e-3], **IO)
+    assert e.value.code.name == "INVALID_ARGUMENT"
+    assert "r" in e.value.message.lower()
+    with pytest.raises(ValueError, match="ekf"):
+        client.submit_identification("two_tank", "some-id", filter="kalman")
+    with pytest.raises(TypeError, match="passs"):
+        client.submit_identification("two_tank", "some-id", passs=3)
+
+
+def test_a_cancelled_job_raises_job_failed(client, two_tank_csv):
+    job = client.submit_identification("two_tank", two_tank_csv, passes=4000, theta0=[20, 20, 1, 1],
+                                       p0=[0, 0, 10, 10, 10, 10], r=1e-3, **IO)
+    for seen in job.watch():
+        if seen.state == "running":
+            break
+    job.cancel()
+    with pytest.raises(riccati.JobFailed) as e:
+        job.result()
+    assert job.state == "cancelled"
+    assert e.value.code.name == "CANCELLED"
+    assert job.progress.pass_number < 4000
+
+
+def test_columns_named_as_the_models_need_no_mapping(client, two_tank_csv):
+    settings = dict(passes=2, theta0=[20, 20, 1, 1], p0=[0, 0, 10, 10, 10, 10], r=1e-3)
+    named = client.identify("two_tank", two_tank_csv, **settings)
+    mapped = client.identify("two_tank", two_tank_csv, **settings, **IO)
+    np.testing.assert_array_equal(named.theta.to_numpy(), mapped.theta.to_numpy())
+    uploaded = client.job(named.job_id).proto.identification.dataset_id
+    assert client.dataset(uploaded).input_names == ["F1", "F2"]
