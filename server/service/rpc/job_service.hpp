@@ -26,4 +26,7 @@ class JobServiceImpl final : public v1::JobService::Service {
   JobManager& jobs_;
 };
 
+// A succeeded job's result (GetResult).
+Result<v1::JobResult> job_result(JobManager& jobs, const std::string& tenant, const std::string& job_id);
+
 }  // namespace riccati::service
