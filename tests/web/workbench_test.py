@@ -140,12 +140,13 @@ class Workbench(unittest.TestCase):
         if not ARGS.screenshots:
             return
         os.makedirs(ARGS.screenshots, exist_ok=True)
-        # The whole page, not only the window: as tall as what it shows.
+        # The whole page, not only the window: a viewport as tall as what it shows.
         height = self.driver.execute_script("return document.documentElement.scrollHeight")
-        self.driver.set_window_size(1400, max(1000, min(height + 20, 4000)))
-        time.sleep(0.3)  # a resize redraws the plots; screenshots only, never an assertion
+        self.driver.execute_cdp_cmd("Emulation.setDeviceMetricsOverride", {
+            "width": 1400, "height": max(900, min(height, 5000)), "deviceScaleFactor": 1, "mobile": False})
+        time.sleep(0.3)  # the page lays out again; screenshots only, never an assertion
         self.driver.save_screenshot(os.path.join(ARGS.screenshots, f"workbench-{name}.png"))
-        self.driver.set_window_size(1400, 1000)
+        self.driver.execute_cdp_cmd("Emulation.clearDeviceMetricsOverride", {})
 
     def assert_plots_drawn(self, container_css, at_least=1):
         canvases = self.wait(lambda d: (lambda c: c if len(c) >= at_least else False)(

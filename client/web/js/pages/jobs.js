@@ -83,7 +83,7 @@ async function showJob(main, id, signal) {
       if (!tracePlot) {
         tracePlot = h('div', {class: 'plots', id: 'live-traces'});
         live.append(h('h2', {}, 'Estimates as it runs'), tracePlot);
-        params.forEach((n, i) => plot(tracePlot, {title: n, x: xs, xLabel: 'update', width: 300, height: 180, series: [{label: n, values: ys[i]}]}));
+        params.forEach((n, i) => plot(tracePlot, {title: n, x: xs, xLabel: 'update', width: 300, height: 180, series: [{label: n, values: ys[i], points: true}]}));
       } else {
         [...tracePlot.children].forEach((box, i) => setData(box, xs, [ys[i]]));
       }
@@ -97,6 +97,7 @@ async function showJob(main, id, signal) {
     }, signal);
   }
   if (stateOf(last) === 'SUCCEEDED') {
+    clear(live);  // the result's traces replace the live ones
     const res = await api('GET', `/jobs/${encodeURIComponent(id)}/result`, undefined, {signal});
     await showResult(result, last, res, model, signal);
   }

@@ -88,7 +88,7 @@ async function identification(el, job, r, model, signal) {
   el.append(h('h2', {}, 'Measured and modelled outputs (last pass)'), overlay);
   const first = num(spec.firstSample) || 0;
   outputs.forEach((y, i) => plot(overlay, {title: y, x: t, series: [
-    {label: 'measured', values: data ? row(data.y, i).slice(first, first + t.length) : [], color: '#6e7781'},
+    {label: 'measured', values: data ? row(data.y, i).slice(first, first + t.length) : [], color: '#9aa4ae', width: 4},
     {label: 'model', values: row(r.yModel, i), color: '#d1242f'}]}));
   // Diagnostics: innovations' whiteness, NIS per pass.
   el.append(h('h2', {}, 'Diagnostics'));
@@ -130,7 +130,7 @@ function estimation(el, job, r, model) {
     outputs.forEach((y, i) => {
       const fit = (x.fits || [])[i];
       plot(overlay, {title: `${y}${fit ? ` · fit ${fmt(fit.fitPercent, 3)} %` : ''}`, x: t, series: [
-        {label: 'measured', values: row(x.yMeasured, i), color: '#6e7781'}, {label: 'model', values: row(x.yModel, i), color: '#d1242f'}]});
+        {label: 'measured', values: row(x.yMeasured, i), color: '#9aa4ae', width: 4}, {label: 'model', values: row(x.yModel, i), color: '#d1242f'}]});
     });
     const d = x.diagnostics;
     if (d && d.autocorrelation) {
@@ -153,7 +153,7 @@ function validation(el, r, model) {
   outputs.forEach((y, i) => {
     const fit = (r.fits || [])[i];
     plot(overlay, {title: `${y} · fit ${fit ? fmt(fit.fitPercent, 3) : '–'} %`, x: t, series: [
-      {label: 'measured', values: row(r.yMeasured, i), color: '#6e7781'}, {label: 'simulated', values: row(r.ySimulated, i), color: color(0)}]});
+      {label: 'measured', values: row(r.yMeasured, i), color: '#9aa4ae', width: 4}, {label: 'simulated', values: row(r.ySimulated, i), color: color(0)}]});
   });
 }
 
