@@ -18,7 +18,8 @@ packages=(
   libpqxx-dev                                           # the PostgreSQL store (libpqxx 6.4, with libpq)
   libssl-dev                                            # SHA-256 (token digests, plugin checksums)
   prometheus-cpp-dev                                    # metrics in Prometheus' model and text format
-  libcpp-httplib-dev                                    # the HTTP endpoint that serves them (/metrics)
+  libcpp-httplib-dev                                    # the HTTP endpoints: /metrics, the web workbench and its JSON API
+  chromium chromium-driver python3-selenium             # the workbench's tests in a real browser (tests/web)
   libyaml-cpp-dev                                       # config and job files
   nlohmann-json3-dev                                    # JSON (dataset metadata in tests)
   libgtest-dev libgmock-dev                             # GoogleTest

@@ -73,6 +73,16 @@ int main(int argc, char** argv) {
       app.add_flag("--metrics-public", metrics_public,
                    "Serve metrics on a non-loopback --metrics-listen address: plain HTTP without authentication, for "
                    "a network that keeps it private (config key metrics_public)");
+  auto* http_listen = app.add_option("--http-listen", flags.http_listen,
+                                     "Serve the web workbench and its JSON API at http(s)://HOST:PORT/ (TLS with "
+                                     "--tls-cert and --tls-key; default: off)");
+  bool http_public = false;
+  auto* http_public_flag =
+      app.add_flag("--http-public", http_public,
+                   "Serve the workbench in plain HTTP on a non-loopback --http-listen address, behind a proxy that "
+                   "terminates TLS (config key http_public)");
+  std::string http_port_file;
+  app.add_option("--http-port-file", http_port_file, "Write the workbench's bound port to this file once listening");
   auto* log_level =
       app.add_option("--log-level", flags.log_level, "trace, debug, info, warn, error, off")->capture_default_str();
   app.add_option("--port-file", port_file, "Write the bound port to this file once listening");
@@ -128,6 +138,8 @@ int main(int argc, char** argv) {
   if (*log_level) config.log_level = flags.log_level;
   if (*metrics_listen) config.metrics_listen = flags.metrics_listen;
   if (*metrics_public_flag) config.metrics_public = metrics_public;
+  if (*http_listen) config.http_listen = flags.http_listen;
+  if (*http_public_flag) config.http_public = http_public;
   if (*tls_cert) config.security.tls_cert = flags.security.tls_cert;
   if (*tls_key) config.security.tls_key = flags.security.tls_key;
   if (*tls_client_ca) config.security.tls_client_ca = flags.security.tls_client_ca;
@@ -166,6 +178,9 @@ int main(int argc, char** argv) {
   }
   if (!port_file.empty()) {
     std::ofstream(port_file) << daemon.port() << "\n";
+  }
+  if (!http_port_file.empty() && daemon.http_port() != 0) {
+    std::ofstream(http_port_file) << daemon.http_port() << "\n";
   }
   int signal_number = 0;
   sigwait(&signals, &signal_number);

@@ -29,7 +29,7 @@ packages=(
   libpqxx-6.4                       # the PostgreSQL store (depends on libpq5)
   libssl3                           # TLS and SHA-256 (libssl, libcrypto)
   libprometheus-cpp-core1.0         # metrics in Prometheus' model and text format
-  libcpp-httplib0.11                # the HTTP server of /metrics
+  libcpp-httplib0.11                # the HTTP servers of /metrics and of the workbench (--http-listen)
   # Ceres Solver (output error, maximum likelihood) is linked statically
   # (Debian ships libceres.a to CMake); these are what it links in turn:
   libgoogle-glog0v6                 # its logging

@@ -78,6 +78,10 @@ Status load_config_file(const std::string& path, DaemonConfig* c) {
         c->metrics_listen = v.as<std::string>();
       } else if (key == "metrics_public") {
         c->metrics_public = v.as<bool>();
+      } else if (key == "http_listen") {
+        c->http_listen = v.as<std::string>();
+      } else if (key == "http_public") {
+        c->http_public = v.as<bool>();
       } else if (key == "log_level") {
         c->log_level = v.as<std::string>();
       } else {
@@ -202,6 +206,14 @@ Status Daemon::start() {
     RICCATI_ASSIGN_OR_RETURN(metrics_port_, metrics_.serve(config_.metrics_listen));
     spdlog::info("metrics listening address={} port={} path=/metrics", config_.metrics_listen, metrics_port_);
   }
+  if (!config_.http_listen.empty()) {
+    http_ = std::make_unique<HttpApi>(*auth_, models_, *datasets_, *jobs_, *sessions_, config_.limits);
+    std::string http_security;
+    RICCATI_ASSIGN_OR_RETURN(http_port_, http_->serve({config_.http_listen, config_.http_public}, config_.security,
+                                                      &http_security));
+    spdlog::info("workbench listening address={} port={} security=\"{}\"", config_.http_listen, http_port_,
+                 http_security);
+  }
   if (config_.security.tls_cert.empty()) {
     spdlog::warn("plain TCP on loopback, for development: give tls_cert and tls_key to serve other hosts");
   }
@@ -222,6 +234,7 @@ void Daemon::shutdown(std::chrono::milliseconds grace) {
     // stored and released, for any instance to resume. Workers stop between
     // samples; a running job keeps its per-pass checkpoint and resumes at
     // the next start.
+    if (http_ != nullptr) http_->stop();  // its event streams end at once
     session_service_->drain(deadline);
     job_service_->drain(deadline);
     sessions_->shutdown();

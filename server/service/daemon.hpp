@@ -13,6 +13,7 @@
 #include "service/jobs/job_manager.hpp"
 #include "service/metrics.hpp"
 #include "service/datasets/dataset_manager.hpp"
+#include "service/http/http_api.hpp"
 #include "service/rpc/dataset_service.hpp"
 #include "service/rpc/job_service.hpp"
 #include "service/rpc/model_service.hpp"
@@ -44,6 +45,11 @@ struct DaemonConfig {
   // /metrics is plain HTTP without authentication: off loopback only when
   // asked for (a network that keeps it private: compose's, a cluster's).
   bool metrics_public = false;
+  // host:port of the web workbench and its JSON API (service/http/http_api.hpp); empty: none.
+  std::string http_listen;
+  // Plain HTTP off loopback (behind a proxy that terminates TLS); without
+  // it, off loopback needs TLS (tls_cert, tls_key).
+  bool http_public = false;
   std::string log_level = "info";
 };
 
@@ -59,6 +65,7 @@ class Daemon {
   Status start();
   int port() const { return port_; }  // the bound port, after start()
   int metrics_port() const { return metrics_port_; }  // 0: no metrics endpoint
+  int http_port() const { return http_port_; }        // 0: no workbench
   // Stops accepting calls, gives running calls `grace` to finish, then stops
   // the workers (running jobs stay queued in the store for the next start).
   void shutdown(std::chrono::milliseconds grace);
@@ -79,8 +86,10 @@ class Daemon {
   std::unique_ptr<JobServiceImpl> job_service_;
   std::unique_ptr<SessionServiceImpl> session_service_;
   std::unique_ptr<grpc::Server> server_;
+  std::unique_ptr<HttpApi> http_;
   int port_ = 0;
   int metrics_port_ = 0;
+  int http_port_ = 0;
 };
 
 }  // namespace riccati::service

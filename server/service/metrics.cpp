@@ -183,13 +183,10 @@ struct Metrics::Endpoint {
   std::thread thread;
 };
 
-namespace {
-
-// "host:port", "[v6]:port"; the host as cpp-httplib binds it.
-Result<std::pair<std::string, int>> split_address(const std::string& address) {
+Result<std::pair<std::string, int>> split_address(const std::string& address, const std::string& what) {
   const auto colon = address.rfind(':');
   if (colon == std::string::npos || colon + 1 == address.size()) {
-    return invalid_argument("metrics address '" + address + "' is not HOST:PORT");
+    return invalid_argument(what + " address '" + address + "' is not HOST:PORT");
   }
   std::string host = address.substr(0, colon);
   if (host.size() >= 2 && host.front() == '[' && host.back() == ']') host = host.substr(1, host.size() - 2);
@@ -199,16 +196,14 @@ Result<std::pair<std::string, int>> split_address(const std::string& address) {
     port = std::stoi(address.substr(colon + 1), &used);
     if (used != address.size() - colon - 1) throw std::invalid_argument("trailing characters");
   } catch (const std::exception&) {
-    return invalid_argument("metrics address '" + address + "': the port is not a number");
+    return invalid_argument(what + " address '" + address + "': the port is not a number");
   }
-  if (port < 0 || port > 65535) return invalid_argument("metrics address '" + address + "': port out of range");
+  if (port < 0 || port > 65535) return invalid_argument(what + " address '" + address + "': port out of range");
   return std::pair{host.empty() ? std::string("0.0.0.0") : host, port};
 }
 
-}  // namespace
-
 Result<int> Metrics::serve(const std::string& address) {
-  RICCATI_ASSIGN_OR_RETURN(auto host_port, split_address(address));
+  RICCATI_ASSIGN_OR_RETURN(auto host_port, split_address(address, "metrics"));
   auto endpoint = std::make_unique<Endpoint>();
   endpoint->server.new_task_queue = [] { return new httplib::ThreadPool(2); };
   endpoint->server.Get("/metrics", [this](const httplib::Request&, httplib::Response& response) {

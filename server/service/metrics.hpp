@@ -20,6 +20,7 @@
 #include <functional>
 #include <memory>
 #include <string>
+#include <utility>
 
 #include "engine/status.hpp"
 #include "store/store.hpp"
@@ -33,6 +34,10 @@ class Family;
 }  // namespace prometheus
 
 namespace riccati::service {
+
+// "host:port", "[v6]:port": the host as cpp-httplib binds it (empty: all
+// addresses) and the port; `what` names the address in errors.
+Result<std::pair<std::string, int>> split_address(const std::string& address, const std::string& what);
 
 class Metrics {
  public:

@@ -8,7 +8,6 @@
 #include <thread>
 
 namespace riccati::service {
-namespace {
 
 DatasetUpload upload_from_header(const v1::UploadHeader& header) {
   DatasetUpload upload;
@@ -22,7 +21,16 @@ DatasetUpload upload_from_header(const v1::UploadHeader& header) {
   return upload;
 }
 
-}  // namespace
+Result<v1::DatasetData> dataset_data(DatasetManager& datasets, const std::string& tenant, const std::string& id) {
+  RICCATI_ASSIGN_OR_RETURN(const DatasetRecord record, datasets.get(tenant, id));
+  RICCATI_ASSIGN_OR_RETURN(const Dataset data, datasets.load(tenant, id));
+  v1::DatasetData out;
+  *out.mutable_info() = to_proto(record);
+  copy_values(data.t, out.mutable_t());
+  *out.mutable_u() = to_matrix(data.u);
+  *out.mutable_y() = to_matrix(data.y);
+  return out;
+}
 
 v1::DatasetInfo to_proto(const DatasetRecord& r) {
   v1::DatasetInfo info;
@@ -172,15 +180,9 @@ grpc::Status DatasetServiceImpl::DeleteDataset(grpc::ServerContext* context, con
 
 grpc::Status DatasetServiceImpl::GetDatasetData(grpc::ServerContext* context, const v1::GetDatasetRequest* request,
                                                 v1::DatasetData* response) {
-  const std::string tenant = auth_.tenant(*context);
-  const Result<DatasetRecord> record = datasets_.get(tenant, request->id());
-  if (!record.is_ok()) return to_grpc(record.status());
-  const Result<Dataset> data = datasets_.load(tenant, request->id());
+  Result<v1::DatasetData> data = dataset_data(datasets_, auth_.tenant(*context), request->id());
   if (!data.is_ok()) return to_grpc(data.status());
-  *response->mutable_info() = to_proto(record.value());
-  copy_values(data->t, response->mutable_t());
-  *response->mutable_u() = to_matrix(data->u);
-  *response->mutable_y() = to_matrix(data->y);
+  *response = std::move(data.value());
   return grpc::Status::OK;
 }
 

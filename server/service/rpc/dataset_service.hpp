@@ -33,5 +33,9 @@ class DatasetServiceImpl final : public v1::DatasetService::WithCallbackMethod_U
 };
 
 v1::DatasetInfo to_proto(const DatasetRecord& record);
+// What an upload's header asks for (gRPC's first message, the HTTP API's query).
+DatasetUpload upload_from_header(const v1::UploadHeader& header);
+// A dataset's values with its description (GetDatasetData).
+Result<v1::DatasetData> dataset_data(DatasetManager& datasets, const std::string& tenant, const std::string& id);
 
 }  // namespace riccati::service

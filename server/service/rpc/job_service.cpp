@@ -245,13 +245,18 @@ grpc::Status JobServiceImpl::CancelJob(grpc::ServerContext* context, const v1::C
   return grpc::Status::OK;
 }
 
+Result<v1::JobResult> job_result(JobManager& jobs, const std::string& tenant, const std::string& job_id) {
+  RICCATI_ASSIGN_OR_RETURN(const std::string encoded, jobs.result(tenant, job_id));
+  v1::JobResult result;
+  if (!result.ParseFromString(encoded)) return internal_error("stored result of job " + job_id + " is unreadable");
+  return result;
+}
+
 grpc::Status JobServiceImpl::GetResult(grpc::ServerContext* context, const v1::GetResultRequest* request,
                                        v1::JobResult* response) {
-  auto encoded = jobs_.result(auth_.tenant(*context), request->job_id());
-  if (!encoded.is_ok()) return to_grpc(encoded.status());
-  if (!response->ParseFromString(encoded.value())) {
-    return to_grpc(internal_error("stored result of job " + request->job_id() + " is unreadable"));
-  }
+  Result<v1::JobResult> result = job_result(jobs_, auth_.tenant(*context), request->job_id());
+  if (!result.is_ok()) return to_grpc(result.status());
+  *response = std::move(result.value());
   return grpc::Status::OK;
 }
 

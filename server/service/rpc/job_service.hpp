@@ -60,4 +60,7 @@ class JobServiceImpl final : public v1::JobService::WithCallbackMethod_WatchJob<
   std::thread pump_;
 };
 
+// A succeeded job's result (GetResult).
+Result<v1::JobResult> job_result(JobManager& jobs, const std::string& tenant, const std::string& job_id);
+
 }  // namespace riccati::service

@@ -108,6 +108,14 @@ v1::SessionInfo Session::info() const {
   return info;
 }
 
+bool Session::latest(v1::Estimate* out, std::uint64_t* accepted) const {
+  std::lock_guard lock(mu_);
+  *accepted = accepted_;
+  if (!runner_.started()) return false;
+  fill_estimate(runner_.filter().time(), false, out);
+  return true;
+}
+
 std::string Session::snapshot(const std::string& instance) const {
   std::lock_guard lock(mu_);
   return encode(instance);

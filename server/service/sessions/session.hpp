@@ -38,6 +38,10 @@ class Session {
   Status process(const v1::Measurement& m, bool full_covariance, v1::MeasurementResult* out);
 
   v1::SessionInfo info() const;
+  // The filter's estimate now, for watchers (the web workbench's event
+  // stream), and the measurements accepted so far; no estimate (false)
+  // before the first.
+  bool latest(v1::Estimate* out, std::uint64_t* accepted) const;
   bool idle_since(std::chrono::steady_clock::time_point t) const;
 
   // The session as a snapshot (SessionSnapshot, encoded), stored by `instance`.

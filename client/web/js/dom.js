@@ -1,0 +1,68 @@
+// Building the page: elements and text nodes only. User data (names of
+// datasets, messages) reaches the page as text, never as HTML.
+
+// h('td', {class: 'num'}, '1.5') -> <td class="num">1.5</td>. Children are
+// nodes, or anything else made text.
+export function h(tag, props = {}, ...children) {
+  const el = document.createElement(tag);
+  for (const [key, value] of Object.entries(props || {})) {
+    if (value === undefined || value === null || value === false) continue;
+    if (key === 'class') el.className = value;
+    else if (key.startsWith('on') && typeof value === 'function') el.addEventListener(key.slice(2), value);
+    else if (key === 'value') el.value = value;
+    else if (key === 'checked') el.checked = !!value;
+    else el.setAttribute(key, value === true ? '' : String(value));
+  }
+  append(el, children);
+  return el;
+}
+
+function append(el, children) {
+  for (const c of children.flat(Infinity)) {
+    if (c === undefined || c === null || c === false) continue;
+    el.append(c instanceof Node ? c : document.createTextNode(String(c)));
+  }
+}
+
+export function clear(el, ...children) {
+  el.replaceChildren();
+  append(el, children);
+  return el;
+}
+
+// Numbers as the API gives them (protobuf's JSON: 64-bit integers and
+// NaN/Infinity as strings).
+export function num(v) {
+  if (v === undefined || v === null || v === '') return NaN;
+  return typeof v === 'number' ? v : Number(v);
+}
+
+export function fmt(v, digits = 4) {
+  const x = num(v);
+  if (Number.isNaN(x)) return '–';
+  if (!Number.isFinite(x)) return x > 0 ? '∞' : '−∞';
+  if (x === 0) return '0';
+  const a = Math.abs(x);
+  return a >= 1e5 || a < 1e-3 ? x.toExponential(digits - 1) : Number(x.toPrecision(digits)).toString();
+}
+
+export function when(ts) {
+  if (!ts) return '';
+  const d = new Date(ts);
+  return Number.isNaN(d.getTime()) || d.getTime() <= 0 ? '' : d.toLocaleString();
+}
+
+// Row i of a column-major v1.Matrix {rows, cols, values}.
+export function row(m, i) {
+  if (!m || !m.values) return [];
+  const rows = num(m.rows), cols = num(m.cols), out = new Array(cols);
+  for (let j = 0; j < cols; ++j) out[j] = num(m.values[i + j * rows]);
+  return out;
+}
+
+export function at(m, i, j) { return num(m.values[i + j * num(m.rows)]); }
+
+// "FILTER_KIND_EKF" -> "EKF"
+export function enumName(v, prefix) { return String(v || '').replace(prefix, ''); }
+
+export function errorBox(e) { return h('p', {class: 'error'}, String(e && e.message ? e.message : e)); }

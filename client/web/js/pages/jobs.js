@@ -1,0 +1,104 @@
+// Jobs: the list (state, times, model, dataset; cancel; open), and a job's
+// page (#/jobs/<id>): live progress and parameter estimates by server-sent
+// events, then its result (results.js).
+import {api, events} from '../api.js';
+import {clear, enumName, errorBox, fmt, h, num, when} from '../dom.js';
+import {plot, setData} from '../plot.js';
+import {showResult} from './results.js';
+
+const kindOf = (job) => (job.identification ? 'identification' : job.validation ? 'validation' : job.smoothing ? 'smoothing' : '');
+const specOf = (job) => job.identification || job.validation || job.smoothing || {};
+const stateOf = (job) => enumName(job.state, 'JOB_STATE_');
+const terminal = (s) => ['SUCCEEDED', 'FAILED', 'CANCELLED'].includes(s);
+
+export async function show(main, r, signal) {
+  if (r.id) return showJob(main, r.id, signal);
+  const draw = async () => {
+    const [list, datasets] = await Promise.all([api('GET', '/jobs', undefined, {signal}), api('GET', '/datasets', undefined, {signal})]);
+    const names = Object.fromEntries((datasets.datasets || []).map((d) => [d.id, d.name]));
+    const jobs = (list.jobs || []).slice().sort((a, b) => String(b.created).localeCompare(String(a.created)));
+    clear(main, h('h1', {}, 'Jobs'), jobs.length === 0 ? h('p', {class: 'muted'}, 'No jobs yet: ', h('a', {href: '#/identify'}, 'identify'), ' a model.') :
+      h('table', {class: 'wide', id: 'jobs'},
+        h('thead', {}, h('tr', {}, ['Job', 'Kind', 'State', 'Model', 'Dataset', 'Progress', 'Created', 'Started', 'Finished', ''].map((c) => h('th', {}, c)))),
+        h('tbody', {}, jobs.map((job) => {
+          const spec = specOf(job), state = stateOf(job), p = job.progress || {};
+          return h('tr', {'data-id': job.id},
+            h('td', {}, h('a', {href: '#/jobs/' + encodeURIComponent(job.id)}, job.id)),
+            h('td', {}, kindOf(job)),
+            h('td', {class: 'state ' + state}, state),
+            h('td', {}, spec.model || ''),
+            h('td', {}, names[spec.datasetId] || spec.datasetId || ''),
+            h('td', {}, num(p.passes) ? `pass ${num(p.pass)}/${num(p.passes)}` : ''),
+            h('td', {}, when(job.created)), h('td', {}, when(job.started)), h('td', {}, when(job.finished)),
+            h('td', {}, terminal(state) ? null : h('button', {class: 'danger', onclick: async () => {
+              await api('POST', `/jobs/${encodeURIComponent(job.id)}/cancel`);
+              draw();
+            }}, 'Cancel')));
+        }))));
+  };
+  await draw();
+  // While the page is open, the list follows the jobs.
+  const timer = setInterval(() => draw().catch(() => {}), 3000);
+  signal.addEventListener('abort', () => clearInterval(timer));
+}
+
+async function showJob(main, id, signal) {
+  const job = await api('GET', '/jobs/' + encodeURIComponent(id), undefined, {signal});
+  const spec = specOf(job);
+  const model = spec.model ? await api('GET', '/models/' + encodeURIComponent(spec.model), undefined, {signal}) : {};
+  const params = model.paramNames || [];
+  const stateEl = h('span', {class: 'state', id: 'job-state'});
+  const bar = h('div');
+  const progressText = h('span', {class: 'muted', id: 'job-progress'});
+  const cancel = h('button', {class: 'danger', id: 'job-cancel', onclick: async () => {
+    try { await api('POST', `/jobs/${encodeURIComponent(id)}/cancel`); } catch (err) { main.append(errorBox(err)); }
+  }}, 'Cancel');
+  const live = h('div', {class: 'plots', id: 'live'});
+  const result = h('div', {id: 'result'});
+  clear(main, h('h1', {}, `${kindOf(job)} job `, h('span', {id: 'job-id'}, id)),
+    h('p', {}, `${spec.model || ''} on dataset `, h('a', {href: '#/datasets/' + encodeURIComponent(spec.datasetId || '')}, spec.datasetId || ''),
+      spec.method ? ` · ${enumName(spec.method, 'IDENTIFICATION_METHOD_')}` : '',
+      spec.filter && spec.filter.kind ? ` · ${enumName(spec.filter.kind, 'FILTER_KIND_')}` : ''),
+    h('div', {class: 'panel row'}, 'State: ', stateEl, h('div', {class: 'progress'}, bar), progressText, cancel),
+    live, result);
+
+  // Live parameter estimates: one point per event (decimated by riccatid).
+  const xs = [], ys = params.map(() => []);
+  let tracePlot = null;
+  const update = (j) => {
+    const state = stateOf(j), p = j.progress || {};
+    stateEl.className = 'state ' + state;
+    clear(stateEl, state);
+    cancel.style.display = terminal(state) ? 'none' : '';
+    const passes = num(p.passes) || 1, samples = num(p.samples) || 1;
+    const done = state === 'SUCCEEDED' ? 1 : ((num(p.pass) || 1) - 1 + (num(p.sample) || 0) / samples) / passes;
+    bar.style.width = `${Math.min(100, 100 * done).toFixed(1)}%`;
+    clear(progressText, num(p.passes) ? `pass ${num(p.pass)} of ${num(p.passes)}, sample ${num(p.sample)} of ${num(p.samples)}` : '',
+      num(p.iteration) ? ` · iteration ${num(p.iteration)}, cost ${fmt(p.cost)}` : '');
+    if (j.error && j.error.message) clear(result, errorBox(j.error.message));
+    const theta = (p.theta || []).map(num);
+    if (theta.length === params.length && params.length > 0 && !terminal(state)) {
+      xs.push(xs.length ? xs[xs.length - 1] + 1 : 0);
+      theta.forEach((v, i) => ys[i].push(v));
+      if (!tracePlot) {
+        tracePlot = h('div', {class: 'plots', id: 'live-traces'});
+        live.append(h('h2', {}, 'Estimates as it runs'), tracePlot);
+        params.forEach((n, i) => plot(tracePlot, {title: n, x: xs, xLabel: 'update', width: 300, height: 180, series: [{label: n, values: ys[i], points: true}]}));
+      } else {
+        [...tracePlot.children].forEach((box, i) => setData(box, xs, [ys[i]]));
+      }
+    }
+  };
+  update(job);
+  let last = job;
+  if (!terminal(stateOf(job))) {
+    await events(`/jobs/${encodeURIComponent(id)}/events`, (name, data) => {
+      if (name === 'job') { last = data; update(data); }
+    }, signal);
+  }
+  if (stateOf(last) === 'SUCCEEDED') {
+    clear(live);  // the result's traces replace the live ones
+    const res = await api('GET', `/jobs/${encodeURIComponent(id)}/result`, undefined, {signal});
+    await showResult(result, last, res, model, signal);
+  }
+}

@@ -1,0 +1,173 @@
+// A finished job's result: the estimates' table (estimate, standard error,
+// 95 % interval), the correlation matrix, parameter traces per pass,
+// measured against modelled outputs, and the residual diagnostics with their
+// bands; a validation's measured against simulated outputs with fit %.
+import {api} from '../api.js';
+import {clear, fmt, h, num, row} from '../dom.js';
+import {color, plot} from '../plot.js';
+
+export async function showResult(el, job, result, model, signal) {
+  clear(el);
+  if (result.identification) return identification(el, job, result.identification, model, signal);
+  if (result.estimation) return estimation(el, job, result.estimation, model);
+  if (result.validation) return validation(el, result.validation, model);
+  if (result.smoothing) return smoothing(el, result.smoothing, model);
+}
+
+function resultTable(names, cols) {
+  return h('table', {id: 'result-table'},
+    h('thead', {}, h('tr', {}, h('th', {}, 'Parameter'), cols.map(([title]) => h('th', {class: 'num'}, title)))),
+    h('tbody', {}, names.map((n, i) => h('tr', {'data-param': n}, h('th', {}, n),
+      cols.map(([title, f, value]) => h('td', {class: 'num', 'data-col': title, 'data-value': value ? String(value(i)) : null}, f(i)))))));
+}
+
+function correlationTable(names, corr) {
+  return h('table', {class: 'corr', id: 'correlation'},
+    h('thead', {}, h('tr', {}, h('th', {}), names.map((n) => h('th', {}, n)))),
+    h('tbody', {}, names.map((n, i) => h('tr', {}, h('th', {}, n), names.map((_, j) => {
+      const c = corr(i, j);
+      const strong = i !== j && Math.abs(c) > 0.9;
+      return h('td', {class: strong ? 'warn' : ''}, Number.isFinite(c) ? c.toFixed(3) : '–');
+    })))));
+}
+
+// Sample autocorrelation at lags 1..lags.
+function autocorrelation(e, lags) {
+  const x = e.filter(Number.isFinite), n = x.length;
+  const mean = x.reduce((a, b) => a + b, 0) / n;
+  const d = x.map((v) => v - mean);
+  const c0 = d.reduce((a, v) => a + v * v, 0) / n;
+  const out = [];
+  for (let k = 1; k <= lags; ++k) {
+    let c = 0;
+    for (let i = k; i < n; ++i) c += d[i] * d[i - k];
+    out.push(c / n / c0);
+  }
+  return out;
+}
+
+function acfPlots(el, names, rowsOf, band, lags) {
+  const box = h('div', {class: 'plots'});
+  el.append(box);
+  const k = Array.from({length: lags}, (_, i) => i + 1);
+  names.forEach((n, i) => plot(box, {title: `autocorrelation of ${n}'s residuals`, x: k, xLabel: 'lag', width: 420, height: 200,
+    series: [{label: n, values: rowsOf(i), points: true, width: 1},
+      {label: '+95 %', values: k.map(() => band), color: '#6e7781', dash: [4, 4], width: 1},
+      {label: '−95 %', values: k.map(() => -band), color: '#6e7781', dash: [4, 4], width: 1}]}));
+}
+
+async function identification(el, job, r, model, signal) {
+  const names = r.paramNames || [];
+  const mean = (r.thetaMean || []).map(num), std = (r.thetaStd || []).map(num), end = (r.theta || []).map(num);
+  const spec = job.identification || {};
+  el.append(h('h2', {}, 'Estimates'),
+    resultTable(names, [
+      ['Estimate', (i) => fmt(mean[i], 5), (i) => mean[i]],
+      ['Std error', (i) => fmt(std[i], 3), (i) => std[i]],
+      ['95 % interval', (i) => `${fmt(mean[i] - 1.96 * std[i], 4)} … ${fmt(mean[i] + 1.96 * std[i], 4)}`],
+      ['End of last pass', (i) => fmt(end[i], 5)]]),
+    h('p', {class: 'muted'}, 'Estimate: the mean over the last pass (the toolbox\'s); std error: √diag P at its end.'),
+    (r.warnings || []).map((w) => h('p', {class: 'warn'}, w)),
+    h('p', {}, h('a', {class: 'button', id: 'validate-link', href: `#/validate?job=${encodeURIComponent(job.id)}&model=${encodeURIComponent(spec.model)}&dataset=${encodeURIComponent(spec.datasetId)}`}, 'Validate this estimate')));
+  const nz = num(r.covariance && r.covariance.rows), nth = names.length, nx = nz - nth;
+  if (nz > 0) {
+    const C = (i, j) => num(r.covariance.values[(nx + i) + (nx + j) * nz]);
+    el.append(h('h2', {}, 'Correlation of the estimates'), correlationTable(names, (i, j) => C(i, j) / Math.sqrt(C(i, i) * C(j, j))));
+  }
+  // Parameter traces, a series per pass.
+  const t = (r.t || []).map(num);
+  const traces = h('div', {class: 'plots', id: 'traces'});
+  el.append(h('h2', {}, 'Parameter traces per pass'), traces);
+  const passes = r.passes || [];
+  names.forEach((n, i) => plot(traces, {title: n, x: t, width: 420, height: 220,
+    series: passes.map((p, k) => ({label: `pass ${k + 1}`, values: row(p.thetaTrace, i), color: k === passes.length - 1 ? '#d1242f' : `hsl(215, 60%, ${80 - 45 * (k + 1) / passes.length}%)`, width: k === passes.length - 1 ? 2 : 1}))}));
+  // Outputs: measured against the model along the last pass.
+  const data = await api('GET', `/datasets/${encodeURIComponent(spec.datasetId)}/data`, undefined, {signal}).catch(() => null);
+  const outputs = (model.outputNames || []);
+  const overlay = h('div', {class: 'plots', id: 'overlay'});
+  el.append(h('h2', {}, 'Measured and modelled outputs (last pass)'), overlay);
+  const first = num(spec.firstSample) || 0;
+  outputs.forEach((y, i) => plot(overlay, {title: y, x: t, series: [
+    {label: 'measured', values: data ? row(data.y, i).slice(first, first + t.length) : [], color: '#9aa4ae', width: 4},
+    {label: 'model', values: row(r.yModel, i), color: '#d1242f'}]}));
+  // Diagnostics: innovations' whiteness, NIS per pass.
+  el.append(h('h2', {}, 'Diagnostics'));
+  const n = t.length, lags = Math.min(40, Math.max(1, Math.floor(n / 4)));
+  acfPlots(el, outputs, (i) => autocorrelation(row(r.innovations, i), lags), 1.96 / Math.sqrt(n), lags);
+  const ny = outputs.length, nisBand = 1.96 * Math.sqrt(2 * ny / n);
+  el.append(h('table', {id: 'nis'},
+    h('thead', {}, h('tr', {}, h('th', {}, 'Pass'), h('th', {class: 'num'}, 'mean NIS'), h('th', {class: 'num'}, `95 % band (ny = ${ny})`),
+      outputs.map((y) => h('th', {class: 'num'}, `innovation RMS ${y}`)))),
+    h('tbody', {}, passes.map((p, k) => {
+      const nis = num(p.nisMean), inside = Math.abs(nis - ny) <= nisBand;
+      return h('tr', {}, h('td', {}, k + 1), h('td', {class: 'num ' + (inside ? 'ok' : 'warn')}, fmt(nis)),
+        h('td', {class: 'num'}, `${fmt(ny - nisBand)} … ${fmt(ny + nisBand)}`),
+        (p.innovationRms || []).map((v) => h('td', {class: 'num'}, fmt(v))));
+    }))));
+}
+
+function estimation(el, job, r, model) {
+  const names = r.paramNames || [];
+  const theta = (r.theta || []).map(num), std = (r.thetaStd || []).map(num);
+  const spec = job.identification || {};
+  el.append(h('h2', {}, 'Estimates'),
+    resultTable(names, [
+      ['Estimate', (i) => fmt(theta[i], 5), (i) => theta[i]],
+      ['Std error', (i) => (r.fixed || [])[i] ? 'fixed' : fmt(std[i], 3), (i) => std[i]],
+      ['95 % interval', (i) => `${fmt((r.ciLower || [])[i], 4)} … ${fmt((r.ciUpper || [])[i], 4)}`]]),
+    h('p', {class: 'muted'}, `${r.converged ? 'Converged' : 'Did not converge'} after ${num(r.iterations)} iterations (${r.termination || ''}); cost ${fmt(r.cost)}; gradient: ${r.gradient || ''}.`),
+    (r.warnings || []).map((w) => h('p', {class: 'warn'}, w)),
+    h('p', {}, h('a', {class: 'button', id: 'validate-link', href: `#/validate?job=${encodeURIComponent(job.id)}&model=${encodeURIComponent(spec.model)}&dataset=${encodeURIComponent(spec.datasetId)}`}, 'Validate this estimate')));
+  if (r.correlation) el.append(h('h2', {}, 'Correlation of the estimates'), correlationTable(names, (i, j) => num(r.correlation.values[i + j * num(r.correlation.rows)])));
+  const costs = (r.costHistory || []).map(num);
+  const box = h('div', {class: 'plots', id: 'traces'});
+  el.append(h('h2', {}, 'Cost per iteration'), box);
+  plot(box, {title: 'cost', x: costs.map((_, i) => i + 1), xLabel: 'iteration', series: [{label: 'cost', values: costs, points: true}]});
+  (r.experiments || []).forEach((x, e) => {
+    const t = (x.t || []).map(num), outputs = model.outputNames || [];
+    const overlay = h('div', {class: 'plots', id: e === 0 ? 'overlay' : null});
+    el.append(h('h2', {}, `Measured and modelled outputs, record ${e + 1}`), overlay);
+    outputs.forEach((y, i) => {
+      const fit = (x.fits || [])[i];
+      plot(overlay, {title: `${y}${fit ? ` · fit ${fmt(fit.fitPercent, 3)} %` : ''}`, x: t, series: [
+        {label: 'measured', values: row(x.yMeasured, i), color: '#9aa4ae', width: 4}, {label: 'model', values: row(x.yModel, i), color: '#d1242f'}]});
+    });
+    const d = x.diagnostics;
+    if (d && d.autocorrelation) {
+      el.append(h('h3', {}, 'Diagnostics'), h('pre', {}, d.summary || ''));
+      acfPlots(el, outputs, (i) => row(d.autocorrelation, i), num(d.band), num(d.lags));
+    }
+  });
+}
+
+function validation(el, r, model) {
+  const t = (r.t || []).map(num), outputs = model.outputNames || [];
+  el.append(h('h2', {}, 'Measured and simulated'),
+    h('p', {class: 'muted'}, `Parameters: ${r.parametersFrom || ''}; initial states: ${r.x0From || ''}.`),
+    h('table', {id: 'fits'},
+      h('thead', {}, h('tr', {}, ['Output', 'Fit %', 'VAF %', 'RMSE'].map((c) => h('th', {class: 'num'}, c)))),
+      h('tbody', {}, (r.fits || []).map((f) => h('tr', {'data-output': f.name}, h('th', {}, f.name),
+        h('td', {class: 'num fit', 'data-value': String(num(f.fitPercent))}, fmt(f.fitPercent, 4)), h('td', {class: 'num'}, fmt(f.vafPercent, 4)), h('td', {class: 'num'}, fmt(f.rmse)))))));
+  const overlay = h('div', {class: 'plots', id: 'overlay'});
+  el.append(overlay);
+  outputs.forEach((y, i) => {
+    const fit = (r.fits || [])[i];
+    plot(overlay, {title: `${y} · fit ${fit ? fmt(fit.fitPercent, 3) : '–'} %`, x: t, series: [
+      {label: 'measured', values: row(r.yMeasured, i), color: '#9aa4ae', width: 4}, {label: 'simulated', values: row(r.ySimulated, i), color: color(0)}]});
+  });
+}
+
+function smoothing(el, r, model) {
+  const names = [...(model.stateNames || []), ...(model.paramNames || [])];
+  const t = (r.t || []).map(num);
+  const box = h('div', {class: 'plots', id: 'overlay'});
+  el.append(h('h2', {}, 'Smoothed and filtered (±2σ)'), box);
+  names.forEach((n, i) => {
+    const z = row(r.zSmoothed, i), s = row(r.stdSmoothed, i);
+    plot(box, {title: n, x: t, bands: [[2, 3]], series: [
+      {label: 'smoothed', values: z, color: '#1f6feb'},
+      {label: '+2σ', values: z.map((v, k) => v + 2 * s[k]), color: 'rgba(31,111,235,.4)', width: 1},
+      {label: '−2σ', values: z.map((v, k) => v - 2 * s[k]), color: 'rgba(31,111,235,.4)', width: 1},
+      {label: 'filtered', values: row(r.zFiltered, i), color: '#6e7781', width: 1}]});
+  });
+}

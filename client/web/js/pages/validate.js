@@ -1,0 +1,58 @@
+// Validate: simulate the model over a dataset's inputs with an
+// identification's estimate (or given parameters) and compare with what was
+// measured, per output, with fit % as MATLAB's compare; the comparison
+// opens on the job's page.
+import {api} from '../api.js';
+import {clear, enumName, errorBox, h, num, when} from '../dom.js';
+import {select} from './identify.js';
+
+export async function show(main, r, signal) {
+  const [models, datasets, jobs] = await Promise.all([api('GET', '/models', undefined, {signal}),
+    api('GET', '/datasets', undefined, {signal}), api('GET', '/jobs', undefined, {signal})]);
+  const modelList = models.models || [], datasetList = datasets.datasets || [];
+  const identifications = (jobs.jobs || []).filter((j) => j.identification && j.state === 'JOB_STATE_SUCCEEDED');
+  const job = identifications.find((j) => j.id === r.query.get('job'));
+  const modelSelect = select('validate-model', modelList.map((m) => [m.name, m.name]),
+    r.query.get('model') || (job && job.identification.model) || (modelList[0] || {}).name);
+  const datasetSelect = select('validate-dataset', datasetList.map((d) => [d.id, d.name]),
+    r.query.get('dataset') || (job && job.identification.datasetId) || (datasetList[0] || {}).id);
+  const source = select('validate-source', [
+    ...identifications.map((j) => [j.id, `estimate of job ${j.id} (${j.identification.model}, ${enumName(j.identification.method || 'IDENTIFICATION_METHOD_FILTER', 'IDENTIFICATION_METHOD_')}, ${when(j.finished)})`]),
+    ['', 'the parameters below']], r.query.get('job') || (identifications[0] || {id: ''}).id);
+  const thetaBox = h('div', {class: 'row', id: 'validate-theta'});
+  const drawTheta = () => {
+    const m = modelList.find((x) => x.name === modelSelect.value) || {};
+    clear(thetaBox, (m.paramNames || []).map((p, i) => h('label', {}, p,
+      h('input', {type: 'number', step: 'any', id: 'vtheta-' + p, value: String(num((m.thetaDefault || [])[i]))}))));
+    thetaBox.style.display = source.value ? 'none' : '';
+  };
+  modelSelect.addEventListener('change', drawTheta);
+  source.addEventListener('change', drawTheta);
+  const first = h('input', {type: 'checkbox', id: 'validate-x0-first', checked: true});
+  const status = h('div', {id: 'validate-status'});
+  const submit = h('button', {class: 'primary', id: 'validate-submit', type: 'submit'}, 'Validate');
+  const form = h('form', {class: 'panel', id: 'validate'},
+    h('div', {class: 'row'}, h('label', {}, 'Model', modelSelect), h('label', {}, 'Dataset', datasetSelect),
+      h('label', {}, 'Parameters', source)),
+    thetaBox,
+    h('label', {class: 'inline'}, first, 'Start each state with an output of its name at its first measurement'),
+    h('p', {}, submit), status);
+  form.addEventListener('submit', async (e) => {
+    e.preventDefault();
+    const m = modelList.find((x) => x.name === modelSelect.value) || {};
+    const spec = {model: m.name, datasetId: datasetSelect.value,
+      initialState: first.checked ? {firstMeasurement: true} : {x0: (m.stateNames || []).map(() => 0)}};
+    if (source.value) spec.identificationJobId = source.value;
+    else spec.theta = {values: (m.paramNames || []).map((p) => Number(document.getElementById('vtheta-' + p).value))};
+    submit.disabled = true;
+    try {
+      const job = await api('POST', '/jobs/validation', spec);
+      location.hash = '#/jobs/' + encodeURIComponent(job.id);
+    } catch (err) {
+      clear(status, errorBox(err));
+      submit.disabled = false;
+    }
+  });
+  clear(main, h('h1', {}, 'Validate'), h('p', {class: 'muted'}, 'Simulate the model open loop over the dataset\'s inputs and compare with its outputs (fit % as MATLAB\'s compare: 100 is perfect).'), form);
+  drawTheta();
+}

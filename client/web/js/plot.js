@@ -1,0 +1,42 @@
+// Time series with uPlot (vendor/uplot, pinned in package-lock.json): fast on
+// 100k points, drawn on a canvas.
+import uPlot from '../vendor/uplot/uPlot.esm.js';
+import {h} from './dom.js';
+
+const kPalette = ['#1f6feb', '#d1242f', '#2da44e', '#bf8700', '#8250df', '#0598bc', '#e16f24', '#6e7781'];
+export function color(i) { return kPalette[i % kPalette.length]; }
+
+const clean = (values) => Array.from(values, (v) => (Number.isFinite(v) ? v : null));
+
+// plot(parent, {title, x, xLabel, yLabel, series: [{label, values, color, dash}], bands: [[upper, lower]]})
+// appends a plot to parent and returns it (its uPlot in .uplot, for setData).
+// bands: pairs of series numbers (1 = the first series) whose area is shaded.
+export function plot(parent, opts) {
+  const box = h('div', {class: 'plot', 'data-title': opts.title || ''});
+  parent.append(box);
+  const series = [{label: opts.xLabel || 't (s)'}];
+  opts.series.forEach((s, i) => series.push({
+    label: s.label,
+    stroke: s.color || color(i),
+    width: s.width || 1.5,
+    dash: s.dash,
+    points: {show: !!s.points, size: 5},
+    spanGaps: true,
+  }));
+  const u = new uPlot({
+    title: opts.title,
+    width: opts.width || 620,
+    height: opts.height || 240,
+    series,
+    bands: (opts.bands || []).map(([a, b]) => ({series: [a, b], fill: 'rgba(31,111,235,0.13)'})),
+    scales: {x: {time: false}},
+    axes: [{label: opts.xLabel || 't (s)'}, {label: opts.yLabel || ''}],
+    legend: {live: true},
+  }, [clean(opts.x), ...opts.series.map((s) => clean(s.values))], box);
+  box.uplot = u;
+  return box;
+}
+
+export function setData(box, x, seriesValues) {
+  box.uplot.setData([clean(x), ...seriesValues.map(clean)]);
+}

@@ -1,0 +1,530 @@
+#include "service/http/http_api.hpp"
+
+#include <google/protobuf/util/json_util.h>
+#include <httplib.h>
+#include <spdlog/spdlog.h>
+
+#include <chrono>
+#include <optional>
+#include <string_view>
+
+#include "service/convert.hpp"
+#include "service/http/web_assets.hpp"
+#include "service/jobs/job_convert.hpp"
+#include "service/metrics.hpp"
+#include "service/rpc/dataset_service.hpp"
+#include "service/rpc/job_service.hpp"
+#include "service/rpc/model_service.hpp"
+
+namespace riccati::service {
+namespace {
+
+using httplib::Request;
+using httplib::Response;
+using Clock = std::chrono::steady_clock;
+
+// What a screen can draw: job progress at most 5 events a second, a
+// session's estimate at most 10 (the newest; those between are skipped).
+constexpr std::chrono::milliseconds kJobEventInterval{200};
+constexpr std::chrono::milliseconds kSessionEventInterval{100};
+// A comment line at least this often on a quiet stream, so that a browser
+// that went away is noticed (the write fails) and its thread freed.
+constexpr std::chrono::milliseconds kHeartbeat{1000};
+
+int http_status(StatusCode code) {
+  switch (code) {
+    case StatusCode::kOk: return 200;
+    case StatusCode::kInvalidArgument:
+    case StatusCode::kOutOfRange: return 400;
+    case StatusCode::kUnauthenticated: return 401;
+    case StatusCode::kNotFound: return 404;
+    case StatusCode::kAlreadyExists:
+    case StatusCode::kFailedPrecondition:
+    case StatusCode::kAborted:
+    case StatusCode::kCancelled: return 409;
+    case StatusCode::kResourceExhausted: return 429;
+    case StatusCode::kUnavailable: return 503;
+    case StatusCode::kInternal: return 500;
+  }
+  return 500;
+}
+
+std::string to_json(const google::protobuf::Message& message) {
+  google::protobuf::util::JsonPrintOptions options;
+  options.always_print_primitive_fields = true;  // zeros and empty lists too: the page need not guess
+  std::string out;
+  const auto status = google::protobuf::util::MessageToJsonString(message, &out, options);
+  if (!status.ok()) spdlog::error("cannot write {} as JSON: {}", message.GetTypeName(), status.ToString());
+  return out;
+}
+
+void reply(Response& res, const google::protobuf::Message& message) {
+  res.status = 200;
+  res.set_content(to_json(message), "application/json");
+}
+
+void fail(Response& res, const Status& status, int http = 0) {
+  res.status = http != 0 ? http : http_status(status.code());
+  if (res.status == 401) res.set_header("WWW-Authenticate", "Bearer");
+  res.set_content(to_json(to_error(status)), "application/json");
+}
+
+// "text/event-stream": one event.
+bool send_event(httplib::DataSink& sink, std::string_view event, const std::string& data) {
+  std::string text = "event: ";
+  text.append(event).append("\ndata: ").append(data).append("\n\n");
+  return sink.write(text.data(), text.size());
+}
+
+std::vector<std::string> split_list(const std::string& text) {
+  std::vector<std::string> out;
+  std::size_t at = 0;
+  while (at <= text.size() && !text.empty()) {
+    const std::size_t comma = std::min(text.find(',', at), text.size());
+    out.push_back(text.substr(at, comma - at));
+    at = comma + 1;
+  }
+  return out;
+}
+
+// One event stream held open: counted while it lives.
+struct EventStream {
+  explicit EventStream(std::atomic<int>& count) : count_(count) {}
+  ~EventStream() { --count_; }
+  std::atomic<int>& count_;
+  Clock::time_point last_event{};
+  Clock::time_point last_write = Clock::now();
+  std::uint64_t version = 0;       // job: JobManager::poll's
+  std::uint64_t sent_accepted = 0; // session: measurements at the last event
+  bool sent_any = false;
+};
+
+}  // namespace
+
+class HttpApi::Routes {
+ public:
+  explicit Routes(HttpApi& api) : api_(api) {}
+
+  void install(httplib::Server& server) {
+    server.Get("/healthz", [](const Request&, Response& res) { res.set_content("ok\n", "text/plain"); });
+
+    server.Get("/api/v1/models", authed([this](const std::string&, const Request&, Response& res) {
+      v1::ListModelsResponse out;
+      for (const auto& m : api_.models_.models()) *out.add_models() = to_proto(*m, api_.models_.jacobian_check(*m));
+      reply(res, out);
+    }));
+    server.Get(R"(/api/v1/models/([^/]+))", authed([this](const std::string&, const Request& req, Response& res) {
+      const Result<ModelPtr> m = api_.models_.get(req.matches[1].str());
+      if (!m.is_ok()) return fail(res, m.status());
+      reply(res, to_proto(*m.value(), api_.models_.jacobian_check(*m.value())));
+    }));
+
+    server.Get("/api/v1/datasets", authed([this](const std::string& tenant, const Request&, Response& res) {
+      const auto records = api_.datasets_.list(tenant);
+      if (!records.is_ok()) return fail(res, records.status());
+      v1::ListDatasetsResponse out;
+      for (const auto& r : records.value()) *out.add_datasets() = to_proto(r);
+      reply(res, out);
+    }));
+    server.Post("/api/v1/datasets", [this](const Request& req, Response& res, const httplib::ContentReader& reader) {
+      const auto tenant = authenticate(req, res);
+      if (tenant) upload(*tenant, req, res, reader);
+    });
+    server.Get(R"(/api/v1/datasets/([^/]+))", authed([this](const std::string& tenant, const Request& req,
+                                                            Response& res) {
+      const auto record = api_.datasets_.get(tenant, req.matches[1].str());
+      if (!record.is_ok()) return fail(res, record.status());
+      reply(res, to_proto(record.value()));
+    }));
+    server.Get(R"(/api/v1/datasets/([^/]+)/data)", authed([this](const std::string& tenant, const Request& req,
+                                                                 Response& res) {
+      const auto data = dataset_data(api_.datasets_, tenant, req.matches[1].str());
+      if (!data.is_ok()) return fail(res, data.status());
+      reply(res, data.value());
+    }));
+    server.Delete(R"(/api/v1/datasets/([^/]+))", authed([this](const std::string& tenant, const Request& req,
+                                                               Response& res) {
+      const Status removed = api_.datasets_.remove(tenant, req.matches[1].str());
+      if (!removed.is_ok()) return fail(res, removed);
+      reply(res, v1::DeleteDatasetResponse());
+    }));
+
+    server.Get("/api/v1/jobs", authed([this](const std::string& tenant, const Request&, Response& res) {
+      const auto jobs = api_.jobs_.list(tenant);
+      if (!jobs.is_ok()) return fail(res, jobs.status());
+      v1::ListJobsResponse out;
+      for (const JobRecord& job : jobs.value()) *out.add_jobs() = to_proto(job);
+      reply(res, out);
+    }));
+    server.Post("/api/v1/jobs/identification", with_body<v1::IdentificationSpec>(
+        [this](const std::string& tenant, const v1::IdentificationSpec& spec, Response& res) {
+          reply_job(res, api_.jobs_.submit_identification(tenant, spec));
+        }));
+    server.Post("/api/v1/jobs/validation", with_body<v1::ValidationSpec>(
+        [this](const std::string& tenant, const v1::ValidationSpec& spec, Response& res) {
+          reply_job(res, api_.jobs_.submit_validation(tenant, spec));
+        }));
+    server.Post("/api/v1/jobs/smoothing", with_body<v1::SmoothingSpec>(
+        [this](const std::string& tenant, const v1::SmoothingSpec& spec, Response& res) {
+          reply_job(res, api_.jobs_.submit_smoothing(tenant, spec));
+        }));
+    server.Get(R"(/api/v1/jobs/([^/]+))", authed([this](const std::string& tenant, const Request& req, Response& res) {
+      reply_job(res, api_.jobs_.get(tenant, req.matches[1].str()));
+    }));
+    server.Post(R"(/api/v1/jobs/([^/]+)/cancel)", authed([this](const std::string& tenant, const Request& req,
+                                                                Response& res) {
+      reply_job(res, api_.jobs_.cancel(tenant, req.matches[1].str()));
+    }));
+    server.Get(R"(/api/v1/jobs/([^/]+)/result)", authed([this](const std::string& tenant, const Request& req,
+                                                               Response& res) {
+      const auto result = job_result(api_.jobs_, tenant, req.matches[1].str());
+      if (!result.is_ok()) return fail(res, result.status());
+      reply(res, result.value());
+    }));
+    server.Get(R"(/api/v1/jobs/([^/]+)/events)", authed([this](const std::string& tenant, const Request& req,
+                                                               Response& res) { job_events(tenant, req.matches[1].str(), res); }));
+
+    server.Get("/api/v1/sessions", authed([this](const std::string& tenant, const Request&, Response& res) {
+      auto listed = api_.sessions_.list(tenant);
+      if (!listed.is_ok()) return fail(res, listed.status());
+      v1::ListSessionsResponse out;
+      for (v1::SessionInfo& info : listed.value()) *out.add_sessions() = std::move(info);
+      reply(res, out);
+    }));
+    server.Post("/api/v1/sessions", with_body<v1::CreateSessionRequest>(
+        [this](const std::string& tenant, const v1::CreateSessionRequest& request, Response& res) {
+          const auto session = api_.sessions_.create(tenant, request);
+          if (!session.is_ok()) return fail(res, session.status());
+          reply(res, session.value()->info());
+        }));
+    server.Get(R"(/api/v1/sessions/([^/]+))", authed([this](const std::string& tenant, const Request& req,
+                                                            Response& res) {
+      const auto session = api_.sessions_.get(tenant, req.matches[1].str());
+      if (!session.is_ok()) return fail(res, session.status());
+      reply(res, session.value()->info());
+    }));
+    server.Delete(R"(/api/v1/sessions/([^/]+))", authed([this](const std::string& tenant, const Request& req,
+                                                               Response& res) {
+      const Status closed = api_.sessions_.close(tenant, req.matches[1].str());
+      if (!closed.is_ok()) return fail(res, closed);
+      reply(res, v1::CloseSessionResponse());
+    }));
+    server.Get(R"(/api/v1/sessions/([^/]+)/events)", authed([this](const std::string& tenant, const Request& req,
+                                                                   Response& res) {
+      session_events(tenant, req.matches[1].str(), res);
+    }));
+
+    // The workbench: its static files, from the binary.
+    server.Get(R"(/([^?]*))", [](const Request& req, Response& res) {
+      std::string path = req.matches[1].str();
+      if (path.empty()) path = "index.html";
+      for (const WebAsset& asset : web_assets()) {
+        if (asset.path == path) {
+          res.set_header("Cache-Control", "no-cache");
+          res.set_content(std::string(asset.body), std::string(asset.content_type).c_str());
+          return;
+        }
+      }
+      res.status = 404;
+    });
+
+    // Unknown routes, bodies too large, and what httplib refuses itself:
+    // a v1.Error in JSON under /api/, plain text elsewhere.
+    server.set_error_handler(httplib::Server::HandlerWithResponse([](const Request& req, Response& res) {
+      if (!res.body.empty()) return httplib::Server::HandlerResponse::Unhandled;
+      std::string message;
+      switch (res.status) {
+        case 404: message = "no such route: " + req.method + " " + req.path; break;
+        case 413: message = "the request is larger than this server accepts"; break;
+        default: message = "the request was refused (HTTP " + std::to_string(res.status) + ")"; break;
+      }
+      const StatusCode code = res.status == 404   ? StatusCode::kNotFound
+                              : res.status == 413 ? StatusCode::kResourceExhausted
+                                                  : StatusCode::kInvalidArgument;
+      if (req.path.rfind("/api/", 0) == 0) {
+        res.set_content(to_json(to_error(Status(code, message))), "application/json");
+      } else {
+        res.set_content(message + "\n", "text/plain");
+      }
+      return httplib::Server::HandlerResponse::Handled;
+    }));
+    server.set_exception_handler([](const Request& req, Response& res, std::exception_ptr e) {
+      std::string what = "unknown exception";
+      try {
+        if (e) std::rethrow_exception(e);
+      } catch (const std::exception& ex) {
+        what = ex.what();
+      } catch (...) {
+      }
+      spdlog::error("http handler failed method={} path={} error=\"{}\"", req.method, req.path, what);
+      fail(res, internal_error("the request failed inside riccatid; see its log"));
+    });
+    server.set_post_routing_handler([](const Request&, Response& res) {
+      res.set_header("X-Content-Type-Options", "nosniff");
+      res.set_header("Content-Security-Policy",
+                     "default-src 'self'; script-src 'self'; style-src 'self' 'unsafe-inline'; img-src 'self' data:; "
+                     "connect-src 'self'; frame-ancestors 'none'");
+      res.set_header("Referrer-Policy", "no-referrer");
+      if (!res.has_header("Cache-Control")) res.set_header("Cache-Control", "no-store");
+    });
+  }
+
+ private:
+  using Authed = std::function<void(const std::string& tenant, const Request&, Response&)>;
+
+  // The caller's tenant, or a 401 answered.
+  std::optional<std::string> authenticate(const Request& req, Response& res) const {
+    if (!api_.auth_.enabled()) return std::string(kDefaultTenant);
+    if (!req.has_header("Authorization")) {
+      fail(res, Status(StatusCode::kUnauthenticated, "no bearer token: send the header \"Authorization: Bearer <token>\""));
+      return std::nullopt;
+    }
+    const auto tenant = api_.auth_.tenant_for_header(req.get_header_value("Authorization"));
+    if (!tenant.is_ok()) {
+      fail(res, tenant.status());
+      return std::nullopt;
+    }
+    return tenant.value();
+  }
+
+  httplib::Server::Handler authed(Authed handler) const {
+    return [this, handler = std::move(handler)](const Request& req, Response& res) {
+      const auto tenant = authenticate(req, res);
+      if (tenant) handler(*tenant, req, res);
+    };
+  }
+
+  // A POST whose body is the JSON of `Message`.
+  template <typename Message>
+  httplib::Server::Handler with_body(std::function<void(const std::string&, const Message&, Response&)> handler) const {
+    return authed([this, handler = std::move(handler)](const std::string& tenant, const Request& req, Response& res) {
+      if (static_cast<std::int64_t>(req.body.size()) > api_.limits_.max_message_bytes) {
+        return fail(res, limit_reached("max_message_bytes", api_.limits_.max_message_bytes,
+                                       "the body is " + std::to_string(req.body.size()) + " bytes"),
+                    413);
+      }
+      Message message;
+      google::protobuf::util::JsonParseOptions options;
+      options.ignore_unknown_fields = false;  // a misspelt field is an error, not a default
+      const auto parsed = google::protobuf::util::JsonStringToMessage(req.body.empty() ? "{}" : req.body, &message,
+                                                                      options);
+      if (!parsed.ok()) {
+        return fail(res, invalid_argument("the body is not a " + std::string(Message::descriptor()->full_name()) +
+                                          " in JSON: " + std::string(parsed.message())));
+      }
+      handler(tenant, message, res);
+    });
+  }
+
+  void reply_job(Response& res, const Result<JobRecord>& job) const {
+    if (!job.is_ok()) return fail(res, job.status());
+    reply(res, to_proto(job.value()));
+  }
+
+  // The file is the body; the header's fields are the query's. Room is
+  // reserved as the bytes arrive, as for a gRPC upload.
+  void upload(const std::string& tenant, const Request& req, Response& res, const httplib::ContentReader& reader) {
+    v1::UploadHeader header;
+    header.set_name(req.get_param_value("name"));
+    const std::string format = req.get_param_value("format");
+    if (format == "csv") {
+      header.set_format(v1::DATASET_FORMAT_CSV);
+    } else if (format == "mat") {
+      header.set_format(v1::DATASET_FORMAT_MAT);
+    } else if (!format.empty()) {
+      return fail(res, invalid_argument("format: expected csv or mat, not \"" + printable(format) + "\""));
+    }
+    header.set_time_column(req.get_param_value("time_column"));
+    for (const auto& c : split_list(req.get_param_value("input_columns"))) header.add_input_columns(c);
+    for (const auto& c : split_list(req.get_param_value("output_columns"))) header.add_output_columns(c);
+    DatasetUpload upload = upload_from_header(header);
+    if (req.has_header("Content-Length")) {
+      const std::int64_t length = std::strtoll(req.get_header_value("Content-Length").c_str(), nullptr, 10);
+      if (length > api_.limits_.max_dataset_bytes) {
+        return fail(res, limit_reached("max_dataset_bytes", api_.limits_.max_dataset_bytes,
+                                       "the upload of " + printable(upload.name) + " is " + std::to_string(length) +
+                                           " bytes"),
+                    413);
+      }
+    }
+    Result<UploadTicket> ticket = api_.datasets_.begin_upload(tenant, upload.name);
+    if (!ticket.is_ok()) return fail(res, ticket.status());
+    Status room;
+    const bool read = reader([&](const char* data, std::size_t size) {
+      room = ticket->grow(static_cast<std::int64_t>(upload.bytes.size() + size));
+      if (!room.is_ok()) return false;
+      upload.bytes.append(data, size);
+      return true;
+    });
+    if (!room.is_ok()) {
+      return fail(res, room, room.code() == StatusCode::kResourceExhausted ? 413 : 0);
+    }
+    if (!read) return fail(res, Status(StatusCode::kCancelled, "the upload of " + upload.name + " was cut: nothing stored"));
+    const Result<DatasetRecord> stored = api_.datasets_.upload(ticket.value(), upload);
+    if (!stored.is_ok()) return fail(res, stored.status());
+    reply(res, to_proto(stored.value()));
+  }
+
+  // Takes a place for an event stream, or answers 503.
+  std::shared_ptr<EventStream> open_stream(Response& res) const {
+    if (++api_.streams_ > kMaxEventStreams) {
+      --api_.streams_;
+      fail(res, limit_reached("event streams", kMaxEventStreams, "as many event streams are open; close one"), 503);
+      return nullptr;
+    }
+    return std::make_shared<EventStream>(api_.streams_);
+  }
+
+  void job_events(const std::string& tenant, const std::string& id, Response& res) {
+    const auto found = api_.jobs_.get(tenant, id);  // 404 before the stream starts
+    if (!found.is_ok()) return fail(res, found.status());
+    auto slot = open_stream(res);
+    if (slot == nullptr) return;
+    res.set_chunked_content_provider("text/event-stream", [this, tenant, id, slot](std::size_t,
+                                                                                   httplib::DataSink& sink) {
+      if (api_.stopping_) {
+        sink.done();
+        return true;
+      }
+      const auto now = Clock::now();
+      if (slot->sent_any && now < slot->last_event + kJobEventInterval) {
+        std::this_thread::sleep_for(slot->last_event + kJobEventInterval - now);
+      }
+      // The job once it has changed, looked at every 100 ms for half a second.
+      std::optional<JobRecord> job;
+      for (const auto until = Clock::now() + std::chrono::milliseconds(500);;) {
+        bool running_here = false;
+        auto polled = api_.jobs_.poll(tenant, id, &slot->version, &running_here);
+        if (!polled.is_ok()) {
+          send_event(sink, "error", to_json(to_error(polled.status())));
+          sink.done();
+          return true;
+        }
+        if (polled->has_value()) {
+          job = std::move(*polled.value());
+          break;
+        }
+        if (Clock::now() >= until || api_.stopping_) break;
+        std::this_thread::sleep_for(std::chrono::milliseconds(100));
+      }
+      if (!job) {
+        if (Clock::now() - slot->last_write < kHeartbeat) return true;
+        slot->last_write = Clock::now();
+        return sink.write(": \n\n", 4);
+      }
+      if (!send_event(sink, "job", to_json(to_proto(*job)))) return false;
+      slot->sent_any = true;
+      slot->last_event = slot->last_write = Clock::now();
+      if (is_terminal(job->state)) sink.done();
+      return true;
+    });
+  }
+
+  void session_events(const std::string& tenant, const std::string& id, Response& res) {
+    const auto found = api_.sessions_.get(tenant, id);  // 404 before the stream starts
+    if (!found.is_ok()) return fail(res, found.status());
+    auto slot = open_stream(res);
+    if (slot == nullptr) return;
+    res.set_chunked_content_provider("text/event-stream", [this, tenant, id, slot](std::size_t,
+                                                                                   httplib::DataSink& sink) {
+      if (api_.stopping_) {
+        sink.done();
+        return true;
+      }
+      const auto now = Clock::now();
+      if (now < slot->last_event + kSessionEventInterval) {
+        std::this_thread::sleep_for(slot->last_event + kSessionEventInterval - now);
+      }
+      slot->last_event = Clock::now();
+      const auto session = api_.sessions_.get(tenant, id);
+      if (!session.is_ok()) {
+        send_event(sink, "error", to_json(to_error(session.status())));
+        sink.done();
+        return true;
+      }
+      v1::Estimate estimate;
+      std::uint64_t accepted = 0;
+      const bool estimated = session.value()->latest(&estimate, &accepted);
+      if (slot->sent_any && accepted == slot->sent_accepted) {
+        if (Clock::now() - slot->last_write < kHeartbeat) return true;
+        slot->last_write = Clock::now();
+        return sink.write(": \n\n", 4);
+      }
+      std::string data = "{\"info\":" + to_json(session.value()->info());
+      if (estimated) data += ",\"estimate\":" + to_json(estimate);
+      data += "}";
+      if (!send_event(sink, "session", data)) return false;
+      slot->sent_any = true;
+      slot->sent_accepted = accepted;
+      slot->last_write = Clock::now();
+      return true;
+    });
+  }
+
+  HttpApi& api_;
+};
+
+HttpApi::HttpApi(const Authenticator& auth, const ModelRegistry& models, DatasetManager& datasets, JobManager& jobs,
+                 SessionManager& sessions, Limits limits)
+    : auth_(auth), models_(models), datasets_(datasets), jobs_(jobs), sessions_(sessions), limits_(limits) {}
+
+HttpApi::~HttpApi() { stop(); }
+
+Result<int> HttpApi::serve(const HttpOptions& options, const SecurityConfig& security, std::string* description) {
+  RICCATI_ASSIGN_OR_RETURN(auto host_port, split_address(options.listen, "http_listen"));
+  const bool tls = !security.tls_cert.empty() || !security.tls_key.empty();
+  const bool loopback = is_loopback(options.listen);
+  if (!tls && !loopback && !options.plain_public) {
+    return failed_precondition("http_listen " + options.listen +
+                               " is not a loopback address: serving the workbench there needs TLS (tls_cert and "
+                               "tls_key, as for gRPC), or http_public: true (--http-public) behind a proxy that "
+                               "terminates TLS");
+  }
+  if (!auth_.enabled() && !loopback) {
+    return invalid_argument("http_listen " + options.listen +
+                            " needs a tokens file: without authentication riccatid listens on loopback only");
+  }
+  if (tls) {
+    if (security.tls_cert.empty() || security.tls_key.empty()) return invalid_argument("TLS needs both tls_cert and tls_key");
+    server_ = std::make_unique<httplib::SSLServer>(security.tls_cert.c_str(), security.tls_key.c_str(),
+                                                   security.tls_client_ca.empty() ? nullptr
+                                                                                  : security.tls_client_ca.c_str());
+    if (!server_->is_valid()) {
+      server_.reset();
+      return invalid_argument("http_listen: cannot use the TLS certificate " + security.tls_cert + " and key " +
+                              security.tls_key);
+    }
+  } else {
+    server_ = std::make_unique<httplib::Server>();
+  }
+  server_->new_task_queue = [] { return new httplib::ThreadPool(kMaxEventStreams + 8); };
+  server_->set_payload_max_length(
+      static_cast<std::size_t>(std::max(limits_.max_dataset_bytes, limits_.max_message_bytes)));
+  server_->set_read_timeout(std::chrono::seconds(30));
+  server_->set_write_timeout(std::chrono::seconds(30));
+  server_->set_keep_alive_timeout(2);
+  routes_ = std::make_unique<Routes>(*this);
+  routes_->install(*server_);
+  const auto& [host, port] = host_port;
+  const int bound = port == 0 ? server_->bind_to_any_port(host) : (server_->bind_to_port(host, port) ? port : -1);
+  if (bound < 0) {
+    server_.reset();
+    return failed_precondition("cannot serve HTTP on " + options.listen + ": cannot bind (in use, or no such address)");
+  }
+  thread_ = std::thread([server = server_.get()] { server->listen_after_bind(); });
+  *description = std::string(tls ? (security.tls_client_ca.empty() ? "https" : "https, client certificates")
+                                 : "plain http") +
+                 (auth_.enabled() ? ", bearer tokens" : ", no authentication (loopback)");
+  return bound;
+}
+
+void HttpApi::stop() {
+  if (server_ == nullptr) return;
+  stopping_ = true;
+  server_->stop();
+  if (thread_.joinable()) thread_.join();
+  server_.reset();
+  routes_.reset();
+}
+
+}  // namespace riccati::service

@@ -1,0 +1,99 @@
+// The HTTP face of riccatid (--http-listen): the web workbench's static files
+// (client/web, embedded in the binary) and a JSON API under /api/v1/ that
+// mirrors the gRPC services through the same managers, with the proto
+// messages' JSON mapping (protobuf's JSON utilities), so there is one schema
+// and one set of checks.
+//
+//   GET    /healthz                          no token
+//   GET    /api/v1/models                    ListModelsResponse
+//   GET    /api/v1/models/{name}             ModelInfo
+//   GET    /api/v1/datasets                  ListDatasetsResponse
+//   POST   /api/v1/datasets?name=&format=csv|mat&time_column=&input_columns=a,b&output_columns=c
+//                                            the file as the body; DatasetInfo
+//   GET    /api/v1/datasets/{id}             DatasetInfo
+//   GET    /api/v1/datasets/{id}/data        DatasetData
+//   DELETE /api/v1/datasets/{id}             {}
+//   GET    /api/v1/jobs                      ListJobsResponse
+//   POST   /api/v1/jobs/identification       IdentificationSpec -> Job
+//   POST   /api/v1/jobs/validation           ValidationSpec -> Job
+//   POST   /api/v1/jobs/smoothing            SmoothingSpec -> Job
+//   GET    /api/v1/jobs/{id}                 Job
+//   POST   /api/v1/jobs/{id}/cancel          Job
+//   GET    /api/v1/jobs/{id}/result          JobResult
+//   GET    /api/v1/jobs/{id}/events          server-sent events: Job, at most 5 a second, until it ends
+//   GET    /api/v1/sessions                  ListSessionsResponse
+//   POST   /api/v1/sessions                  CreateSessionRequest -> SessionInfo
+//   GET    /api/v1/sessions/{id}             SessionInfo
+//   DELETE /api/v1/sessions/{id}             {}
+//   GET    /api/v1/sessions/{id}/events      server-sent events: {"info": SessionInfo, "estimate": Estimate},
+//                                            at most 10 a second, while the session lives
+//
+// Every /api/ call needs "Authorization: Bearer <token>" (401 without a
+// valid one; no cookies, so no cross-site request forgery); another
+// tenant's ids are 404 as over gRPC. Errors are a v1.Error in JSON with the
+// HTTP status of their code; malformed JSON is 400 with protobuf's message,
+// which names the field; a body over the limits is 413. Transport as gRPC's:
+// TLS with the same certificate and key when they are given; plain HTTP on
+// a loopback address, or elsewhere only when asked for (http_public, behind a
+// proxy that terminates TLS).
+#pragma once
+
+#include <atomic>
+#include <memory>
+#include <string>
+#include <thread>
+
+#include "engine/models/plugin_loader.hpp"
+#include "engine/status.hpp"
+#include "service/auth.hpp"
+#include "service/datasets/dataset_manager.hpp"
+#include "service/jobs/job_manager.hpp"
+#include "service/limits.hpp"
+#include "service/sessions/session_manager.hpp"
+
+namespace httplib {
+class Server;
+struct Request;
+struct Response;
+}  // namespace httplib
+
+namespace riccati::service {
+
+struct HttpOptions {
+  std::string listen;        // host:port; port 0: any free one
+  bool plain_public = false;  // plain HTTP off loopback (http_public)
+};
+
+class HttpApi {
+ public:
+  HttpApi(const Authenticator& auth, const ModelRegistry& models, DatasetManager& datasets, JobManager& jobs,
+          SessionManager& sessions, Limits limits);
+  ~HttpApi();
+  HttpApi(const HttpApi&) = delete;
+  HttpApi& operator=(const HttpApi&) = delete;
+
+  // Binds and serves on its own threads; returns the bound port.
+  // `description` says what was chosen, for the log.
+  Result<int> serve(const HttpOptions& options, const SecurityConfig& security, std::string* description);
+  // Ends event streams and stops serving.
+  void stop();
+
+  // Event streams open at once, at most (each holds one of the server's threads).
+  static constexpr int kMaxEventStreams = 8;
+
+ private:
+  class Routes;
+  const Authenticator& auth_;
+  const ModelRegistry& models_;
+  DatasetManager& datasets_;
+  JobManager& jobs_;
+  SessionManager& sessions_;
+  const Limits limits_;
+  std::unique_ptr<Routes> routes_;  // the handlers, which the server calls
+  std::unique_ptr<httplib::Server> server_;
+  std::thread thread_;
+  std::atomic<bool> stopping_{false};
+  std::atomic<int> streams_{0};
+};
+
+}  // namespace riccati::service
