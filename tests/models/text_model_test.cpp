@@ -6,6 +6,9 @@
 #include <gtest/gtest.h>
 
 #include <cmath>
+#include <unistd.h>
+
+#include <filesystem>
 #include <fstream>
 #include <random>
 #include <sstream>
@@ -453,6 +456,46 @@ TEST(TextModel, RepeatedSubexpressionsDoNotExplode) {
   auto m = compile_text_model(yaml, "slow.yaml");
   ASSERT_TRUE(m.is_ok()) << m.status().to_string();
   EXPECT_LT(m->summary.graph_nodes, 2000u);
+}
+
+}  // namespace
+}  // namespace riccati
+
+namespace riccati {
+namespace {
+
+// A models directory holding text models loads them as it loads plugins,
+// with their checksum, their Jacobian check and their summary; a bad one is
+// refused with its message, the others load.
+TEST(TextModel, AModelsDirectoryLoadsTextModels) {
+  namespace fs = std::filesystem;
+  const fs::path dir = fs::temp_directory_path() / ("riccati_text_models_" + std::to_string(::getpid()));
+  fs::remove_all(dir);
+  fs::create_directories(dir);
+  fs::permissions(dir, fs::perms::owner_all | fs::perms::group_read | fs::perms::group_exec |
+                           fs::perms::others_read | fs::perms::others_exec);
+  for (const auto& entry : fs::directory_iterator(RICCATI_TEST_TEXT_MODEL_DIR)) {
+    fs::copy_file(entry.path(), dir / entry.path().filename());
+    fs::permissions(dir / entry.path().filename(), fs::perms::owner_read | fs::perms::owner_write | fs::perms::group_read |
+                                                        fs::perms::others_read);
+  }
+  std::ofstream(dir / "broken.yml") << "model: broken\nstates: [x]\nder: {x: y}\noutputs: {y: x}\n";
+  fs::permissions(dir / "broken.yml", fs::perms::owner_read | fs::perms::owner_write);
+  auto registry = ModelRegistry::load_directory(dir.string());
+  fs::remove_all(dir);
+  ASSERT_TRUE(registry.is_ok()) << registry.status().to_string();
+  EXPECT_EQ(registry->models().size(), 4u);
+  ASSERT_EQ(registry->refused().size(), 1u);
+  EXPECT_NE(registry->refused()[0].reason.find("broken.yml:3:10: unknown name \"y\""), std::string::npos)
+      << registry->refused()[0].reason;
+  for (const ModelPtr& m : registry->models()) {
+    EXPECT_EQ(registry->sha256(*m).size(), 64u);
+    EXPECT_TRUE(registry->jacobian_check(*m).checked) << m->name();
+    EXPECT_TRUE(registry->jacobian_check(*m).agrees()) << m->name();
+    ASSERT_NE(registry->text_summary(*m), nullptr);
+    EXPECT_EQ(registry->text_summary(*m)->f_sparsity.size(), static_cast<std::size_t>(m->nx()));
+  }
+  EXPECT_EQ(builtins().text_summary(*builtins().get("two_tank").value()), nullptr);
 }
 
 }  // namespace
