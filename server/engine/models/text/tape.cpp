@@ -262,9 +262,17 @@ Tape Tape::compile(const Graph& graph, const std::vector<int>& outputs, int num_
     }
   }
   std::vector<std::uint32_t> reg(graph.size(), 0);
+  for (std::size_t i = 0; i < graph.size(); ++i) {  // constants first: registers of their own
+    const Node& n = graph.node(static_cast<int>(i));
+    if (!needed[i] || n.op != Op::kConst) continue;
+    reg[i] = static_cast<std::uint32_t>(num_inputs) + static_cast<std::uint32_t>(tape.constants_.size());
+    tape.constants_.push_back(n.k);
+  }
+  const auto first = static_cast<std::uint32_t>(num_inputs) + static_cast<std::uint32_t>(tape.constants_.size());
   for (std::size_t i = 0; i < graph.size(); ++i) {
     if (!needed[i]) continue;
     const Node& n = graph.node(static_cast<int>(i));
+    if (n.op == Op::kConst) continue;
     if (n.op == Op::kInput) {
       reg[i] = static_cast<std::uint32_t>(n.k);
       continue;
@@ -273,29 +281,68 @@ Tape Tape::compile(const Graph& graph, const std::vector<int>& outputs, int num_
     if (n.a >= 0) in.a = reg[static_cast<std::size_t>(n.a)];
     if (n.b >= 0) in.b = reg[static_cast<std::size_t>(n.b)];
     if (n.c >= 0) in.c = reg[static_cast<std::size_t>(n.c)];
-    reg[i] = static_cast<std::uint32_t>(num_inputs) + static_cast<std::uint32_t>(tape.code_.size());
+    reg[i] = first + static_cast<std::uint32_t>(tape.code_.size());
     tape.code_.push_back(in);
   }
   for (const int o : outputs) tape.outputs_.push_back(reg[static_cast<std::size_t>(o)]);
   return tape;
 }
 
+// One switch over every operation, inlined: the loop's only branch that
+// depends on the model is the jump to the operation, and it repeats with the
+// tape, so it is predicted.
 void Tape::run(double* r, double* out, std::size_t stride) const {
-  double* w = r + num_inputs_;
+  double* w = r + num_inputs_ + constants_.size();
   for (const Instruction& in : code_) {
+    const double a = r[in.a];
     double v;
     switch (in.op) {
-      case Op::kConst: v = in.k; break;
-      case Op::kAdd: v = r[in.a] + r[in.b]; break;
-      case Op::kSub: v = r[in.a] - r[in.b]; break;
-      case Op::kMul: v = r[in.a] * r[in.b]; break;
-      case Op::kDiv: v = r[in.a] / r[in.b]; break;
-      case Op::kNeg: v = -r[in.a]; break;
-      default: v = apply(in.op, r[in.a], r[in.b], r[in.c]); break;
+      case Op::kAdd: v = a + r[in.b]; break;
+      case Op::kSub: v = a - r[in.b]; break;
+      case Op::kMul: v = a * r[in.b]; break;
+      case Op::kDiv: v = a / r[in.b]; break;
+      case Op::kNeg: v = -a; break;
+      case Op::kSqrt: v = std::sqrt(a); break;
+      case Op::kIf: v = a != 0.0 ? r[in.b] : r[in.c]; break;
+      case Op::kChain: v = a == 0.0 ? 0.0 : r[in.b] * a; break;
+      case Op::kGt: v = a > r[in.b] ? 1.0 : 0.0; break;
+      case Op::kLt: v = a < r[in.b] ? 1.0 : 0.0; break;
+      case Op::kSin: v = std::sin(a); break;
+      case Op::kCos: v = std::cos(a); break;
+      case Op::kExp: v = std::exp(a); break;
+      case Op::kTanh: v = std::tanh(a); break;
+      default: v = apply(in.op, a, r[in.b], r[in.c]); break;
     }
     *w++ = v;
   }
   for (std::size_t i = 0; i < outputs_.size(); ++i) out[i * stride] = r[outputs_[i]];
+}
+
+void Tape::run_lanes(double* r, std::size_t points, double* out, std::size_t ld) const {
+  constexpr std::size_t L = kLanes;
+  std::size_t w = (static_cast<std::size_t>(num_inputs_) + constants_.size()) * L;
+  for (const Instruction& in : code_) {
+    const double* a = r + std::size_t{in.a} * L;
+    const double* b = r + std::size_t{in.b} * L;
+    const double* c = r + std::size_t{in.c} * L;
+    double* v = r + w;
+    switch (in.op) {
+      case Op::kAdd: for (std::size_t j = 0; j < L; ++j) v[j] = a[j] + b[j]; break;
+      case Op::kSub: for (std::size_t j = 0; j < L; ++j) v[j] = a[j] - b[j]; break;
+      case Op::kMul: for (std::size_t j = 0; j < L; ++j) v[j] = a[j] * b[j]; break;
+      case Op::kDiv: for (std::size_t j = 0; j < L; ++j) v[j] = a[j] / b[j]; break;
+      case Op::kNeg: for (std::size_t j = 0; j < L; ++j) v[j] = -a[j]; break;
+      case Op::kIf: for (std::size_t j = 0; j < L; ++j) v[j] = a[j] != 0.0 ? b[j] : c[j]; break;
+      case Op::kGt: for (std::size_t j = 0; j < L; ++j) v[j] = a[j] > b[j] ? 1.0 : 0.0; break;
+      case Op::kLt: for (std::size_t j = 0; j < L; ++j) v[j] = a[j] < b[j] ? 1.0 : 0.0; break;
+      default: for (std::size_t j = 0; j < points; ++j) v[j] = apply(in.op, a[j], b[j], c[j]); break;
+    }
+    w += L;
+  }
+  for (std::size_t i = 0; i < outputs_.size(); ++i) {
+    const double* o = r + std::size_t{outputs_[i]} * L;
+    for (std::size_t j = 0; j < points; ++j) out[i * ld + j] = o[j];
+  }
 }
 
 }  // namespace riccati::text

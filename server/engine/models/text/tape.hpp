@@ -95,15 +95,34 @@ class Tape {
   // [0, num_inputs); input nodes read their slot's register directly.
   static Tape compile(const Graph& graph, const std::vector<int>& outputs, int num_inputs);
 
-  std::size_t length() const { return code_.size(); }
-  std::size_t registers() const { return static_cast<std::size_t>(num_inputs_) + code_.size(); }
+  // Instructions, constants included.
+  std::size_t length() const { return code_.size() + constants_.size(); }
+  std::size_t registers() const { return static_cast<std::size_t>(num_inputs_) + constants_.size() + code_.size(); }
   std::size_t outputs() const { return outputs_.size(); }
-  // Runs the tape on `r` (registers(): the inputs filled in the first ones)
-  // and copies output i to out[i * stride].
+  // Writes the constants into their registers (once per call: they stay
+  // while only the inputs change, point after point).
+  void load_constants(double* r) const {
+    for (std::size_t i = 0; i < constants_.size(); ++i) r[static_cast<std::size_t>(num_inputs_) + i] = constants_[i];
+  }
+  // Runs the tape on `r` (registers(): the inputs filled in the first ones,
+  // the constants loaded) and copies output i to out[i * stride].
   void run(double* r, double* out, std::size_t stride) const;
+
+  // The same on up to kLanes points at once (a UKF's sigma points): register
+  // i holds point j at r[i * kLanes + j], so that each instruction is
+  // dispatched once for all points and its loop over them vectorises.
+  static constexpr std::size_t kLanes = 16;
+  void load_constants_lanes(double* r) const {
+    for (std::size_t i = 0; i < constants_.size(); ++i) {
+      for (std::size_t j = 0; j < kLanes; ++j) r[(static_cast<std::size_t>(num_inputs_) + i) * kLanes + j] = constants_[i];
+    }
+  }
+  // Runs `points` (<= kLanes) points; output i of point j to out[i * ld + j].
+  void run_lanes(double* r, std::size_t points, double* out, std::size_t ld) const;
 
  private:
   std::vector<Instruction> code_;
+  std::vector<double> constants_;       // registers num_inputs_ ...
   std::vector<std::uint32_t> outputs_;  // registers
   int num_inputs_ = 0;
 };

@@ -244,11 +244,34 @@ class CompiledModel {
                   const double* theta, double* out, char* err, size_t err_len) {
     try {
       const auto* m = static_cast<const CompiledModel*>(self);
-      double* r = scratch(m->registers);
       const Tape& tape = is_f ? m->f : m->g;
-      for (uint32_t p = 0; p < n; ++p) {
-        m->load(r, t, u, x, theta, ld, p);
-        tape.run(r, out + p, ld);
+      if (n == 1) {
+        double* r = scratch(m->registers);
+        tape.load_constants(r);
+        m->load(r, t, u, x, theta, ld, 0);
+        tape.run(r, out, ld);
+        return 0;
+      }
+      // Points kLanes at a time, lane by lane (Tape::run_lanes).
+      constexpr std::size_t L = Tape::kLanes;
+      double* r = scratch(m->registers * L);
+      tape.load_constants_lanes(r);
+      const int nz = m->nx + m->ntheta;
+      for (int k = 0; k < m->nu; ++k) {
+        for (std::size_t j = 0; j < L; ++j) r[static_cast<std::size_t>(nz + k) * L + j] = u[k];
+      }
+      for (std::size_t j = 0; j < L; ++j) r[static_cast<std::size_t>(nz + m->nu) * L + j] = t;
+      for (std::size_t p0 = 0; p0 < n; p0 += L) {
+        const std::size_t points = std::min<std::size_t>(L, n - p0);
+        for (int i = 0; i < m->nx; ++i) {
+          for (std::size_t j = 0; j < points; ++j) r[static_cast<std::size_t>(i) * L + j] = x[static_cast<std::size_t>(i) * ld + p0 + j];
+        }
+        for (int i = 0; i < m->ntheta; ++i) {
+          for (std::size_t j = 0; j < points; ++j) {
+            r[static_cast<std::size_t>(m->nx + i) * L + j] = theta[static_cast<std::size_t>(i) * ld + p0 + j];
+          }
+        }
+        tape.run_lanes(r, points, out + p0, ld);
       }
       return 0;
     } catch (const std::exception& e) {
@@ -265,6 +288,7 @@ class CompiledModel {
       const Tape& tape = is_f ? m->f_jac : m->g_jac;
       double* r = scratch(m->registers);
       m->load(r, t, u, x, theta, 1, 0);
+      tape.load_constants(r);
       const std::size_t rows = static_cast<std::size_t>(is_f ? m->nx : m->ny);
       double* values = r + tape.registers();  // the outputs, after the registers
       tape.run(r, values, 1);
