@@ -38,6 +38,7 @@
 #include <vector>
 
 #include "engine/models/plugin_loader.hpp"
+#include "service/models/model_catalog.hpp"
 #include "riccati/v1/jobs.pb.h"
 #include "store/store.hpp"
 
@@ -64,7 +65,7 @@ struct JobQueueOptions {
 class JobManager {
  public:
   // `metrics` (optional) counts the jobs this instance ends.
-  JobManager(Store& store, const ModelRegistry& models, int workers, Limits limits = {}, JobQueueOptions queue = {},
+  JobManager(Store& store, const ModelCatalog& models, int workers, Limits limits = {}, JobQueueOptions queue = {},
              Metrics* metrics = nullptr);
   ~JobManager();
   JobManager(const JobManager&) = delete;
@@ -131,7 +132,7 @@ class JobManager {
   std::optional<JobRecord> update(const std::string& id, Change&& change);
 
   Store& store_;
-  const ModelRegistry& models_;
+  const ModelCatalog& models_;
   const Limits limits_;  // max_jobs, max_tenant_jobs, max_passes, max_result_bytes, max_job_attempts
   const int worker_count_;
   const JobQueueOptions queue_;

@@ -48,12 +48,18 @@ class Source {
     }
     std::size_t line_end = text_.find('\n', line_start);
     if (line_end == std::string_view::npos) line_end = text_.size();
-    const std::string_view line_text = text_.substr(line_start, line_end - line_start);
+    std::string line_text(text_.substr(line_start, line_end - line_start));
+    std::replace(line_text.begin(), line_text.end(), '\t', ' ');  // tabs shown as one space, as counted
     std::string caret;
-    for (std::size_t i = line_start; i < pos; ++i) caret += text_[i] == '\t' ? '\t' : ' ';
+    int column = 1;  // in characters: UTF-8 continuation bytes do not count
+    for (std::size_t i = line_start; i < pos; ++i) {
+      if ((static_cast<unsigned char>(text_[i]) & 0xc0) == 0x80) continue;
+      caret += ' ';
+      ++column;
+    }
     caret += '^';
-    return invalid_argument(origin_ + ":" + std::to_string(line) + ":" + std::to_string(pos - line_start + 1) + ": " +
-                            message + "\n  " + std::string(line_text) + "\n  " + caret);
+    return invalid_argument(origin_ + ":" + std::to_string(line) + ":" + std::to_string(column) + ": " + message +
+                            "\n  " + line_text + "\n  " + caret);
   }
 
   Status at(const YAML::Mark& mark, const std::string& message) const {
