@@ -173,6 +173,27 @@ TEST_P(ShippedTextModel, FGAndJacobiansEqualThePluginsAtAThousandRandomPoints) {
       for (int j = 0; j < nz; ++j) EXPECT_TRUE(close(jgt(i, j), jgp(i, j), "dg/dz", row)) << ++failures;
     }
   }
+  // The mechanical form, where the plugin has one: c = [h; g], Fc = [-H M; R G] and their Jacobians.
+  ASSERT_EQ(m.ndof(), plugin->ndof());
+  ASSERT_EQ(m.has_mechanical_form(), plugin->has_mechanical_form());
+  if (plugin->has_mechanical_form()) {
+    const int rows = m.ndof() + ny, cols = m.nu() + m.ndof();
+    for (int p = 0; p < 200 && failures < 10; ++p) {
+      const Eigen::VectorXd x = X.col(p), theta = Theta.col(p);
+      Eigen::VectorXd ct(rows), cp(rows), Ft(rows * cols), Fp(rows * cols);
+      Eigen::MatrixXd jct(rows, nz), jcp(rows, nz), jFt(rows * cols, nz), jFp(rows * cols, nz);
+      ASSERT_TRUE(m.mechanical(t, x.data(), theta.data(), ct.data(), Ft.data(), jct.data(), jFt.data()).is_ok());
+      ASSERT_TRUE(plugin->mechanical(t, x.data(), theta.data(), cp.data(), Fp.data(), jcp.data(), jFp.data()).is_ok());
+      for (int i = 0; i < rows; ++i) EXPECT_TRUE(close(ct[i], cp[i], "c")) << ++failures;
+      for (int i = 0; i < rows * cols; ++i) EXPECT_TRUE(close(Ft[i], Fp[i], "Fc")) << ++failures;
+      for (int i = 0; i < rows; ++i) {
+        for (int j = 0; j < nz; ++j) EXPECT_TRUE(close(jct(i, j), jcp(i, j), "dc/dz", jcp.row(i).cwiseAbs().maxCoeff())) << ++failures;
+      }
+      for (int i = 0; i < rows * cols; ++i) {
+        for (int j = 0; j < nz; ++j) EXPECT_TRUE(close(jFt(i, j), jFp(i, j), "dFc/dz", jFp.row(i).cwiseAbs().maxCoeff())) << ++failures;
+      }
+    }
+  }
   RecordProperty("worst_jacobian_entry_relative_difference", std::to_string(worst_entry));
   std::printf("%s: worst Jacobian entry relative difference %.3g\n", c.plugin.c_str(), worst_entry);
 }
@@ -415,6 +436,17 @@ std::vector<Bad> bad_inputs() {
       {"ChainedComparison", kHead + "der:\n  x: if(0 < x < 1, 1, 0)\noutputs: {y: x}\n", "comparisons do not chain", "bad.yaml:5:15"},
       {"PowerOperator", kHead + "der:\n  x: x ** 2\noutputs: {y: x}\n", "'**' is not an operator", "bad.yaml:5:8"},
       {"EmptyExpression", kHead + "der:\n  x: \"\"\noutputs: {y: x}\n", "empty expression", ""},
+      {"DerAndMechanical", "model: m\nstates: [s, v]\nder: {s: v, v: 0}\nmechanical: {M: [[1]], h: [s]}\noutputs: {y: s}\n",
+       "give der or mechanical, not both", "bad.yaml:3:7"},
+      {"MechanicalOddStates", "model: m\nstates: [s, v, w]\nmechanical: {M: [[1]], h: [s]}\noutputs: {y: s}\n",
+       "positions, then as many velocities", "bad.yaml:3:13"},
+      {"MechanicalShape", "model: m\nstates: [s, v]\nmechanical: {M: [[1, 0]], h: [s]}\noutputs: {y: s}\n",
+       "row 1 of mechanical M must have 1 entries", "bad.yaml:3:18"},
+      {"MechanicalNoH", "model: m\nstates: [s, v]\nmechanical: {M: [[1]]}\noutputs: {y: s}\n", "has no h", "bad.yaml:3:13"},
+      {"MechanicalInputInH", "model: m\nstates: [s, v]\ninputs: [F]\nmechanical: {M: [[1]], h: [s - F], H: [[1]]}\noutputs: {y: s}\n",
+       "the inputs enter only as H u and R u", ""},
+      {"MechanicalUnknownName", "model: m\nstates: [s, v]\nmechanical: {M: [[m]], h: [s]}\noutputs: {y: s}\n",
+       "unknown name \"m\"", "bad.yaml:3:19"},
   };
 }
 

@@ -156,6 +156,20 @@ TEST_F(TextModelService, ASessionRunsOnAnUploadedModel) {
   EXPECT_TRUE(s.ok()) << s.error_message();
 }
 
+// The optimal filter needs the mechanical form: the manipulator written as
+// text has it.
+TEST_F(TextModelService, AnOptimalFilterSessionRunsOnAMechanicalTextModel) {
+  v1::ModelInfo info;
+  ASSERT_TRUE(create(shipped("flexible_manipulator"), &info).ok());
+  EXPECT_EQ(info.ndof(), 2u);
+  v1::CreateSessionRequest request = testing::manipulator_case_c_session();
+  request.set_model("flexible_manipulator_text");
+  grpc::ClientContext ctx;
+  v1::SessionInfo session;
+  const grpc::Status s = sessions_->CreateSession(&ctx, request, &session);
+  EXPECT_TRUE(s.ok()) << s.error_message();
+}
+
 // ---------------------------------------------------------------------------
 // Tenants
 

@@ -189,6 +189,37 @@ void write_error(char* err, std::size_t err_len, const char* what) {
   if (err != nullptr && err_len > 0) std::snprintf(err, err_len, "%s", what);
 }
 
+// Dual numbers of run-time width W = 1 + nz (value, then derivatives), the
+// operations of riccati::Dual (riccati/dual.hpp) one for one; W = 1 is plain
+// doubles (a division then divides, as double arithmetic does).
+struct Duals {
+  std::size_t w;
+  void mul(const double* a, const double* b, double* out) const {  // out may not alias a or b
+    out[0] = a[0] * b[0];
+    for (std::size_t i = 1; i < w; ++i) out[i] = a[i] * b[0] + a[0] * b[i];
+  }
+  void div(const double* a, const double* b, double* out) const {
+    if (w == 1) {
+      out[0] = a[0] / b[0];
+      return;
+    }
+    const double inv = 1.0 / b[0];
+    const double q = a[0] * inv;
+    out[0] = q;
+    for (std::size_t i = 1; i < w; ++i) out[i] = (a[i] - q * b[i]) * inv;
+  }
+  void sub_from(double* a, const double* b) const {
+    for (std::size_t i = 0; i < w; ++i) a[i] -= b[i];
+  }
+  void add_to(double* a, const double* b) const {
+    for (std::size_t i = 0; i < w; ++i) a[i] += b[i];
+  }
+  void add_scaled(double* a, const double* b, double s) const {  // a += b * s (a Dual times a double)
+    for (std::size_t i = 0; i < w; ++i) a[i] += b[i] * s;
+  }
+  void copy(double* a, const double* b) const { std::memcpy(a, b, w * sizeof(double)); }
+};
+
 class CompiledModel {
  public:
   std::string name, version, description;
@@ -197,6 +228,16 @@ class CompiledModel {
   std::vector<double> theta_default, theta_lower, theta_upper;
   Tape f, g, f_jac, g_jac;  // f_jac: f then df/dz column-major; g_jac likewise
   int nx = 0, ntheta = 0, nu = 0, ny = 0;
+  // The mechanical form (ndof > 0): f and g come from M, h, H, g, G, R,
+  // whose values (mech) and derivatives (mech_jac: the values, then entry e
+  // of z_j at count + e + j count) the tapes give; the accelerations are
+  // solved for as the SDK does (riccati/model.hpp, detail::solve), with the
+  // same dual arithmetic for the Jacobians, so that a text model and a
+  // plugin agree to rounding.
+  int ndof = 0;
+  Tape mech, mech_jac;
+  std::size_t mech_count = 0;  // entries of M, h, H, g, G, R
+  std::size_t mech_scratch = 0;
   std::size_t registers = 0;  // the most any tape needs, plus room for outputs
   riccati_model_v1 table{};
 
@@ -229,6 +270,14 @@ class CompiledModel {
     table.g_ctx = &eval<false>;
     table.f_jac_ctx = &jac<true>;
     table.g_jac_ctx = &jac<false>;
+    if (ndof > 0) {
+      table.ndof = static_cast<uint32_t>(ndof);
+      table.f_ctx = &mech_eval<true>;
+      table.g_ctx = &mech_eval<false>;
+      table.f_jac_ctx = &mech_jacobian<true>;
+      table.g_jac_ctx = &mech_jacobian<false>;
+      table.mech_ctx = &mech_form;
+    }
   }
 
  private:
@@ -282,6 +331,198 @@ class CompiledModel {
       return 0;
     } catch (const std::exception& e) {
       write_error(err, err_len, e.what());
+      return 1;
+    }
+  }
+
+  // Where the entries of the mechanical form are, in the tapes' outputs.
+  std::size_t at_M(int i, int j) const { return static_cast<std::size_t>(i + j * ndof); }
+  std::size_t at_h(int i) const { return static_cast<std::size_t>(ndof * ndof + i); }
+  std::size_t at_H(int i, int j) const { return static_cast<std::size_t>(ndof * ndof + ndof + i + j * ndof); }
+  std::size_t at_g(int i) const { return static_cast<std::size_t>(ndof * ndof + ndof + ndof * nu + i); }
+  std::size_t at_G(int i, int j) const { return at_g(ny) + static_cast<std::size_t>(i + j * ny); }
+  std::size_t at_R(int i, int j) const { return at_G(0, ndof) + static_cast<std::size_t>(i + j * ny); }
+
+  // f or g of the mechanical form at one point, on duals of width w: `e`
+  // holds every entry (w doubles each), `work` the solve's room. Writes
+  // out[row * w ...]. False if M is singular.
+  template <bool is_f>
+  bool mech_point(const Duals& d, const double* e, const double* u, const double* x, double* work,
+                  double* out) const {
+    const std::size_t w = d.w;
+    const int n = ndof;
+    double* M = work;                                      // n x n, a copy (eliminated in place)
+    double* b = M + static_cast<std::size_t>(n * n) * w;   // n
+    double* a = b + static_cast<std::size_t>(n) * w;       // n
+    double* tmp = a + static_cast<std::size_t>(n) * w;     // 2
+    double* tmp2 = tmp + w;
+    for (int k = 0; k < n * n; ++k) d.copy(M + static_cast<std::size_t>(k) * w, e + static_cast<std::size_t>(k) * w);
+    for (int i = 0; i < n; ++i) {  // b = -h + H u
+      double* bi = b + static_cast<std::size_t>(i) * w;
+      const double* hi = e + at_h(i) * w;
+      for (std::size_t c = 0; c < w; ++c) bi[c] = -1.0 * hi[c];
+      bi[0] = -hi[0];
+      for (int j = 0; j < nu; ++j) d.add_scaled(bi, e + at_H(i, j) * w, u[j]);
+    }
+    auto m_at = [&](int i, int j) { return M + static_cast<std::size_t>(i + j * n) * w; };
+    for (int k = 0; k < n; ++k) {  // Gaussian elimination with partial pivoting, as detail::solve
+      int pivot = k;
+      for (int i = k + 1; i < n; ++i) {
+        if (std::abs(m_at(i, k)[0]) > std::abs(m_at(pivot, k)[0])) pivot = i;
+      }
+      if (m_at(pivot, k)[0] == 0.0) return false;
+      if (pivot != k) {
+        for (int j = k; j < n; ++j) {
+          for (std::size_t c = 0; c < w; ++c) std::swap(m_at(k, j)[c], m_at(pivot, j)[c]);
+        }
+        for (std::size_t c = 0; c < w; ++c) std::swap(b[static_cast<std::size_t>(k) * w + c], b[static_cast<std::size_t>(pivot) * w + c]);
+      }
+      for (int i = k + 1; i < n; ++i) {
+        if (m_at(i, k)[0] == 0.0) continue;
+        d.div(m_at(i, k), m_at(k, k), tmp);  // factor
+        for (int j = k + 1; j < n; ++j) {
+          d.mul(tmp, m_at(k, j), tmp2);
+          d.sub_from(m_at(i, j), tmp2);
+        }
+        d.mul(tmp, b + static_cast<std::size_t>(k) * w, tmp2);
+        d.sub_from(b + static_cast<std::size_t>(i) * w, tmp2);
+      }
+    }
+    for (int k = n - 1; k >= 0; --k) {
+      double* sum = tmp;
+      d.copy(sum, b + static_cast<std::size_t>(k) * w);
+      for (int j = k + 1; j < n; ++j) {
+        d.mul(m_at(k, j), a + static_cast<std::size_t>(j) * w, tmp2);
+        d.sub_from(sum, tmp2);
+      }
+      d.div(sum, m_at(k, k), a + static_cast<std::size_t>(k) * w);
+    }
+    if constexpr (is_f) {
+      for (int i = 0; i < n; ++i) {
+        double* v = out + static_cast<std::size_t>(i) * w;  // x' = v: the seeded velocity
+        std::fill(v, v + w, 0.0);
+        v[0] = x[n + i];
+        if (w > 1) v[1 + static_cast<std::size_t>(n + i)] = 1.0;
+        d.copy(out + static_cast<std::size_t>(n + i) * w, a + static_cast<std::size_t>(i) * w);
+      }
+    } else {
+      for (int i = 0; i < ny; ++i) {
+        double* sum = out + static_cast<std::size_t>(i) * w;
+        d.copy(sum, e + at_g(i) * w);
+        for (int j = 0; j < n; ++j) {
+          d.mul(e + at_G(i, j) * w, a + static_cast<std::size_t>(j) * w, tmp2);
+          d.add_to(sum, tmp2);
+        }
+        for (int j = 0; j < nu; ++j) d.add_scaled(sum, e + at_R(i, j) * w, u[j]);
+      }
+    }
+    return true;
+  }
+
+  template <bool is_f>
+  static int mech_eval(void* self, uint32_t n, size_t ld, double t, const double* u, const double* x,
+                       const double* theta, double* out, char* err, size_t err_len) {
+    try {
+      const auto* m = static_cast<const CompiledModel*>(self);
+      double* r = scratch(m->registers);
+      double* e = r + m->mech.registers();
+      double* work = e + m->mech_count;
+      m->mech.load_constants(r);
+      const Duals d{1};
+      const int rows = is_f ? m->nx : m->ny;
+      double point_out[2 * 256];  // nx, ny <= kMaxTextModelSize
+      double xp[256];
+      for (uint32_t p = 0; p < n; ++p) {
+        m->load(r, t, u, x, theta, ld, p);
+        for (int i = 0; i < m->nx; ++i) xp[i] = x[static_cast<std::size_t>(i) * ld + p];
+        m->mech.run(r, e, 1);
+        if (!m->mech_point<is_f>(d, e, u, xp, work, point_out)) {
+          write_error(err, err_len, "the mass matrix M is singular");
+          return 1;
+        }
+        for (int i = 0; i < rows; ++i) out[static_cast<std::size_t>(i) * ld + p] = point_out[i];
+      }
+      return 0;
+    } catch (const std::exception& ex) {
+      write_error(err, err_len, ex.what());
+      return 1;
+    }
+  }
+
+  // The tape's values and derivatives of every entry, as duals.
+  double* mech_duals(double* r, double t, const double* u, const double* x, const double* theta) const {
+    load(r, t, u, x, theta, 1, 0);
+    mech_jac.load_constants(r);
+    double* values = r + mech_jac.registers();
+    mech_jac.run(r, values, 1);
+    const std::size_t w = static_cast<std::size_t>(nx + ntheta) + 1, count = mech_count;
+    double* e = values + count * w;
+    for (std::size_t k = 0; k < count; ++k) {
+      e[k * w] = values[k];
+      for (std::size_t j = 0; j + 1 < w; ++j) e[k * w + 1 + j] = values[count + k + j * count];
+    }
+    return e;
+  }
+
+  template <bool is_f>
+  static int mech_jacobian(void* self, double t, const double* u, const double* x, const double* theta, double* out,
+                           double* jacobian, char* err, size_t err_len) {
+    try {
+      const auto* m = static_cast<const CompiledModel*>(self);
+      double* r = scratch(m->registers);
+      const std::size_t w = static_cast<std::size_t>(m->nx + m->ntheta) + 1;
+      double* e = m->mech_duals(r, t, u, x, theta);
+      double* work = e + m->mech_count * w;
+      double* result = work + static_cast<std::size_t>(m->ndof * m->ndof + 2 * m->ndof + 2) * w;
+      if (!m->mech_point<is_f>(Duals{w}, e, u, x, work, result)) {
+        write_error(err, err_len, "the mass matrix M is singular");
+        return 1;
+      }
+      const std::size_t rows = static_cast<std::size_t>(is_f ? m->nx : m->ny);
+      for (std::size_t i = 0; i < rows; ++i) {
+        out[i] = result[i * w];
+        for (std::size_t j = 0; j + 1 < w; ++j) jacobian[i + j * rows] = result[i * w + 1 + j];
+      }
+      return 0;
+    } catch (const std::exception& ex) {
+      write_error(err, err_len, ex.what());
+      return 1;
+    }
+  }
+
+  static int mech_form(void* self, double t, const double* x, const double* theta, double* c, double* Fc,
+                       double* c_jac, double* Fc_jac, char* err, size_t err_len) {
+    try {
+      const auto* m = static_cast<const CompiledModel*>(self);
+      double* r = scratch(m->registers);
+      const std::size_t w = static_cast<std::size_t>(m->nx + m->ntheta) + 1, nz = w - 1;
+      static const double kNoInputs[kMaxTextModelSize] = {};  // M, h, H, g, G, R do not depend on u (checked)
+      const double* e = m->mech_duals(r, t, kNoInputs, x, theta);
+      const int n = m->ndof;
+      const std::size_t rows = static_cast<std::size_t>(n + m->ny), cols = static_cast<std::size_t>(m->nu + n);
+      const std::size_t entries = rows * cols;
+      auto put = [&](double* value, double* jac, std::size_t k, std::size_t stride, std::size_t entry, double sign) {
+        value[k] = sign * e[entry * w];
+        for (std::size_t j = 0; j < nz; ++j) jac[k + j * stride] = sign * e[entry * w + 1 + j];
+      };
+      for (int i = 0; i < n; ++i) put(c, c_jac, static_cast<std::size_t>(i), rows, m->at_h(i), 1.0);
+      for (int i = 0; i < m->ny; ++i) put(c, c_jac, static_cast<std::size_t>(n + i), rows, m->at_g(i), 1.0);
+      for (int j = 0; j < m->nu; ++j) {
+        for (int i = 0; i < n; ++i) put(Fc, Fc_jac, static_cast<std::size_t>(i) + j * rows, entries, m->at_H(i, j), -1.0);
+        for (int i = 0; i < m->ny; ++i) {
+          put(Fc, Fc_jac, static_cast<std::size_t>(n + i) + j * rows, entries, m->at_R(i, j), 1.0);
+        }
+      }
+      for (int j = 0; j < n; ++j) {
+        const std::size_t col = static_cast<std::size_t>(m->nu + j);
+        for (int i = 0; i < n; ++i) put(Fc, Fc_jac, static_cast<std::size_t>(i) + col * rows, entries, m->at_M(i, j), 1.0);
+        for (int i = 0; i < m->ny; ++i) {
+          put(Fc, Fc_jac, static_cast<std::size_t>(n + i) + col * rows, entries, m->at_G(i, j), 1.0);
+        }
+      }
+      return 0;
+    } catch (const std::exception& ex) {
+      write_error(err, err_len, ex.what());
       return 1;
     }
   }
@@ -345,18 +586,19 @@ class Compiler {
     if (!root.IsMap()) return src_.at(root.Mark(), "a text model is a YAML mapping (model:, states:, der:, ...)");
     std::vector<Entry> top;
     RICCATI_RETURN_IF_ERROR(entries(src_, root, "the model", &top));
-    static const std::set<std::string> kKeys = {"model",  "version", "description", "states", "inputs",
-                                                "parameters", "define", "der", "outputs"};
+    static const std::set<std::string> kKeys = {"model",  "version", "description", "states",     "inputs",
+                                                "parameters", "define", "der",     "mechanical", "outputs"};
     std::map<std::string, YAML::Node> section;
     for (const Entry& e : top) {
       if (kKeys.count(e.key) == 0) {
         return src_.at(e.key_node.Mark(), "unknown key \"" + e.key +
                                               "\" (model, version, description, states, inputs, parameters, "
-                                              "define, der, outputs)");
+                                              "define, der, mechanical, outputs)");
       }
       section[e.key] = e.value;
     }
     auto m = std::make_shared<CompiledModel>();
+    owner_ = m;
 
     // Name, version, description.
     if (section.count("model") == 0) return src_.at(root.Mark(), "the model has no name (model: my_model)");
@@ -468,11 +710,40 @@ class Compiler {
     for (std::size_t i = 0; i < ders.size(); ++i) RICCATI_RETURN_IF_ERROR(parse(src_, ders[i], "der", &der_exprs[i]));
     for (std::size_t i = 0; i < outputs.size(); ++i) RICCATI_RETURN_IF_ERROR(parse(src_, outputs[i], "output", &output_exprs[i]));
 
+    // The mechanical form instead of der: M a + h = H u, y = g + G a + R u.
+    std::vector<Expression> mech_exprs;  // M, h, H, G, R in their layout (g is the outputs); empty text = 0
+    const bool mechanical = section.count("mechanical") > 0;
+    if (mechanical) {
+      const YAML::Node& mech = section["mechanical"];
+      if (!ders.empty()) return src_.at(ders.front().key_node.Mark(), "give der or mechanical, not both");
+      if (m->nx % 2 != 0) {
+        return src_.at(mech.Mark(), "a mechanical model's states are its positions, then as many velocities: " +
+                                        std::to_string(m->nx) + " states");
+      }
+      m->ndof = m->nx / 2;
+      std::vector<Entry> parts;
+      RICCATI_RETURN_IF_ERROR(entries(src_, mech, "mechanical", &parts));
+      std::map<std::string, YAML::Node> part;
+      for (const Entry& e : parts) {
+        if (e.key != "M" && e.key != "h" && e.key != "H" && e.key != "G" && e.key != "R") {
+          return src_.at(e.key_node.Mark(), "unknown key \"" + e.key + "\" of mechanical (M, h, H, G, R)");
+        }
+        part[e.key] = e.value;
+      }
+      const int n = m->ndof;
+      RICCATI_RETURN_IF_ERROR(matrix(part, mech, "M", n, n, true, &mech_exprs));
+      RICCATI_RETURN_IF_ERROR(matrix(part, mech, "h", n, 1, true, &mech_exprs));
+      RICCATI_RETURN_IF_ERROR(matrix(part, mech, "H", n, m->nu, m->nu > 0, &mech_exprs));
+      RICCATI_RETURN_IF_ERROR(matrix(part, mech, "G", m->ny, n, false, &mech_exprs));
+      RICCATI_RETURN_IF_ERROR(matrix(part, mech, "R", m->ny, m->nu, false, &mech_exprs));
+    }
+
     // Every name known.
     std::unordered_map<std::string, int> define_index;
     for (std::size_t i = 0; i < defines.size(); ++i) define_index[defines[i].key] = static_cast<int>(i);
-    for (const auto* list : {&define_exprs, &der_exprs, &output_exprs}) {
+    for (const auto* list : {&define_exprs, &der_exprs, &output_exprs, &mech_exprs}) {
       for (const Expression& e : *list) {
+        if (e.ast.root < 0) continue;  // an entry left out: zero
         for (const auto& [n, offset] : text::referenced_names(e.ast)) {
           if (kind.count(n) == 0 && n != "t" && n != "pi") {
             return src_.in_scalar(e.value, offset,
@@ -491,7 +762,7 @@ class Compiler {
       }
       der_of_state[static_cast<std::size_t>(it - m->states.begin())] = static_cast<int>(i);
     }
-    for (std::size_t i = 0; i < states.size(); ++i) {
+    for (std::size_t i = 0; i < states.size() && !mechanical; ++i) {
       if (der_of_state[i] < 0) {
         return src_.at(states[i].key_node.Mark(), "state " + m->states[i] + " has no derivative (der: {" + m->states[i] + ": ...})");
       }
@@ -514,11 +785,12 @@ class Compiler {
       node_of[e.name] = lower(e.ast, e.ast.root, node_of);
     }
     std::vector<int> f_roots, g_roots;
-    for (std::size_t i = 0; i < states.size(); ++i) {
+    for (std::size_t i = 0; i < states.size() && !mechanical; ++i) {
       const Expression& e = der_exprs[static_cast<std::size_t>(der_of_state[i])];
       f_roots.push_back(lower(e.ast, e.ast.root, node_of));
     }
     for (const Expression& e : output_exprs) g_roots.push_back(lower(e.ast, e.ast.root, node_of));
+    if (mechanical) return compile_mechanical(root, *m, mech_exprs, output_exprs, define_exprs, g_roots, node_of);
 
     // Jacobians, column-major over z = [x; theta].
     std::vector<int> f_jac(static_cast<std::size_t>(m->nx * nz)), g_jac(static_cast<std::size_t>(m->ny * nz));
@@ -567,6 +839,158 @@ class Compiler {
 
     const riccati_model_v1* table = &m->table;
     RICCATI_ASSIGN_OR_RETURN(out.model, Model::create(table, std::shared_ptr<void>(m), "text model " + src_.origin()));
+    return out;
+  }
+
+  // Appends the entries of matrix `key` of the mechanical form (rows x cols,
+  // a list of rows; h a list) column-major to `out`; one left out is zero
+  // unless `required`.
+  Status matrix(std::map<std::string, YAML::Node>& part, const YAML::Node& mech, const std::string& key, int rows,
+                int cols, bool required, std::vector<Expression>* out) const {
+    const std::size_t first = out->size();
+    out->resize(first + static_cast<std::size_t>(rows * cols));
+    if (part.count(key) == 0) {
+      if (required) return src_.at(mech.Mark(), "the mechanical form has no " + key);
+      return Status::ok();
+    }
+    const YAML::Node& node = part[key];
+    const bool vector = key == "h";
+    const std::string shape = vector ? "a list of " + std::to_string(rows) + " expressions"
+                                     : "a list of " + std::to_string(rows) + " rows of " + std::to_string(cols) + " expressions";
+    if (!node.IsSequence() || node.size() != static_cast<std::size_t>(rows)) {
+      return src_.at(node.Mark(), "mechanical " + key + " must be " + shape +
+                                      (key == "G" || key == "R" ? " (one row per output)" : ""));
+    }
+    for (int i = 0; i < rows; ++i) {
+      const YAML::Node row = node[static_cast<std::size_t>(i)];
+      if (!vector && (!row.IsSequence() || row.size() != static_cast<std::size_t>(cols))) {
+        return src_.at(row.Mark(), "row " + std::to_string(i + 1) + " of mechanical " + key + " must have " +
+                                       std::to_string(cols) + " entries");
+      }
+      for (int j = 0; j < cols; ++j) {
+        const YAML::Node cell = vector ? row : row[static_cast<std::size_t>(j)];
+        const std::string name = key + "(" + std::to_string(i + 1) + (vector ? "" : "," + std::to_string(j + 1)) + ")";
+        RICCATI_RETURN_IF_ERROR(
+            parse(src_, Entry{name, cell, cell}, "mechanical", &(*out)[first + static_cast<std::size_t>(i + j * rows)]));
+      }
+    }
+    return Status::ok();
+  }
+
+  // The mechanical form's tapes (CompiledModel::mech, mech_jac) and the model.
+  Result<TextModel> compile_mechanical(const YAML::Node& root, CompiledModel& m, const std::vector<Expression>& mech,
+                                       const std::vector<Expression>& outputs, const std::vector<Expression>& defines,
+                                       const std::vector<int>& g_roots,
+                                       const std::unordered_map<std::string, int>& node_of) {
+    const int n = m.ndof, nz = m.nx + m.ntheta;
+    // Layout: M, h, H, then g (the outputs), G, R.
+    std::vector<int> roots;
+    const std::size_t before_g = static_cast<std::size_t>(n * n + n + n * m.nu);
+    for (std::size_t k = 0; k < before_g; ++k) {
+      roots.push_back(mech[k].ast.root < 0 ? graph_.constant(0.0) : lower(mech[k].ast, mech[k].ast.root, node_of));
+    }
+    roots.insert(roots.end(), g_roots.begin(), g_roots.end());
+    for (std::size_t k = before_g; k < mech.size(); ++k) {
+      roots.push_back(mech[k].ast.root < 0 ? graph_.constant(0.0) : lower(mech[k].ast, mech[k].ast.root, node_of));
+    }
+    // The inputs enter only through H u and R u.
+    {
+      std::vector<char> seen(graph_.size(), 0);
+      std::vector<int> stack(roots.begin(), roots.end());
+      while (!stack.empty()) {
+        const int i = stack.back();
+        stack.pop_back();
+        if (seen[static_cast<std::size_t>(i)]) continue;
+        seen[static_cast<std::size_t>(i)] = 1;
+        const text::Node& node = graph_.node(i);
+        if (node.op == Op::kInput && static_cast<int>(node.k) >= nz && static_cast<int>(node.k) < nz + m.nu) {
+          return src_.at(root.Mark(), "input " + m.inputs[static_cast<std::size_t>(static_cast<int>(node.k) - nz)] +
+                                          " appears in M, h, G, the outputs or an entry of H or R: in the mechanical "
+                                          "form the inputs enter only as H u and R u");
+        }
+        for (const int c : {node.a, node.b, node.c}) {
+          if (c >= 0) stack.push_back(c);
+        }
+      }
+    }
+    const std::size_t count = roots.size();
+    std::vector<int> all = roots;
+    all.resize(count * static_cast<std::size_t>(1 + nz));
+    for (int j = 0; j < nz && !graph_.overflowed(); ++j) {
+      const std::vector<int> d = graph_.derivative(roots, j);
+      for (std::size_t e = 0; e < count; ++e) all[count + e + static_cast<std::size_t>(j) * count] = d[e];
+    }
+    if (graph_.overflowed()) {
+      return src_.at(root.Mark(), "the model is too large: its equations and their derivatives need more than " +
+                                      std::to_string(text::kMaxGraphNodes) + " operations");
+    }
+    const int num_inputs = nz + m.nu + 1;
+    m.mech_count = count;
+    m.mech = Tape::compile(graph_, roots, num_inputs);
+    m.mech_jac = Tape::compile(graph_, all, num_inputs);
+    const std::size_t w = static_cast<std::size_t>(nz + 1);
+    const std::size_t solve = static_cast<std::size_t>(n * n + 2 * n + 2) * w;
+    m.registers = std::max(m.mech.registers() + count + solve,
+                           m.mech_jac.registers() + 2 * count * w + solve + static_cast<std::size_t>(m.nx) * w);
+    m.fill_table();
+
+    TextModel out;
+    TextModelSummary& summary = out.summary;
+    auto depends = [&](std::size_t e, int j) { return !graph_.is_constant(all[count + e + static_cast<std::size_t>(j) * count], 0.0); };
+    // Sparsity: x' = v has its unit entries; a depends on whatever M, h, H do.
+    std::string accel(static_cast<std::size_t>(nz), '.');
+    for (std::size_t e = 0; e < before_g; ++e) {
+      for (int j = 0; j < nz; ++j) {
+        if (depends(e, j)) accel[static_cast<std::size_t>(j)] = 'x';
+      }
+    }
+    for (int i = 0; i < n; ++i) {
+      std::string row(static_cast<std::size_t>(nz), '.');
+      row[static_cast<std::size_t>(n + i)] = 'x';
+      summary.f_sparsity.push_back(row);
+    }
+    for (int i = 0; i < n; ++i) summary.f_sparsity.push_back(accel);
+    for (int i = 0; i < m.ny; ++i) {
+      std::string row(static_cast<std::size_t>(nz), '.');
+      bool uses_a = false;
+      for (int j = 0; j < nz; ++j) {
+        if (depends(before_g + static_cast<std::size_t>(i), j)) row[static_cast<std::size_t>(j)] = 'x';
+      }
+      for (int k = 0; k < n; ++k) {
+        const std::size_t at = before_g + static_cast<std::size_t>(m.ny + i + k * m.ny);  // G(i, k)
+        uses_a = uses_a || !graph_.is_constant(roots[at], 0.0);
+        for (int j = 0; j < nz; ++j) {
+          if (depends(at, j)) row[static_cast<std::size_t>(j)] = 'x';
+        }
+      }
+      for (int k = 0; k < m.nu; ++k) {
+        const std::size_t at = before_g + static_cast<std::size_t>(m.ny + m.ny * n + i + k * m.ny);  // R(i, k)
+        for (int j = 0; j < nz; ++j) {
+          if (depends(at, j)) row[static_cast<std::size_t>(j)] = 'x';
+        }
+      }
+      if (uses_a) {
+        for (int j = 0; j < nz; ++j) {
+          if (accel[static_cast<std::size_t>(j)] == 'x') row[static_cast<std::size_t>(j)] = 'x';
+        }
+      }
+      summary.g_sparsity.push_back(row);
+    }
+    summary.equations.push_back("M(s) a + h(s, v) = H u, a = [" + [&] {
+      std::string a;
+      for (int i = 0; i < n; ++i) a += (i > 0 ? ", " : "") + m.states[static_cast<std::size_t>(n + i)] + "'";
+      return a;
+    }() + "]");
+    for (const Expression& e : mech) {
+      if (e.ast.root >= 0) summary.equations.push_back(e.name + " = " + e.value.Scalar());
+    }
+    for (const Expression& e : outputs) summary.equations.push_back("y." + e.name + " = " + e.value.Scalar());
+    for (const Expression& e : defines) summary.equations.push_back(e.name + " := " + e.value.Scalar());
+    summary.graph_nodes = graph_.size();
+    summary.tape_length = m.mech_jac.length();
+    const riccati_model_v1* table = &m.table;
+    // The model keeps the CompiledModel alive: find the shared_ptr that owns m.
+    RICCATI_ASSIGN_OR_RETURN(out.model, Model::create(table, owner_, "text model " + src_.origin()));
     return out;
   }
 
@@ -634,6 +1058,7 @@ class Compiler {
   std::string_view text_;
   Source src_;
   Graph graph_;
+  std::shared_ptr<CompiledModel> owner_;  // the model being compiled
 };
 
 }  // namespace
