@@ -277,7 +277,7 @@ Tape Tape::compile(const Graph& graph, const std::vector<int>& outputs, int num_
       reg[i] = static_cast<std::uint32_t>(n.k);
       continue;
     }
-    Instruction in{n.op, 0, 0, 0, n.k};
+    Instruction in{n.op, 0, 0, 0};
     if (n.a >= 0) in.a = reg[static_cast<std::size_t>(n.a)];
     if (n.b >= 0) in.b = reg[static_cast<std::size_t>(n.b)];
     if (n.c >= 0) in.c = reg[static_cast<std::size_t>(n.c)];
@@ -288,9 +288,17 @@ Tape Tape::compile(const Graph& graph, const std::vector<int>& outputs, int num_
   return tape;
 }
 
-// One switch over every operation, inlined: the loop's only branch that
-// depends on the model is the jump to the operation, and it repeats with the
-// tape, so it is predicted.
+// One switch over the common operations, inlined; the rest through
+// apply(). Each instruction reads what an earlier one stored, so a tape runs
+// at about the latency of store-to-load forwarding per instruction
+// (docs/benchmarks.md: about 2 ns); a computed goto was tried and gained
+// nothing measurable.
+void Tape::run_split(double* r, std::size_t split, double* first, double* second) const {
+  run(r, nullptr, 0);
+  for (std::size_t i = 0; i < split; ++i) first[i] = r[outputs_[i]];
+  for (std::size_t i = split; i < outputs_.size(); ++i) second[i - split] = r[outputs_[i]];
+}
+
 void Tape::run(double* r, double* out, std::size_t stride) const {
   double* w = r + num_inputs_ + constants_.size();
   for (const Instruction& in : code_) {
@@ -315,6 +323,7 @@ void Tape::run(double* r, double* out, std::size_t stride) const {
     }
     *w++ = v;
   }
+  if (out == nullptr) return;
   for (std::size_t i = 0; i < outputs_.size(); ++i) out[i * stride] = r[outputs_[i]];
 }
 

@@ -85,8 +85,7 @@ class Graph {
 
 struct Instruction {
   Op op;
-  std::uint32_t a, b, c;  // registers
-  double k;
+  std::uint32_t a, b, c;  // registers (constants have registers of their own: no immediate)
 };
 
 class Tape {
@@ -107,6 +106,8 @@ class Tape {
   // Runs the tape on `r` (registers(): the inputs filled in the first ones,
   // the constants loaded) and copies output i to out[i * stride].
   void run(double* r, double* out, std::size_t stride) const;
+  // The same, outputs [0, split) to first and the rest to second.
+  void run_split(double* r, std::size_t split, double* first, double* second) const;
 
   // The same on up to kLanes points at once (a UKF's sigma points): register
   // i holds point j at r[i * kLanes + j], so that each instruction is

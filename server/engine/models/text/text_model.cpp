@@ -536,11 +536,7 @@ class CompiledModel {
       double* r = scratch(m->registers);
       m->load(r, t, u, x, theta, 1, 0);
       tape.load_constants(r);
-      const std::size_t rows = static_cast<std::size_t>(is_f ? m->nx : m->ny);
-      double* values = r + tape.registers();  // the outputs, after the registers
-      tape.run(r, values, 1);
-      std::memcpy(out, values, rows * sizeof(double));
-      std::memcpy(jacobian, values + rows, rows * static_cast<std::size_t>(m->nx + m->ntheta) * sizeof(double));
+      tape.run_split(r, static_cast<std::size_t>(is_f ? m->nx : m->ny), out, jacobian);
       return 0;
     } catch (const std::exception& e) {
       write_error(err, err_len, e.what());
