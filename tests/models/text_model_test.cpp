@@ -580,3 +580,47 @@ TEST(TextModel, TheDocumentedRigExample) {
 
 }  // namespace
 }  // namespace riccati
+
+namespace riccati {
+namespace {
+
+// The optimal filter on the manipulator written as text (the mechanical
+// form): an identification as OptimalFilter.MultiPassIdentificationRunsThe-
+// OptimalFilterToo runs it, with the text model and with the plugin, equal.
+TEST(TextModel, OptimalFilterIdentificationOnTheMechanicalFormEqualsThePlugins) {
+  const ModelPtr plugin = builtins().get("flexible_manipulator").value();
+  auto text = shipped_text_model("flexible_manipulator");
+  ASSERT_TRUE(text.is_ok()) << text.status().to_string();
+  const Dataset data = read_csv_file(std::string(RICCATI_TEST_DATA_DIR) + "/flexible_manipulator.csv",
+                                     ColumnMapping{"t", {"T"}, {"s1", "s2"}})
+                           .value();
+  auto vec = [](std::initializer_list<double> v) {
+    Eigen::VectorXd out(static_cast<Eigen::Index>(v.size()));
+    Eigen::Index i = 0;
+    for (const double x : v) out[i++] = x;
+    return out;
+  };
+  // Case C of docs/optimal-filter.md.
+  IdentificationSettings s;
+  s.filter.kind = FilterKind::kOptimal;
+  s.filter.integrator.kind = IntegratorKind::kRk4;
+  s.filter.integrator.substeps = 1;
+  s.filter.optimal.V = vec({1e6, 1e6, 1e4, 1e6, 1e6}).asDiagonal();
+  s.filter.optimal.W = vec({1e4, 1e4, 1e4, 1e4, 1e10, 1e10, 1e10, 1e10, 1e10, 1e10}).asDiagonal();
+  const Eigen::VectorXd z0 = vec({0, 0, 0, 0, .001, .001, 6.5, .01, .005, .0025});
+  s.initial.x0 = z0.head(4);
+  s.initial.theta0 = z0.tail(6);
+  s.initial.P0 = vec({1e12, 1e12, 1e12, 1e12, 1e1, 1e2, 5e-4, 1e1, 5e3, 5e3}).cwiseInverse().asDiagonal();
+  s.passes = 1;
+  s.end_sample = 800;  // 2 s
+  const auto a = identify(text->model, data, s);
+  const auto b = identify(plugin, data, s);
+  ASSERT_TRUE(a.is_ok()) << a.status().to_string();
+  ASSERT_TRUE(b.is_ok()) << b.status().to_string();
+  for (Eigen::Index i = 0; i < b->theta.size(); ++i) {
+    EXPECT_NEAR(a->theta[i], b->theta[i], 1e-9 * std::abs(b->theta[i])) << i;
+  }
+}
+
+}  // namespace
+}  // namespace riccati
