@@ -472,3 +472,123 @@ BENCHMARK_CAPTURE(HandWrittenTwoTankSimulation, sensitivities, true)->Unit(bench
 }  // namespace riccati
 
 BENCHMARK_MAIN();
+
+
+// Text models (server/engine/models/text) against the compiled plugin, in
+// the same run:
+//
+//   build/bin/engine_bench --benchmark_filter='TextModel|TwoTankModelCallText'
+//
+// TwoTankTextFilterStep: the filter step of TwoTankFilterStep with the
+// two-tank model as a plugin and as text (models/text/two_tank.yaml); the
+// target is text <= 1.5 x plugin. TextModelCompile: parsing, checking,
+// differentiating and compiling to tapes a generated 200-line model
+// (target < 100 ms).
+#include <sstream>
+
+#include "engine/models/text/text_model.hpp"
+
+namespace riccati {
+namespace {
+
+ModelPtr two_tank_text_model() {
+  std::ifstream in(RICCATI_TEXT_MODEL_DIR "/two_tank.yaml");
+  const std::string text((std::istreambuf_iterator<char>(in)), std::istreambuf_iterator<char>());
+  return compile_text_model(text, "two_tank.yaml").value().model;
+}
+
+void TwoTankTextFilterStep(benchmark::State& state, FilterKind kind, bool text) {
+  static TwoTankFixture fixture;
+  static const ModelPtr text_model = two_tank_text_model();
+  const IdentificationSettings s = fixture.hensen(kind);
+  auto filter = make_filter(text ? text_model : fixture.model, s.filter).value();
+  Eigen::VectorXd z0(6);
+  z0 << fixture.data.y.col(0), s.initial.theta0;
+  const Dataset& d = fixture.data;
+  Eigen::Index k = 0;
+  (void)filter->reset(d.t[0], z0, s.initial.P0);
+  for (auto _ : state) {
+    if (++k == d.size()) {
+      k = 1;
+      (void)filter->reset(d.t[0], z0, s.initial.P0);
+    }
+    Status st = filter->predict(d.t[k], d.u.col(k - 1).data(), d.u.col(k).data());
+    if (st.is_ok()) st = filter->update(d.y.col(k).data(), d.u.col(k).data());
+    if (!st.is_ok()) {
+      state.SkipWithError(st.to_string().c_str());
+      break;
+    }
+  }
+}
+BENCHMARK_CAPTURE(TwoTankTextFilterStep, ekf_plugin, FilterKind::kEkf, false)->Unit(benchmark::kMicrosecond);
+BENCHMARK_CAPTURE(TwoTankTextFilterStep, ekf_text, FilterKind::kEkf, true)->Unit(benchmark::kMicrosecond);
+BENCHMARK_CAPTURE(TwoTankTextFilterStep, ukf_plugin, FilterKind::kUkf, false)->Unit(benchmark::kMicrosecond);
+BENCHMARK_CAPTURE(TwoTankTextFilterStep, ukf_text, FilterKind::kUkf, true)->Unit(benchmark::kMicrosecond);
+
+void TwoTankModelCallText(benchmark::State& state, bool jacobian) {
+  static const ModelPtr model = two_tank_text_model();
+  const double x[2] = {0.4, 0.15}, theta[4] = {10, 5, 0.0791, 0.1342}, u[2] = {0.1, 0.03};
+  double out[2], jac[12];
+  for (auto _ : state) {
+    Status s = jacobian ? model->f_jacobian(0.0, u, x, theta, out, jac) : model->f(0.0, u, 1, 1, x, theta, out);
+    benchmark::DoNotOptimize(s);
+    benchmark::DoNotOptimize(out);
+  }
+}
+BENCHMARK_CAPTURE(TwoTankModelCallText, f, false);
+BENCHMARK_CAPTURE(TwoTankModelCallText, f_jacobian, true);
+
+// A 200-line model: 10 states, 10 parameters, 2 inputs, 160 helpers each
+// mixing two earlier names through a function, 10 derivatives, 10 outputs.
+std::string generated_model(int helpers) {
+  std::ostringstream s;
+  s << "model: generated\nstates:\n";
+  for (int i = 0; i < 10; ++i) s << "  x" << i << ": {unit: m}\n";
+  s << "inputs: [u0, u1]\nparameters:\n";
+  for (int j = 0; j < 10; ++j) s << "  p" << j << ": {value: " << 0.5 + 0.1 * j << ", min: 0}\n";
+  s << "define:\n";
+  const char* fns[] = {"sin", "cos", "tanh", "atan", "exp"};
+  auto name = [](int k) {
+    std::ostringstream n;
+    if (k < 10) {
+      n << "x" << k;
+    } else if (k < 20) {
+      n << "p" << k - 10;
+    } else {
+      n << "h" << k - 20;
+    }
+    return n.str();
+  };
+  for (int h = 0; h < helpers; ++h) {
+    const int a = (h * 7 + 3) % (20 + h), b = (h * 13 + 5) % (20 + h);
+    s << "  h" << h << ": " << fns[h % 5] << "(0.1 * " << name(a) << ") * " << name(b) << " + u" << h % 2
+      << " / (1 + " << name(b) << " ^ 2)\n";
+  }
+  s << "der:\n";
+  for (int i = 0; i < 10; ++i) s << "  x" << i << ": h" << helpers - 1 - i << " - p" << i << " * x" << i << "\n";
+  s << "outputs:\n";
+  for (int i = 0; i < 10; ++i) s << "  y" << i << ": x" << i << " + h" << i << "\n";
+  return s.str();
+}
+
+void TextModelCompile(benchmark::State& state) {
+  const std::string text = generated_model(160);
+  std::size_t lines = 0;
+  for (const char c : text) lines += c == '\n' ? 1 : 0;
+  std::size_t tape = 0;
+  for (auto _ : state) {
+    auto m = compile_text_model(text, "generated.yaml");
+    if (!m.is_ok()) {
+      state.SkipWithError(m.status().to_string().c_str());
+      break;
+    }
+    tape = m->summary.tape_length;
+    benchmark::DoNotOptimize(m->model.get());
+  }
+  state.counters["lines"] = static_cast<double>(lines);
+  state.counters["tape"] = static_cast<double>(tape);
+}
+BENCHMARK(TextModelCompile)->Unit(benchmark::kMillisecond);
+
+}  // namespace
+}  // namespace riccati

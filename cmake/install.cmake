@@ -31,11 +31,22 @@ install(DIRECTORY ${PROJECT_SOURCE_DIR}/models/sdk/include/riccati DESTINATION $
         COMPONENT sdk)
 install(TARGETS riccati_model_sdk EXPORT riccatiTargets COMPONENT sdk)
 install(EXPORT riccatiTargets NAMESPACE riccati:: DESTINATION ${RICCATI_INSTALL_CMAKEDIR} COMPONENT sdk)
+# The package twice: for an install (its prefix computed from where the
+# config file lands), and for this build tree, so that
+# -DCMAKE_PREFIX_PATH=<build dir> works too: there the targets are exported
+# in place (the SDK's include directory in the source tree) and the models
+# directory is the build tree's, <build>/lib/riccati/models, the same layout.
 configure_package_config_file(${PROJECT_SOURCE_DIR}/cmake/riccatiConfig.cmake.in
-                              ${PROJECT_BINARY_DIR}/riccatiConfig.cmake
+                              ${PROJECT_BINARY_DIR}/cmake-install/riccatiConfig.cmake
                               INSTALL_DESTINATION ${RICCATI_INSTALL_CMAKEDIR}
                               PATH_VARS RICCATI_INSTALL_MODELSDIR)
+configure_package_config_file(${PROJECT_SOURCE_DIR}/cmake/riccatiConfig.cmake.in
+                              ${PROJECT_BINARY_DIR}/riccatiConfig.cmake
+                              INSTALL_DESTINATION ${PROJECT_BINARY_DIR}
+                              INSTALL_PREFIX ${PROJECT_BINARY_DIR}
+                              PATH_VARS RICCATI_INSTALL_MODELSDIR)
+export(EXPORT riccatiTargets NAMESPACE riccati:: FILE ${PROJECT_BINARY_DIR}/riccatiTargets.cmake)
 write_basic_package_version_file(${PROJECT_BINARY_DIR}/riccatiConfigVersion.cmake
                                  COMPATIBILITY SameMinorVersion ARCH_INDEPENDENT)
-install(FILES ${PROJECT_BINARY_DIR}/riccatiConfig.cmake ${PROJECT_BINARY_DIR}/riccatiConfigVersion.cmake
+install(FILES ${PROJECT_BINARY_DIR}/cmake-install/riccatiConfig.cmake ${PROJECT_BINARY_DIR}/riccatiConfigVersion.cmake
         DESTINATION ${RICCATI_INSTALL_CMAKEDIR} COMPONENT sdk)

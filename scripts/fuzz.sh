@@ -1,5 +1,6 @@
 #!/usr/bin/env bash
-# Fuzzes the CSV and MAT readers and the request validation with libFuzzer
+# Fuzzes the CSV and MAT readers, the request validation and the text model
+# compiler with libFuzzer
 # (clang, AddressSanitizer, UndefinedBehaviorSanitizer), each target for
 # SECONDS seconds (default 60; CI runs 30). Any crash, leak, sanitizer report,
 # timeout (10 s per input) or out-of-memory fails the run; the input that did
@@ -7,6 +8,7 @@
 # sanitized tree that scripts/sanitize.sh tests (scripts/configure-sanitized.sh).
 #
 #   scripts/fuzz.sh [SECONDS] [TARGET...]     targets: csv_fuzz mat_fuzz request_fuzz
+#                                                       text_model_fuzz
 #
 # The corpora grow in build-san/corpus/ from one run to the next.
 set -euo pipefail
@@ -14,7 +16,7 @@ cd "$(dirname "$0")/.."
 seconds=${1:-60}
 shift || true
 targets=("$@")
-[ ${#targets[@]} -gt 0 ] || targets=(csv_fuzz mat_fuzz request_fuzz)
+[ ${#targets[@]} -gt 0 ] || targets=(csv_fuzz mat_fuzz request_fuzz text_model_fuzz)
 
 scripts/install-deps.sh fuzz
 build_dir=${RICCATI_SAN_BUILD_DIR:-build-san}
@@ -34,6 +36,7 @@ for target in "${targets[@]}"; do
     csv_fuzz) seed="$seeds/csv" ;;
     mat_fuzz) seed="$seeds/mat" ;;
     request_fuzz) seed="$seeds/request" ;;
+    text_model_fuzz) seed=models/text ;;  # the shipped text models
     *) echo "fuzz: unknown target $target" >&2; exit 2 ;;
   esac
   echo "fuzz: $target for ${seconds}s"

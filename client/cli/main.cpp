@@ -102,10 +102,15 @@ int main(int argc, char** argv) {
       "health", "Is riccatid serving? grpc.health.v1 Check: prints SERVING (exit 0) or the status (exit 1)");
   health_cmd->add_option("--service", health_service, "A service's name (default: the daemon as a whole)");
 
-  auto* models = app.add_subcommand("models", "List the models (models show NAME: one in detail)");
-  auto* models_show_cmd = models->add_subcommand("show", "Show one model");
+  auto* models = app.add_subcommand("models", "List the models (models show NAME: one in detail; add FILE, remove NAME)");
+  auto* models_show_cmd = models->add_subcommand("show", "Show one model (a text model: its equations and Jacobian sparsity)");
   std::string model_name;
-  models_show_cmd->add_option("name", model_name, "Model name")->required();
+  models_show_cmd->add_option("name", model_name, "Model name (a text model's revision: name@3)")->required();
+  std::string model_file;
+  auto* models_add_cmd = models->add_subcommand("add", "Upload a text model (YAML, docs/text-models.md)");
+  models_add_cmd->add_option("file", model_file, "The model's YAML file")->required();
+  auto* models_remove_cmd = models->add_subcommand("remove", "Remove a text model (jobs that use it keep it)");
+  models_remove_cmd->add_option("name", model_name, "Model name")->required();
 
   auto* data = app.add_subcommand("data", "Datasets: upload, list, show, delete");
   data->require_subcommand(1);
@@ -225,7 +230,12 @@ int main(int argc, char** argv) {
   }
   Client client(connection, timeout, json);
   if (*health_cmd) return health(client, health_service);
-  if (*models) return *models_show_cmd ? models_show(client, model_name) : models_list(client);
+  if (*models) {
+    if (*models_show_cmd) return models_show(client, model_name);
+    if (*models_add_cmd) return models_add(client, model_file);
+    if (*models_remove_cmd) return models_remove(client, model_name);
+    return models_list(client);
+  }
   if (*upload_cmd) return data_upload(client, upload);
   if (*data_list_cmd) return data_list(client);
   if (*data_show_cmd) return data_show(client, data_id);

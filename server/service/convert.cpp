@@ -12,7 +12,8 @@ namespace riccati::service {
 // What a message may show of the bytes it quotes (a CSV header, a cell, a
 // file name): valid UTF-8 as it is, control characters and invalid bytes as
 // \xNN, and at most kMaxMessage bytes of it, so that junk uploaded is not
-// echoed raw into a client's terminal or log.
+// echoed raw into a client's terminal or log. Newlines are kept: a text
+// model's error shows the line of the model with a caret under the spot.
 std::string printable(const std::string& text) {
   constexpr std::size_t kMaxMessage = 2048;
   std::string out;
@@ -26,7 +27,7 @@ std::string printable(const std::string& text) {
   std::size_t i = 0;
   while (i < text.size() && out.size() < kMaxMessage) {
     const auto c = static_cast<unsigned char>(text[i]);
-    if (c >= 0x20 && c < 0x7f) {
+    if ((c >= 0x20 && c < 0x7f) || c == '\n') {
       out += static_cast<char>(c);
       ++i;
       continue;

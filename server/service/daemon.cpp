@@ -138,12 +138,13 @@ Status Daemon::start() {
   for (const auto& r : models_.refused()) spdlog::warn("model refused path={} reason=\"{}\"", r.path, r.reason);
 
   RICCATI_ASSIGN_OR_RETURN(store_, open_store(config_));
+  catalog_ = std::make_unique<ModelCatalog>(models_, *store_);
 
   const int workers = config_.workers > 0 ? config_.workers
                                           : static_cast<int>(std::max(1u, std::thread::hardware_concurrency()));
   JobQueueOptions queue = config_.job_queue;
   queue.exclusive_store = config_.database.empty() || config_.database == "sqlite";
-  jobs_ = std::make_unique<JobManager>(*store_, models_, workers, config_.limits, queue, &metrics_);
+  jobs_ = std::make_unique<JobManager>(*store_, *catalog_, workers, config_.limits, queue, &metrics_);
   RICCATI_RETURN_IF_ERROR(jobs_->start());
   SessionStoreOptions stored_sessions;
   stored_sessions.instance_id = jobs_->instance_id();
@@ -151,12 +152,12 @@ Status Daemon::start() {
   stored_sessions.snapshot_interval = config_.session_snapshot_interval;
   stored_sessions.exclusive_store = queue.exclusive_store;
   stored_sessions.metrics = &metrics_;
-  sessions_ = std::make_unique<SessionManager>(models_, config_.session_idle_timeout, config_.limits, store_.get(),
+  sessions_ = std::make_unique<SessionManager>(*catalog_, config_.session_idle_timeout, config_.limits, store_.get(),
                                                stored_sessions);
   RICCATI_RETURN_IF_ERROR(sessions_->start());
 
   RICCATI_ASSIGN_OR_RETURN(auth_, Authenticator::create(config_.security.tokens_file));
-  model_service_ = std::make_unique<ModelServiceImpl>(models_, config_.limits);
+  model_service_ = std::make_unique<ModelServiceImpl>(*auth_, *catalog_, config_.limits);
   datasets_ = std::make_unique<DatasetManager>(*store_, config_.limits);
   stream_slots_ = std::make_unique<StreamSlots>(config_.limits);
   dataset_service_ = std::make_unique<DatasetServiceImpl>(*auth_, *datasets_, *stream_slots_);

@@ -76,6 +76,7 @@ class Daemon {
   Metrics metrics_;  // first in, last out: the server's interceptor counts into it
   ModelRegistry models_;
   std::unique_ptr<Store> store_;
+  std::unique_ptr<ModelCatalog> catalog_;  // models_ and the tenants' text models in store_
   std::unique_ptr<DatasetManager> datasets_;
   std::unique_ptr<JobManager> jobs_;
   std::unique_ptr<SessionManager> sessions_;

@@ -120,6 +120,18 @@ const std::vector<const char*> kMigrations = {
       created_ms BIGINT NOT NULL,
       PRIMARY KEY (tenant, request_id));
     )sql",
+    // 7: text models uploaded by tenants, every revision.
+    R"sql(
+    CREATE TABLE models (
+      tenant TEXT NOT NULL,
+      name TEXT NOT NULL,
+      revision BIGINT NOT NULL,
+      source BYTEA NOT NULL,
+      sha256 TEXT NOT NULL,
+      created_ms BIGINT NOT NULL,
+      deleted BOOLEAN NOT NULL DEFAULT false,
+      PRIMARY KEY (tenant, name, revision));
+    )sql",
 };
 
 // Leases are read against the database's clock, so that instances on hosts
@@ -826,6 +838,76 @@ class PostgresStore final : public Store {
           " AND updated_ms < " RICCATI_PG_NOW_MS " - $1",
           idle_ms);
       return static_cast<int>(r.affected_rows());
+    });
+  }
+
+  Result<ModelRecord> put_model(const ModelRecord& record) override {
+    // Two instances storing the same name at once collide on the primary
+    // key; the loser is told to try again (not idempotent: no retry here).
+    return run<pqxx::nontransaction>("storing model " + record.name, false, [&](auto& tx) -> Result<ModelRecord> {
+      const pqxx::result r = tx.exec_params(
+          "INSERT INTO models (tenant, name, revision, source, sha256, created_ms, deleted) SELECT $1, $2, "
+          "coalesce(max(revision), 0) + 1, $3::bytea, $4, $5, false FROM models WHERE tenant = $1 AND name = $2 "
+          "RETURNING revision",
+          record.tenant, record.name, pqxx::binarystring(record.source), record.sha256, record.created_ms);
+      ModelRecord out = record;
+      out.revision = r[0][0].as<std::int64_t>();
+      out.deleted = false;
+      return out;
+    });
+  }
+
+  Result<ModelRecord> get_model(const std::string& tenant, const std::string& name, std::int64_t revision) override {
+    const std::string which = revision > 0 ? name + "@" + std::to_string(revision) : name;
+    return run<pqxx::nontransaction>("reading model " + which, true, [&](auto& tx) -> Result<ModelRecord> {
+      const pqxx::result r =
+          revision > 0 ? tx.exec_params("SELECT revision, source, sha256, created_ms, deleted FROM models WHERE tenant = "
+                                        "$1 AND name = $2 AND revision = $3",
+                                        tenant, name, revision)
+                       : tx.exec_params("SELECT revision, source, sha256, created_ms, deleted FROM models WHERE tenant = "
+                                        "$1 AND name = $2 AND NOT deleted ORDER BY revision DESC LIMIT 1",
+                                        tenant, name);
+      if (r.empty()) return not_found("no model \"" + which + "\"");
+      ModelRecord m;
+      m.tenant = tenant;
+      m.name = name;
+      m.revision = r[0][0].as<std::int64_t>();
+      m.source = bytes_of(r[0][1]);
+      m.sha256 = r[0][2].as<std::string>();
+      m.created_ms = r[0][3].as<std::int64_t>();
+      m.deleted = r[0][4].as<bool>();
+      return m;
+    });
+  }
+
+  Result<std::vector<ModelRecord>> list_models(const std::string& tenant) override {
+    return run<pqxx::nontransaction>("listing models", true, [&](auto& tx) -> Result<std::vector<ModelRecord>> {
+      const pqxx::result r = tx.exec_params(
+          "SELECT DISTINCT ON (name) name, revision, source, sha256, created_ms, deleted FROM models WHERE tenant = $1 "
+          "ORDER BY name, revision DESC",
+          tenant);
+      std::vector<ModelRecord> out;
+      for (const auto& row : r) {
+        if (row[5].as<bool>()) continue;  // the latest revision is deleted: the name is
+        ModelRecord m;
+        m.tenant = tenant;
+        m.name = row[0].as<std::string>();
+        m.revision = row[1].as<std::int64_t>();
+        m.source = bytes_of(row[2]);
+        m.sha256 = row[3].as<std::string>();
+        m.created_ms = row[4].as<std::int64_t>();
+        out.push_back(std::move(m));
+      }
+      return out;
+    });
+  }
+
+  Status delete_model(const std::string& tenant, const std::string& name) override {
+    return run<pqxx::nontransaction>("deleting model " + name, true, [&](auto& tx) -> Status {
+      const pqxx::result r = tx.exec_params(
+          "UPDATE models SET deleted = true WHERE tenant = $1 AND name = $2 AND NOT deleted", tenant, name);
+      if (r.affected_rows() == 0) return not_found("no model \"" + name + "\"");
+      return Status::ok();
     });
   }
 

@@ -112,6 +112,18 @@ const std::vector<const char*> kMigrations = {
       created_ms INTEGER NOT NULL,
       PRIMARY KEY (tenant, request_id));
     )sql",
+    // 8: text models uploaded by tenants, every revision.
+    R"sql(
+    CREATE TABLE models (
+      tenant TEXT NOT NULL,
+      name TEXT NOT NULL,
+      revision INTEGER NOT NULL,
+      source BLOB NOT NULL,
+      sha256 TEXT NOT NULL,
+      created_ms INTEGER NOT NULL,
+      deleted INTEGER NOT NULL DEFAULT 0,
+      PRIMARY KEY (tenant, name, revision));
+    )sql",
 };
 
 // Names never contain the ASCII unit separator, so it can join them.
@@ -762,6 +774,77 @@ class SqliteStore final : public Store {
     q.integer(now).integer(now - idle_ms);
     RICCATI_RETURN_IF_ERROR(done(q, "deleting abandoned session snapshots"));
     return sqlite3_changes(db_.get());
+  }
+
+  Result<ModelRecord> put_model(const ModelRecord& record) override {
+    std::lock_guard lock(mu_);
+    // One statement, under the store's lock: the next revision cannot be taken twice.
+    Statement q(db_.get(),
+                "INSERT INTO models (tenant, name, revision, source, sha256, created_ms, deleted) SELECT ?, ?, "
+                "coalesce(max(revision), 0) + 1, ?, ?, ?, 0 FROM models WHERE tenant = ? AND name = ? RETURNING revision");
+    q.text(record.tenant).text(record.name).blob(record.source).text(record.sha256).integer(record.created_ms)
+        .text(record.tenant).text(record.name);
+    if (q.step() != SQLITE_ROW) return error("storing model " + record.name);
+    ModelRecord out = record;
+    out.revision = q.column_int(0);
+    out.deleted = false;
+    RICCATI_RETURN_IF_ERROR(done(q, "storing model " + record.name));
+    return out;
+  }
+
+  Result<ModelRecord> get_model(const std::string& tenant, const std::string& name, std::int64_t revision) override {
+    std::lock_guard lock(mu_);
+    Statement q(db_.get(), revision > 0
+                               ? "SELECT revision, source, sha256, created_ms, deleted FROM models WHERE tenant = ? AND "
+                                 "name = ? AND revision = ?"
+                               : "SELECT revision, source, sha256, created_ms, deleted FROM models WHERE tenant = ? AND "
+                                 "name = ? AND deleted = 0 ORDER BY revision DESC LIMIT 1");
+    q.text(tenant).text(name);
+    if (revision > 0) q.integer(revision);
+    const int rc = q.step();
+    const std::string which = revision > 0 ? name + "@" + std::to_string(revision) : name;
+    if (rc == SQLITE_DONE) return not_found("no model \"" + which + "\"");
+    if (rc != SQLITE_ROW) return error("reading model " + which);
+    ModelRecord r;
+    r.tenant = tenant;
+    r.name = name;
+    r.revision = q.column_int(0);
+    r.source = q.column_blob(1);
+    r.sha256 = q.column_text(2);
+    r.created_ms = q.column_int(3);
+    r.deleted = q.column_int(4) != 0;
+    return r;
+  }
+
+  Result<std::vector<ModelRecord>> list_models(const std::string& tenant) override {
+    std::lock_guard lock(mu_);
+    Statement q(db_.get(),
+                "SELECT name, revision, source, sha256, created_ms FROM models m WHERE tenant = ? AND deleted = 0 AND "
+                "revision = (SELECT max(revision) FROM models WHERE tenant = m.tenant AND name = m.name) ORDER BY name");
+    q.text(tenant);
+    std::vector<ModelRecord> out;
+    int rc;
+    while ((rc = q.step()) == SQLITE_ROW) {
+      ModelRecord r;
+      r.tenant = tenant;
+      r.name = q.column_text(0);
+      r.revision = q.column_int(1);
+      r.source = q.column_blob(2);
+      r.sha256 = q.column_text(3);
+      r.created_ms = q.column_int(4);
+      out.push_back(std::move(r));
+    }
+    if (rc != SQLITE_DONE) return error("listing models");
+    return out;
+  }
+
+  Status delete_model(const std::string& tenant, const std::string& name) override {
+    std::lock_guard lock(mu_);
+    Statement q(db_.get(), "UPDATE models SET deleted = 1 WHERE tenant = ? AND name = ? AND deleted = 0");
+    q.text(tenant).text(name);
+    RICCATI_RETURN_IF_ERROR(done(q, "deleting model " + name));
+    if (sqlite3_changes(db_.get()) == 0) return not_found("no model \"" + name + "\"");
+    return Status::ok();
   }
 
  private:

@@ -109,6 +109,19 @@ struct JobRecord {
   int attempts = 0;
 };
 
+// A text model uploaded by a tenant (CreateModel): every revision is kept,
+// so that a job that names one (name@revision) runs on what it was submitted
+// with even after the name is given new equations or deleted.
+struct ModelRecord {
+  std::string tenant;
+  std::string name;
+  std::int64_t revision = 0;  // 1, 2, ... per (tenant, name), set by put_model
+  std::string source;         // the YAML text, as uploaded
+  std::string sha256;         // of source, 64 hex digits
+  std::int64_t created_ms = 0;
+  bool deleted = false;  // DeleteModel: hidden from the name, kept for the jobs that use it
+};
+
 // How much a store holds (the metric riccati_store_bytes).
 struct StoreUsage {
   std::int64_t database_bytes = 0;  // on disk: SQLite's file, PostgreSQL's pg_database_size
@@ -253,6 +266,18 @@ class Store {
   // were last stored more than `idle_ms` ago: sessions of instances that
   // died, which nobody resumed within the idle timeout. Returns how many.
   virtual Result<int> delete_abandoned_session_snapshots(std::int64_t idle_ms) = 0;
+
+  // Text models. put_model stores `record` as the next revision of
+  // (tenant, name) and returns it with its revision set (a name deleted
+  // before continues its count). get_model with revision 0 gives the latest
+  // revision unless the name is deleted; with a revision, that one, deleted
+  // or not; NOT_FOUND otherwise. list_models: the latest revision of each
+  // name not deleted, by name. delete_model marks every revision of the name
+  // deleted; NOT_FOUND if it has none live.
+  virtual Result<ModelRecord> put_model(const ModelRecord& record) = 0;
+  virtual Result<ModelRecord> get_model(const std::string& tenant, const std::string& name, std::int64_t revision) = 0;
+  virtual Result<std::vector<ModelRecord>> list_models(const std::string& tenant) = 0;
+  virtual Status delete_model(const std::string& tenant, const std::string& name) = 0;
 };
 
 // Opens (creating if needed) the SQLite store in `path` and brings its schema

@@ -14,6 +14,7 @@
 #include "support/two_tank_hensen.hpp"
 #include "engine/estimation/identification.hpp"
 #include "engine/models/plugin_loader.hpp"
+#include "engine/models/text/text_model.hpp"
 
 namespace riccati {
 namespace {
@@ -119,6 +120,49 @@ TEST_F(CliTest, ColumnsNamedAsTheModelsNeedNoMapping) {
     EXPECT_EQ(d["input_names"], nlohmann::json::parse(R"(["F1", "F2"])"));
     EXPECT_EQ(d["output_names"], nlohmann::json::parse(R"(["h1", "h2"])"));
   }
+}
+
+// A user's own model: one `models add`, one `identify` (the issue's target).
+// The result equals the engine's, in this process, on the same text.
+TEST_F(CliTest, AddShowIdentifyAndRemoveATextModel) {
+  const std::string file = std::string(RICCATI_TEXT_MODEL_DIR) + "/two_tank.yaml";
+  const CliRun added = riccati("models add " + file);
+  ASSERT_EQ(added.exit_code, 0) << last_stderr();
+  EXPECT_EQ(added.out.rfind("two_tank_text@1: 2 states, 4 parameters, 2 inputs, 2 outputs", 0), 0u) << added.out;
+
+  const CliRun shown = riccati("models show two_tank_text");
+  ASSERT_EQ(shown.exit_code, 0) << last_stderr();
+  for (const char* line : {"h1' = (F1 - q1) / A1", "q1 := k1 * if(h1 > 0, sqrt(h1), 0)",
+                           "Jacobian columns [x; theta]: h1 h2 A1 A2 k1 k2", "h1'          x.x.x.",
+                           "h2'          xx.xxx"}) {
+    EXPECT_NE(shown.out.find(line), std::string::npos) << line << "\n" << shown.out;
+  }
+
+  const CliRun upload = riccati("data upload " + kData + "/two_tank.csv --inputs F1,F2 --outputs h1,h2");
+  ASSERT_EQ(upload.exit_code, 0) << last_stderr();
+  const std::string dataset = upload.out.substr(0, upload.out.find('\n'));
+  const CliRun identified = riccati("--json identify --config " + std::string(RICCATI_EXAMPLES_DIR) +
+                                    "/two_tank_hensen.yaml --model two_tank_text --data " + dataset);
+  ASSERT_EQ(identified.exit_code, 0) << last_stderr();
+  const auto mean = nlohmann::json::parse(identified.out)["identification"]["theta_mean"];
+  ASSERT_EQ(mean.size(), 4u);
+  std::ifstream in(file);
+  const std::string text((std::istreambuf_iterator<char>(in)), std::istreambuf_iterator<char>());
+  const auto model = compile_text_model(text, file).value().model;
+  auto data = read_csv_file(kData + "/two_tank.csv", ColumnMapping{"t", {"F1", "F2"}, {"h1", "h2"}}).value();
+  const auto local = identify(model, data, testing::two_tank_hensen());
+  ASSERT_TRUE(local.is_ok());
+  for (int i = 0; i < 4; ++i) EXPECT_EQ(mean[i].get<double>(), local.value().theta_mean[i]) << i;
+
+  // A bad file: exit 1, the place and the caret on stderr.
+  std::ofstream(dir_.path() / "bad.yaml") << "model: bad\nstates: [x]\nder:\n  x: x * k\noutputs: {y: x}\n";
+  const CliRun bad = riccati("models add " + (dir_.path() / "bad.yaml").string());
+  EXPECT_EQ(bad.exit_code, 1);
+  EXPECT_NE(last_stderr().find("bad.yaml:4:10: unknown name \"k\""), std::string::npos) << last_stderr();
+  EXPECT_NE(last_stderr().find("\n    x: x * k\n           ^\n"), std::string::npos) << last_stderr();
+
+  EXPECT_EQ(riccati("models remove two_tank_text").exit_code, 0) << last_stderr();
+  EXPECT_EQ(riccati("models show two_tank_text").exit_code, 4);
 }
 
 TEST_F(CliTest, ExitCodesAndMessagesForBadInput) {

@@ -214,6 +214,51 @@ TEST_P(StoreTest, TenantsSeeOnlyTheirOwnRecords) {
   EXPECT_EQ(store->claim_session_snapshot("alice", "ses-a", "inst-1", 60000).value(), "snap");
 }
 
+// Text models: every upload of a name is its next revision; a deleted name
+// is hidden but its revisions stay readable for the jobs that name them;
+// another tenant sees none of it.
+TEST_P(StoreTest, TextModelsKeepEveryRevisionPerTenant) {
+  auto store = open();
+  auto model = [](const std::string& tenant, const std::string& name, const std::string& source) {
+    ModelRecord m;
+    m.tenant = tenant;
+    m.name = name;
+    m.source = source;
+    m.sha256 = std::string(64, 'a');
+    m.created_ms = 5;
+    return m;
+  };
+  const std::string binary("model: m\0\xff", 11);  // bytes, whatever they are
+  EXPECT_EQ(store->put_model(model("alice", "tank", "v1")).value().revision, 1);
+  EXPECT_EQ(store->put_model(model("alice", "tank", binary)).value().revision, 2);
+  EXPECT_EQ(store->put_model(model("alice", "arm", "a1")).value().revision, 1);
+  EXPECT_EQ(store->put_model(model("bob", "tank", "b1")).value().revision, 1);
+  EXPECT_EQ(store->get_model("alice", "tank", 0).value().source, binary);
+  EXPECT_EQ(store->get_model("alice", "tank", 0).value().revision, 2);
+  EXPECT_EQ(store->get_model("alice", "tank", 1).value().source, "v1");
+  EXPECT_EQ(store->get_model("bob", "tank", 0).value().source, "b1");
+  EXPECT_EQ(store->get_model("bob", "arm", 0).status().code(), StatusCode::kNotFound);
+  EXPECT_EQ(store->get_model("bob", "tank", 2).status().code(), StatusCode::kNotFound);
+  auto listed = store->list_models("alice").value();
+  ASSERT_EQ(listed.size(), 2u);
+  EXPECT_EQ(listed[0].name, "arm");
+  EXPECT_EQ(listed[1].name, "tank");
+  EXPECT_EQ(listed[1].revision, 2);
+  EXPECT_EQ(listed[1].sha256, std::string(64, 'a'));
+
+  EXPECT_EQ(store->delete_model("bob", "arm").code(), StatusCode::kNotFound);
+  ASSERT_TRUE(store->delete_model("alice", "tank").is_ok());
+  EXPECT_EQ(store->delete_model("alice", "tank").code(), StatusCode::kNotFound);
+  EXPECT_EQ(store->get_model("alice", "tank", 0).status().code(), StatusCode::kNotFound);
+  EXPECT_TRUE(store->get_model("alice", "tank", 2).value().deleted);
+  EXPECT_EQ(store->list_models("alice").value().size(), 1u);
+  EXPECT_EQ(store->get_model("bob", "tank", 0).value().revision, 1);
+  // Uploaded again, the name continues its count: tank@2 stays what it was.
+  EXPECT_EQ(store->put_model(model("alice", "tank", "v3")).value().revision, 3);
+  EXPECT_EQ(store->get_model("alice", "tank", 0).value().source, "v3");
+  EXPECT_EQ(store->get_model("alice", "tank", 2).value().source, binary);
+}
+
 TEST_P(StoreTest, DuplicatesAndMissingRecords) {
   auto store = open();
   const Dataset d = random_dataset(10, 3);
@@ -730,7 +775,7 @@ TEST(PostgresStore, StoresOpeningAtOnceOnAnEmptyDatabaseAllSucceed) {
   for (int i = 0; i < kStores; ++i) ASSERT_TRUE(opened[i].is_ok()) << i << ": " << opened[i].status().to_string();
   const pqxx::result versions = schema.exec("SELECT version FROM riccati_schema_migrations ORDER BY version");
   // Each migration applied once, in order.
-  ASSERT_EQ(versions.size(), 6u);  // postgres_store.cpp's migrations
+  ASSERT_EQ(versions.size(), 7u);  // postgres_store.cpp's migrations
   for (int v = 0; v < static_cast<int>(versions.size()); ++v) EXPECT_EQ(versions[v][0].as<int>(), v + 1);
   // And they share one database: what one stores, another reads.
   ASSERT_TRUE(opened[0].value()->put_job_pass("t", "none", 1, "c").code() == StatusCode::kNotFound);

@@ -26,7 +26,7 @@ import unittest
 import urllib.request
 
 from selenium import webdriver
-from selenium.common.exceptions import NoAlertPresentException, TimeoutException
+from selenium.common.exceptions import NoAlertPresentException, StaleElementReferenceException, TimeoutException
 from selenium.webdriver.chrome.service import Service
 from selenium.webdriver.common.by import By
 from selenium.webdriver.support import expected_conditions as EC
@@ -128,7 +128,10 @@ class Workbench(unittest.TestCase):
             return json.loads(response.read() or b"{}")
 
     def wait(self, condition, timeout=WAIT):
-        return WebDriverWait(self.driver, timeout).until(condition)
+        # A table redrawn while the condition reads it leaves stale elements:
+        # the condition is tried again.
+        return WebDriverWait(self.driver, timeout,
+                             ignored_exceptions=[StaleElementReferenceException]).until(condition)
 
     def find(self, css):
         return self.wait(EC.presence_of_element_located((By.CSS_SELECTOR, css)))

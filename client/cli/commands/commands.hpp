@@ -22,6 +22,10 @@ int health(Client& c, const std::string& service);
 
 int models_list(Client& c);
 int models_show(Client& c, const std::string& name);
+// A text model (docs/text-models.md): stored for the caller's tenant.
+int models_add(Client& c, const std::string& file);
+int models_remove(Client& c, const std::string& name);
+void print_text_model(const v1::ModelInfo& info);
 
 struct UploadOptions {
   std::string file, name, time = "t";

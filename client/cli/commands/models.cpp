@@ -1,4 +1,7 @@
 #include <cstdio>
+#include <filesystem>
+#include <fstream>
+#include <sstream>
 
 #include "commands/commands.hpp"
 #include "output.hpp"
@@ -48,6 +51,90 @@ int models_show(Client& c, const std::string& name) {
   for (int i = 0; i < info.param_names_size(); ++i) {
     std::printf("  %-10s %12.6g %12.6g %12.6g\n", info.param_names(i).c_str(), info.theta_default(i),
                 info.theta_lower(i), info.theta_upper(i));
+  }
+  if (info.has_text()) print_text_model(info);
+  return kExitOk;
+}
+
+namespace {
+
+// A column header of one character per z = [x; theta]: the names' first
+// letters would collide, so the columns are numbered and the names listed.
+void print_sparsity(const v1::ModelInfo& info, const char* what,
+                    const google::protobuf::RepeatedPtrField<std::string>& rows,
+                    const google::protobuf::RepeatedPtrField<std::string>& row_names, const char* prime) {
+  std::printf("  d%s/d[x; theta] ('x' may be non-zero, '.' is zero everywhere):\n", what);
+  for (int i = 0; i < rows.size(); ++i) {
+    std::printf("    %-12s %s\n", (row_names.Get(i) + prime).c_str(), rows.Get(i).c_str());
+  }
+  (void)info;
+}
+
+}  // namespace
+
+void print_text_model(const v1::ModelInfo& info) {
+  const v1::TextModelInfo& text = info.text();
+  if (text.revision() > 0) {
+    std::printf("  text model, revision %llu (%s@%llu), sha256 %s\n", static_cast<unsigned long long>(text.revision()),
+                info.name().c_str(), static_cast<unsigned long long>(text.revision()), text.sha256().c_str());
+  } else {
+    std::printf("  text model from the models directory, sha256 %s\n", text.sha256().c_str());
+  }
+  std::printf("  equations:\n");
+  for (const auto& e : text.equations()) std::printf("    %s\n", e.c_str());
+  std::string columns;
+  for (const auto& n : info.state_names()) columns += (columns.empty() ? "" : " ") + n;
+  for (const auto& n : info.param_names()) columns += " " + n;
+  std::printf("  Jacobian columns [x; theta]: %s\n", columns.c_str());
+  print_sparsity(info, "f", text.f_sparsity(), info.state_names(), "'");
+  print_sparsity(info, "g", text.g_sparsity(), info.output_names(), "");
+  std::printf("  compiled: %llu instructions for f and its Jacobian\n",
+              static_cast<unsigned long long>(text.tape_length()));
+}
+
+int models_add(Client& c, const std::string& file) {
+  std::ifstream in(file, std::ios::binary);
+  if (!in) {
+    std::fprintf(stderr, "riccati: cannot open %s\n", file.c_str());
+    return kExitUsage;
+  }
+  std::ostringstream source;
+  source << in.rdbuf();
+  v1::CreateModelRequest request;
+  request.set_source(source.str());
+  request.set_file_name(std::filesystem::path(file).filename().string());
+  auto ctx = c.context();
+  v1::ModelInfo info;
+  if (const grpc::Status s = c.models->CreateModel(ctx.get(), request, &info); !s.ok()) {
+    return c.fail("adding model " + file, s);
+  }
+  if (c.json) {
+    std::printf("%s\n", to_json(info).c_str());
+    return kExitOk;
+  }
+  std::printf("%s@%llu: %zu states, %zu parameters, %zu inputs, %zu outputs\n", info.name().c_str(),
+              static_cast<unsigned long long>(info.text().revision()), static_cast<std::size_t>(info.state_names_size()),
+              static_cast<std::size_t>(info.param_names_size()), static_cast<std::size_t>(info.input_names_size()),
+              static_cast<std::size_t>(info.output_names_size()));
+  const v1::JacobianCheck& check = info.jacobian_check();
+  if (check.checked() && !check.agrees()) {
+    std::printf("  WRONG: its Jacobians disagree with finite differences (%s)\n", check.detail().c_str());
+  }
+  return kExitOk;
+}
+
+int models_remove(Client& c, const std::string& name) {
+  v1::DeleteModelRequest request;
+  request.set_name(name);
+  auto ctx = c.context();
+  v1::DeleteModelResponse response;
+  if (const grpc::Status s = c.models->DeleteModel(ctx.get(), request, &response); !s.ok()) {
+    return c.fail("removing model " + name, s);
+  }
+  if (c.json) {
+    std::printf("{}\n");
+  } else {
+    std::printf("removed %s\n", name.c_str());
   }
   return kExitOk;
 }

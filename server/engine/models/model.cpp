@@ -87,11 +87,16 @@ Result<ModelPtr> Model::create(const riccati_model_v1* t, std::shared_ptr<void> 
   if (t->nx == 0 || t->nx > kMaxSize) return fail("model " + std::string(t->name) + " has nx = " + std::to_string(t->nx));
   if (t->ny == 0 || t->ny > kMaxSize) return fail("model " + std::string(t->name) + " has ny = " + std::to_string(t->ny));
   if (t->ntheta > kMaxSize || t->nu > kMaxSize) return fail("model " + std::string(t->name) + " sizes are too large");
-  if (t->f == nullptr || t->g == nullptr) return fail("model " + std::string(t->name) + " does not provide f and g");
   // Appended fields exist only as far as the plugin's table reaches.
   const bool has_mech_fields = t->struct_size >= offsetof(riccati_model_v1, mech) + sizeof(t->mech);
+  const bool has_ctx_fields = t->struct_size >= offsetof(riccati_model_v1, mech_ctx) + sizeof(t->mech_ctx);
+  const bool with_context = has_ctx_fields && (t->f_ctx != nullptr || t->g_ctx != nullptr);
+  if (with_context ? (t->f_ctx == nullptr || t->g_ctx == nullptr) : (t->f == nullptr || t->g == nullptr)) {
+    return fail("model " + std::string(t->name) + " does not provide f and g");
+  }
   const uint32_t ndof = has_mech_fields ? t->ndof : 0;
-  if (ndof > 0 && (t->mech == nullptr || 2 * ndof != t->nx)) {
+  const bool has_mech = with_context ? t->mech_ctx != nullptr : t->mech != nullptr;
+  if (ndof > 0 && (!has_mech || 2 * ndof != t->nx)) {
     return fail("model " + std::string(t->name) + " declares " + std::to_string(ndof) +
                 " degrees of freedom: it needs nx = 2 ndof states [s; v] (it has " + std::to_string(t->nx) +
                 ") and a mech function");
@@ -109,7 +114,9 @@ Result<ModelPtr> Model::create(const riccati_model_v1* t, std::shared_ptr<void> 
   m->nu_ = static_cast<int>(t->nu);
   m->ny_ = static_cast<int>(t->ny);
   m->ndof_ = static_cast<int>(ndof);
-  m->mech_ = ndof > 0 ? t->mech : nullptr;
+  m->with_context_ = with_context;
+  m->mech_ = ndof > 0 && !with_context ? t->mech : nullptr;
+  m->mech_ctx_ = ndof > 0 && with_context ? t->mech_ctx : nullptr;
 
   const std::string who = "model " + m->name_ + ": ";
   Status s = read_names(t->state_names, t->nx, "state", &m->state_names_);
@@ -148,8 +155,12 @@ Status Model::eval(bool is_f, double t, const double* u, int n, std::size_t ld, 
                    const double* theta, double* out) const {
   std::array<char, kErrorBufferSize> err;  // not zeroed: written only on failure
   err[0] = '\0';
-  const riccati_eval_fn fn = is_f ? table_->f : table_->g;
-  if (fn(static_cast<uint32_t>(n), ld, t, u, x, theta, out, err.data(), err.size()) != 0) {
+  const int failed = with_context_
+                         ? (is_f ? table_->f_ctx : table_->g_ctx)(table_->user_data, static_cast<uint32_t>(n), ld, t, u,
+                                                                  x, theta, out, err.data(), err.size())
+                         : (is_f ? table_->f : table_->g)(static_cast<uint32_t>(n), ld, t, u, x, theta, out, err.data(),
+                                                          err.size());
+  if (failed != 0) {
     return internal_error("model " + name_ + ": " + (is_f ? "f" : "g") + " failed at t = " + std::to_string(t) +
                           ": " + err.data());
   }
@@ -172,11 +183,15 @@ Status Model::g(double t, const double* u, int n, std::size_t ld, const double* 
 
 Status Model::jacobian(bool is_f, double t, const double* u, const double* x, const double* theta, double* out,
                        double* jac) const {
-  const riccati_jac_fn fn = is_f ? table_->f_jac : table_->g_jac;
-  if (fn == nullptr) return finite_difference_jacobian(is_f, t, u, x, theta, out, jac);
+  if (!(is_f ? has_f_jacobian() : has_g_jacobian())) return finite_difference_jacobian(is_f, t, u, x, theta, out, jac);
   std::array<char, kErrorBufferSize> err;  // not zeroed: written only on failure
   err[0] = '\0';
-  if (fn(t, u, x, theta, out, jac, err.data(), err.size()) != 0) {
+  const int failed =
+      with_context_
+          ? (is_f ? table_->f_jac_ctx : table_->g_jac_ctx)(table_->user_data, t, u, x, theta, out, jac, err.data(),
+                                                           err.size())
+          : (is_f ? table_->f_jac : table_->g_jac)(t, u, x, theta, out, jac, err.data(), err.size());
+  if (failed != 0) {
     return internal_error("model " + name_ + ": Jacobian of " + (is_f ? "f" : "g") + " failed at t = " +
                           std::to_string(t) + ": " + err.data());
   }
@@ -227,10 +242,13 @@ Status Model::g_jacobian(double t, const double* u, const double* x, const doubl
 
 Status Model::mechanical(double t, const double* x, const double* theta, double* c, double* Fc, double* c_jac,
                          double* Fc_jac) const {
-  if (mech_ == nullptr) return failed_precondition("model " + name_ + " has no mechanical form (M a + h = H u)");
+  if (!has_mechanical_form()) return failed_precondition("model " + name_ + " has no mechanical form (M a + h = H u)");
   std::array<char, kErrorBufferSize> err;  // not zeroed: written only on failure
   err[0] = '\0';
-  if (mech_(t, x, theta, c, Fc, c_jac, Fc_jac, err.data(), err.size()) != 0) {
+  const int failed = mech_ctx_ != nullptr
+                         ? mech_ctx_(table_->user_data, t, x, theta, c, Fc, c_jac, Fc_jac, err.data(), err.size())
+                         : mech_(t, x, theta, c, Fc, c_jac, Fc_jac, err.data(), err.size());
+  if (failed != 0) {
     return internal_error("model " + name_ + ": mechanical form failed at t = " + std::to_string(t) + ": " +
                           err.data());
   }

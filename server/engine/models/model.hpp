@@ -35,7 +35,7 @@ class Model {
   int nz() const { return nx_ + ntheta_; }  // augmented state [x; theta]
   // Degrees of freedom of the mechanical form (0: the model has none).
   int ndof() const { return ndof_; }
-  bool has_mechanical_form() const { return mech_ != nullptr; }
+  bool has_mechanical_form() const { return mech_ != nullptr || mech_ctx_ != nullptr; }
 
   const std::vector<std::string>& state_names() const { return state_names_; }
   const std::vector<std::string>& param_names() const { return param_names_; }
@@ -46,8 +46,8 @@ class Model {
   const Eigen::VectorXd& theta_upper() const { return theta_upper_; }
 
   // Whether the plugin gives exact Jacobians (else: central finite differences).
-  bool has_f_jacobian() const { return table_->f_jac != nullptr; }
-  bool has_g_jacobian() const { return table_->g_jac != nullptr; }
+  bool has_f_jacobian() const { return with_context_ ? table_->f_jac_ctx != nullptr : table_->f_jac != nullptr; }
+  bool has_g_jacobian() const { return with_context_ ? table_->g_jac_ctx != nullptr : table_->g_jac != nullptr; }
 
   // f or g at n points stored variable-major with leading dimension ld (see
   // model_abi.h): x [nx * ld], theta [ntheta * ld], out [nx or ny * ld].
@@ -91,6 +91,10 @@ class Model {
   std::string name_, version_, description_, origin_;
   int nx_ = 0, ntheta_ = 0, nu_ = 0, ny_ = 0, ndof_ = 0;
   riccati_mech_fn mech_ = nullptr;
+  // The table's functions with a context (model_abi.h): set when the table
+  // gives f_ctx and g_ctx, and then used instead of the plain ones.
+  bool with_context_ = false;
+  riccati_mech_ctx_fn mech_ctx_ = nullptr;
   std::vector<std::string> state_names_, param_names_, input_names_, output_names_;
   Eigen::VectorXd theta_default_, theta_lower_, theta_upper_;
 };

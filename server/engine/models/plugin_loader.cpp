@@ -6,6 +6,8 @@
 
 #include <algorithm>
 #include <filesystem>
+#include <fstream>
+#include <optional>
 #include <memory>
 #include <system_error>
 
@@ -92,7 +94,8 @@ Result<ModelRegistry> ModelRegistry::load_directory(const std::string& dir) {
   std::error_code ec;
   std::vector<fs::path> files;
   for (const auto& entry : fs::directory_iterator(dir, ec)) {
-    if (entry.path().extension() == ".so") files.push_back(entry.path());
+    const fs::path ext = entry.path().extension();
+    if (ext == ".so" || ext == ".yaml" || ext == ".yml") files.push_back(entry.path());
   }
   if (ec) return invalid_argument("cannot read models directory " + dir + ": " + ec.message());
   std::sort(files.begin(), files.end());
@@ -108,7 +111,18 @@ Result<ModelRegistry> ModelRegistry::load_directory(const std::string& dir) {
       registry.refused_.push_back({file.string(), "plugin " + file.string() + " refused: " + checksum.status().message()});
       continue;
     }
-    auto loaded = load_model_plugin(file.string());
+    const bool is_text = file.extension() != ".so";
+    std::optional<TextModelSummary> summary;
+    Result<ModelPtr> loaded = is_text ? Result<ModelPtr>(not_found("")) : load_model_plugin(file.string());
+    if (is_text) {
+      Result<TextModel> compiled = load_text_model(file.string());
+      if (compiled.is_ok()) {
+        loaded = std::move(compiled->model);
+        summary = std::move(compiled->summary);
+      } else {
+        loaded = compiled.status();
+      }
+    }
     if (!loaded.is_ok()) {
       registry.refused_.push_back({file.string(), loaded.status().message()});
       continue;
@@ -120,6 +134,7 @@ Result<ModelRegistry> ModelRegistry::load_directory(const std::string& dir) {
       continue;
     }
     registry.models_.push_back(std::move(model));
+    registry.text_summaries_.push_back(std::move(summary));
     registry.sha256_.push_back(std::move(checksum).value());
     Result<JacobianCheck> jacobians = check_jacobians(*registry.models_.back(), generic_points(*registry.models_.back()));
     registry.jacobian_checks_.push_back(jacobians.is_ok() ? std::move(jacobians).value() : JacobianCheck{});
@@ -133,6 +148,29 @@ const std::string& ModelRegistry::sha256(const Model& model) const {
     if (models_[i].get() == &model) return sha256_[i];
   }
   return kNone;
+}
+
+const TextModelSummary* ModelRegistry::text_summary(const Model& model) const {
+  for (std::size_t i = 0; i < models_.size(); ++i) {
+    if (models_[i].get() == &model) return text_summaries_[i] ? &*text_summaries_[i] : nullptr;
+  }
+  return nullptr;
+}
+
+Result<TextModel> load_text_model(const std::string& path) {
+  std::error_code ec;
+  const auto size = fs::file_size(path, ec);
+  if (ec) return invalid_argument("text model " + path + " refused: cannot read it: " + ec.message());
+  if (size > kMaxTextModelBytes) {
+    return invalid_argument("text model " + path + " refused: it is " + std::to_string(size) +
+                            " bytes, more than the limit of " + std::to_string(kMaxTextModelBytes));
+  }
+  std::ifstream in(path, std::ios::binary);
+  std::string text(static_cast<std::size_t>(size), '\0');
+  if (!in.read(text.data(), static_cast<std::streamsize>(size))) {
+    return invalid_argument("text model " + path + " refused: cannot read it");
+  }
+  return compile_text_model(text, path);
 }
 
 const JacobianCheck& ModelRegistry::jacobian_check(const Model& model) const {

@@ -1,12 +1,15 @@
-// Finding and loading model plugins (shared libraries) with dlopen.
+// Finding and loading models: plugins (shared libraries, with dlopen) and
+// text models (YAML, compiled by engine/models/text).
 #pragma once
 
+#include <optional>
 #include <string>
 #include <string_view>
 #include <vector>
 
 #include "engine/models/jacobian_check.hpp"
 #include "engine/models/model.hpp"
+#include "engine/models/text/text_model.hpp"
 #include "engine/status.hpp"
 
 namespace riccati {
@@ -16,16 +19,19 @@ namespace riccati {
 // host is never brought down by a bad plugin's table.
 Result<ModelPtr> load_model_plugin(const std::string& path);
 
+// Reads and compiles one text model file (at most kMaxTextModelBytes).
+Result<TextModel> load_text_model(const std::string& path);
+
 struct RefusedPlugin {
   std::string path;
   std::string reason;
 };
 
-// The models available to a daemon or a tool: every plugin (*.so) of one
-// directory, by name.
+// The models available to a daemon or a tool: every plugin (*.so) and text
+// model (*.yaml, *.yml) of one directory, by name.
 class ModelRegistry {
  public:
-  // Loads every *.so in `dir` (sorted by file name). A plugin is code run
+  // Loads every *.so, *.yaml and *.yml in `dir` (sorted by file name). A plugin is code run
   // inside the daemon, so only what the daemon's user (or root) controls is
   // loaded: a missing directory, or one that others can write to, is an
   // error; a file others can write to, a file owned by someone else, a
@@ -44,11 +50,14 @@ class ModelRegistry {
   // Its exact Jacobians against finite differences at generic_points(),
   // checked when it was loaded.
   const JacobianCheck& jacobian_check(const Model& model) const;
+  // The equations and Jacobian structure of a text model; nullptr for a plugin.
+  const TextModelSummary* text_summary(const Model& model) const;
 
  private:
   std::vector<ModelPtr> models_;
   std::vector<std::string> sha256_;  // of models_[i]'s file
   std::vector<JacobianCheck> jacobian_checks_;  // of models_[i]
+  std::vector<std::optional<TextModelSummary>> text_summaries_;  // of models_[i], if it is a text model
   std::vector<RefusedPlugin> refused_;
 };
 

@@ -143,7 +143,7 @@ std::vector<std::string> check_jacobians_at_start(const JobRecord& job, const Id
 Result<std::string> execute_identification(const JobRecord& job, const JobExecution& run) {
   v1::IdentificationSpec spec;
   if (!spec.ParseFromString(job.spec)) return internal_error("job " + job.id + ": stored spec is unreadable");
-  RICCATI_ASSIGN_OR_RETURN(const ModelPtr model, run.models.get(spec.model()));
+  RICCATI_ASSIGN_OR_RETURN(const ModelPtr model, run.models.get(job.tenant, spec.model()));
   RICCATI_ASSIGN_OR_RETURN(IdentificationJob plan, identification_from_proto(spec, *model));
   RICCATI_ASSIGN_OR_RETURN(const Dataset first, load_bound(run, job.tenant, plan.experiments.front().dataset_id, *model));
   const std::vector<std::string> jacobian_warnings = check_jacobians_at_start(job, plan, first, *model);
@@ -217,7 +217,7 @@ Result<std::string> execute_identification(const JobRecord& job, const JobExecut
 Result<std::string> execute_smoothing(const JobRecord& job, const JobExecution& run) {
   v1::SmoothingSpec spec;
   if (!spec.ParseFromString(job.spec)) return internal_error("job " + job.id + ": stored spec is unreadable");
-  RICCATI_ASSIGN_OR_RETURN(const ModelPtr model, run.models.get(spec.model()));
+  RICCATI_ASSIGN_OR_RETURN(const ModelPtr model, run.models.get(job.tenant, spec.model()));
   RICCATI_ASSIGN_OR_RETURN(const SmootherSettings settings, from_proto(spec, *model));
   RICCATI_ASSIGN_OR_RETURN(const Dataset data, load_bound(run, job.tenant, spec.dataset_id(), *model));
   SmootherHooks hooks;
@@ -306,7 +306,7 @@ Result<Eigen::VectorXd> validation_parameters(const JobRecord& job, const JobExe
 Result<std::string> execute_validation(const JobRecord& job, const JobExecution& run) {
   v1::ValidationSpec spec;
   if (!spec.ParseFromString(job.spec)) return internal_error("job " + job.id + ": stored spec is unreadable");
-  RICCATI_ASSIGN_OR_RETURN(const ModelPtr model, run.models.get(spec.model()));
+  RICCATI_ASSIGN_OR_RETURN(const ModelPtr model, run.models.get(job.tenant, spec.model()));
   RICCATI_ASSIGN_OR_RETURN(ValidationSettings settings, from_proto(spec));
   std::string parameters_from;
   RICCATI_ASSIGN_OR_RETURN(settings.theta, validation_parameters(job, run, spec, *model, &parameters_from));

@@ -10,6 +10,7 @@
 #include <string>
 
 #include "engine/models/plugin_loader.hpp"
+#include "service/models/model_catalog.hpp"
 #include "store/store.hpp"
 
 namespace riccati::service {
@@ -29,7 +30,7 @@ struct JobProgress {
 
 struct JobExecution {
   Store& store;                 // the job's dataset, checkpoints and source results
-  const ModelRegistry& models;
+  const ModelCatalog& models;  // resolved with the job's tenant
   std::stop_token stop;         // checked between samples: kCancelled
   std::function<void(const JobProgress&)> progress;  // optional
 };

@@ -43,7 +43,7 @@ Status check_result_size(const ResultSize& size, std::int64_t limit) {
 
 }  // namespace
 
-JobManager::JobManager(Store& store, const ModelRegistry& models, int workers, Limits limits, JobQueueOptions queue,
+JobManager::JobManager(Store& store, const ModelCatalog& models, int workers, Limits limits, JobQueueOptions queue,
                        Metrics* metrics)
     : store_(store),
       models_(models),
@@ -90,8 +90,24 @@ void JobManager::shutdown() {
   if (!released.is_ok()) spdlog::warn("interrupted jobs not released error=\"{}\"", released.status().message());
 }
 
+namespace {
+
+// The spec as stored: its model named by the revision it was checked
+// against (name@revision for a stored text model), so that a new upload of
+// the name does not change the job's model before it runs.
+template <typename Spec>
+std::string with_model(const Spec& spec, const std::string& reference) {
+  if (spec.model() == reference) return spec.SerializeAsString();
+  Spec pinned = spec;
+  pinned.set_model(reference);
+  return pinned.SerializeAsString();
+}
+
+}  // namespace
+
 Result<JobRecord> JobManager::submit_identification(const std::string& tenant, const v1::IdentificationSpec& spec) {
-  RICCATI_ASSIGN_OR_RETURN(const ModelPtr model, models_.get(spec.model()));
+  RICCATI_ASSIGN_OR_RETURN(const ResolvedModel resolved, models_.resolve(tenant, spec.model()));
+  const ModelPtr& model = resolved.model;
   const uint32_t passes = std::max(spec.passes(), spec.init_passes());
   if (passes > limits_.max_passes) {
     return limit_reached("max_passes", limits_.max_passes, "the job asks for " + std::to_string(passes) + " passes");
@@ -111,12 +127,13 @@ Result<JobRecord> JobManager::submit_identification(const std::string& tenant, c
   job.kind = JobKind::kIdentification;
   job.passes = plan.method == IdentificationMethod::kFilter ? plan.filter.passes : plan.init_passes;
   job.samples = datasets.front().samples;
-  job.spec = spec.SerializeAsString();
+  job.spec = with_model(spec, resolved.reference);
   return enqueue(std::move(job), result_size.bytes, spec.request_id());
 }
 
 Result<JobRecord> JobManager::submit_smoothing(const std::string& tenant, const v1::SmoothingSpec& spec) {
-  RICCATI_ASSIGN_OR_RETURN(const ModelPtr model, models_.get(spec.model()));
+  RICCATI_ASSIGN_OR_RETURN(const ResolvedModel resolved, models_.resolve(tenant, spec.model()));
+  const ModelPtr& model = resolved.model;
   RICCATI_ASSIGN_OR_RETURN(const SmootherSettings settings, from_proto(spec, *model));
   RICCATI_ASSIGN_OR_RETURN(const DatasetRecord dataset, store_.get_dataset(tenant, spec.dataset_id()));
   const Eigen::Index end = settings.end_sample < 0 ? dataset.samples : settings.end_sample;
@@ -146,7 +163,7 @@ Result<JobRecord> JobManager::submit_smoothing(const std::string& tenant, const 
   job.kind = JobKind::kSmoothing;
   job.passes = 2;  // forward and back
   job.samples = end - settings.first_sample;
-  job.spec = spec.SerializeAsString();
+  job.spec = with_model(spec, resolved.reference);
   return enqueue(std::move(job), result_size.bytes, spec.request_id());
 }
 
@@ -155,7 +172,8 @@ Result<JobRecord> JobManager::submit_validation(const std::string& tenant, const
     return invalid_argument("estimate " + std::to_string(spec.estimate()) + " is unknown (expected " +
                             api::enum_choice_list(*v1::EstimateChoice_descriptor()) + ")");
   }
-  RICCATI_ASSIGN_OR_RETURN(const ModelPtr model, models_.get(spec.model()));
+  RICCATI_ASSIGN_OR_RETURN(const ResolvedModel resolved, models_.resolve(tenant, spec.model()));
+  const ModelPtr& model = resolved.model;
   RICCATI_ASSIGN_OR_RETURN(const ValidationSettings settings, from_proto(spec));
   RICCATI_ASSIGN_OR_RETURN(const DatasetRecord dataset, store_.get_dataset(tenant, spec.dataset_id()));
   if (spec.has_theta()) {
@@ -202,7 +220,7 @@ Result<JobRecord> JobManager::submit_validation(const std::string& tenant, const
   job.tenant = tenant;
   job.kind = JobKind::kValidation;
   job.samples = dataset.samples;
-  job.spec = spec.SerializeAsString();
+  job.spec = with_model(spec, resolved.reference);
   return enqueue(std::move(job), result_size.bytes, spec.request_id());
 }
 

@@ -39,6 +39,7 @@
 #include <vector>
 
 #include "engine/models/plugin_loader.hpp"
+#include "service/models/model_catalog.hpp"
 #include "riccati/v1/jobs.pb.h"
 #include "store/store.hpp"
 
@@ -65,7 +66,7 @@ struct JobQueueOptions {
 class JobManager {
  public:
   // `metrics` (optional) counts the jobs this instance ends.
-  JobManager(Store& store, const ModelRegistry& models, int workers, Limits limits = {}, JobQueueOptions queue = {},
+  JobManager(Store& store, const ModelCatalog& models, int workers, Limits limits = {}, JobQueueOptions queue = {},
              Metrics* metrics = nullptr);
   ~JobManager();
   JobManager(const JobManager&) = delete;
@@ -152,7 +153,7 @@ class JobManager {
   void notify_changed(const std::string& id);
 
   Store& store_;
-  const ModelRegistry& models_;
+  const ModelCatalog& models_;
   // max_jobs, max_tenant_jobs, max_passes, max_result_bytes, max_job_attempts,
   // max_tenant_result_bytes, max_tenant_jobs_kept, max_job_age_days
   const Limits limits_;

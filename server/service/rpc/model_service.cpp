@@ -62,18 +62,53 @@ v1::ModelInfo to_proto(const Model& model, const JacobianCheck& jacobians) {
   return info;
 }
 
-grpc::Status ModelServiceImpl::ListModels(grpc::ServerContext*, const v1::ListModelsRequest*,
+v1::ModelInfo to_proto(const CatalogEntry& entry) {
+  v1::ModelInfo info = to_proto(*entry.model, entry.jacobian_check);
+  if (entry.text != nullptr) {
+    v1::TextModelInfo* text = info.mutable_text();
+    text->set_revision(static_cast<uint64_t>(entry.revision));
+    text->set_sha256(entry.sha256);
+    text->set_source(entry.source);
+    for (const auto& e : entry.text->equations) text->add_equations(e);
+    for (const auto& r : entry.text->f_sparsity) text->add_f_sparsity(r);
+    for (const auto& r : entry.text->g_sparsity) text->add_g_sparsity(r);
+    text->set_tape_length(entry.text->tape_length);
+  }
+  return info;
+}
+
+grpc::Status ModelServiceImpl::ListModels(grpc::ServerContext* context, const v1::ListModelsRequest*,
                                           v1::ListModelsResponse* response) {
-  for (const auto& m : models_.models()) *response->add_models() = to_proto(*m, models_.jacobian_check(*m));
+  const Result<std::vector<CatalogEntry>> entries = models_.list(auth_.tenant(*context));
+  if (!entries.is_ok()) return to_grpc(entries.status());
+  for (const CatalogEntry& e : entries.value()) *response->add_models() = to_proto(e);
   return grpc::Status::OK;
 }
 
-grpc::Status ModelServiceImpl::GetModel(grpc::ServerContext*, const v1::GetModelRequest* request,
+grpc::Status ModelServiceImpl::GetModel(grpc::ServerContext* context, const v1::GetModelRequest* request,
                                         v1::ModelInfo* response) {
-  const Result<ModelPtr> m = models_.get(request->name());
-  if (!m.is_ok()) return to_grpc(m.status());
-  *response = to_proto(*m.value(), models_.jacobian_check(*m.value()));
+  const Result<CatalogEntry> entry = models_.describe(auth_.tenant(*context), request->name());
+  if (!entry.is_ok()) return to_grpc(entry.status());
+  *response = to_proto(entry.value());
   return grpc::Status::OK;
+}
+
+grpc::Status ModelServiceImpl::CreateModel(grpc::ServerContext* context, const v1::CreateModelRequest* request,
+                                           v1::ModelInfo* response) {
+  if (request->source().size() > kMaxTextModelBytes) {
+    return to_grpc(invalid_argument("the model is " + std::to_string(request->source().size()) +
+                                    " bytes, more than the limit of " + std::to_string(kMaxTextModelBytes)));
+  }
+  const std::string origin = request->file_name().empty() ? "model" : request->file_name();
+  const Result<CatalogEntry> entry = models_.create(auth_.tenant(*context), request->source(), origin);
+  if (!entry.is_ok()) return to_grpc(entry.status());
+  *response = to_proto(entry.value());
+  return grpc::Status::OK;
+}
+
+grpc::Status ModelServiceImpl::DeleteModel(grpc::ServerContext* context, const v1::DeleteModelRequest* request,
+                                           v1::DeleteModelResponse*) {
+  return to_grpc(models_.remove(auth_.tenant(*context), request->name()));
 }
 
 // A Simulate call's work is bounded before it starts (samples x substeps,
@@ -82,7 +117,7 @@ grpc::Status ModelServiceImpl::GetModel(grpc::ServerContext*, const v1::GetModel
 // nobody waits for.
 grpc::Status ModelServiceImpl::Simulate(grpc::ServerContext* context, const v1::SimulateRequest* request,
                                         v1::SimulateResponse* response) {
-  const Result<ModelPtr> m = models_.get(request->model());
+  const Result<ModelPtr> m = models_.get(auth_.tenant(*context), request->model());
   if (!m.is_ok()) return to_grpc(m.status());
   const Result<Simulation> s = simulation_from_proto(*request, *m.value());
   if (!s.is_ok()) return to_grpc(s.status());

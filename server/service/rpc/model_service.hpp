@@ -1,4 +1,5 @@
-// ModelService: the loaded models and open-loop simulation.
+// ModelService: the models a tenant can use (ModelCatalog), text models
+// uploaded and deleted, and open-loop simulation.
 #pragma once
 
 #include <grpcpp/grpcpp.h>
@@ -6,6 +7,8 @@
 #include <atomic>
 
 #include "engine/models/plugin_loader.hpp"
+#include "service/auth.hpp"
+#include "service/models/model_catalog.hpp"
 #include "riccati/v1/models.grpc.pb.h"
 #include "service/limits.hpp"
 
@@ -13,17 +16,22 @@ namespace riccati::service {
 
 class ModelServiceImpl final : public v1::ModelService::Service {
  public:
-  ModelServiceImpl(const ModelRegistry& models, const Limits& limits) : models_(models), limits_(limits) {}
+  ModelServiceImpl(const Authenticator& auth, const ModelCatalog& models, const Limits& limits)
+      : auth_(auth), models_(models), limits_(limits) {}
   grpc::Status ListModels(grpc::ServerContext*, const v1::ListModelsRequest*, v1::ListModelsResponse*) override;
   grpc::Status GetModel(grpc::ServerContext*, const v1::GetModelRequest*, v1::ModelInfo*) override;
+  grpc::Status CreateModel(grpc::ServerContext*, const v1::CreateModelRequest*, v1::ModelInfo*) override;
+  grpc::Status DeleteModel(grpc::ServerContext*, const v1::DeleteModelRequest*, v1::DeleteModelResponse*) override;
   grpc::Status Simulate(grpc::ServerContext*, const v1::SimulateRequest*, v1::SimulateResponse*) override;
 
  private:
-  const ModelRegistry& models_;
+  const Authenticator& auth_;
+  const ModelCatalog& models_;
   const Limits limits_;
   std::atomic<std::int64_t> simulations_{0};  // Simulate calls running now
 };
 
 v1::ModelInfo to_proto(const Model& model, const JacobianCheck& jacobians);
+v1::ModelInfo to_proto(const CatalogEntry& entry);
 
 }  // namespace riccati::service

@@ -37,7 +37,7 @@ v1::SessionInfo stored_info(const std::string& id, const internal::SessionSnapsh
 
 }  // namespace
 
-SessionManager::SessionManager(const ModelRegistry& models, std::chrono::seconds idle_timeout, Limits limits,
+SessionManager::SessionManager(const ModelCatalog& models, std::chrono::seconds idle_timeout, Limits limits,
                                Store* store, SessionStoreOptions options)
     : models_(models), idle_timeout_(idle_timeout), limits_(limits), store_(store), options_(std::move(options)) {
   reaper_ = std::thread([this] {
@@ -100,7 +100,7 @@ void SessionManager::shutdown() {
 Result<std::shared_ptr<Session>> SessionManager::build(std::string id, const std::string& tenant,
                                                        const v1::CreateSessionRequest& request,
                                                        std::int64_t created_ms) {
-  RICCATI_ASSIGN_OR_RETURN(const ModelPtr model, models_.get(request.model()));
+  RICCATI_ASSIGN_OR_RETURN(const ModelPtr model, models_.get(tenant, request.model()));
   RICCATI_ASSIGN_OR_RETURN(const FilterSettings settings, from_proto(request.filter(), *model));
   RICCATI_ASSIGN_OR_RETURN(InitialEstimate initial,
                            initial_estimate_from_proto(request.initial_state(), request.theta0(), request.p0(),

@@ -35,6 +35,7 @@
 #include <vector>
 
 #include "engine/models/plugin_loader.hpp"
+#include "service/models/model_catalog.hpp"
 #include "riccati/internal/session_snapshot.pb.h"
 #include "riccati/v1/sessions.pb.h"
 #include "service/sessions/session.hpp"
@@ -56,7 +57,7 @@ struct SessionStoreOptions {
 class SessionManager {
  public:
   // Without a store, sessions live in memory only.
-  SessionManager(const ModelRegistry& models, std::chrono::seconds idle_timeout, Limits limits = {},
+  SessionManager(const ModelCatalog& models, std::chrono::seconds idle_timeout, Limits limits = {},
                  Store* store = nullptr, SessionStoreOptions options = {});
   ~SessionManager();
   SessionManager(const SessionManager&) = delete;
@@ -110,7 +111,7 @@ class SessionManager {
   // Counts a snapshot put, stored or failed (metrics).
   void counted(const Status& stored) const;
 
-  const ModelRegistry& models_;
+  const ModelCatalog& models_;
   const std::chrono::seconds idle_timeout_;
   const Limits limits_;  // max_sessions, max_tenant_sessions
   Store* const store_;

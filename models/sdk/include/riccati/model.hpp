@@ -391,6 +391,12 @@ struct Plugin {
         &jac<false>,
         static_cast<uint32_t>(ndof),
         ndof > 0 ? &mech : nullptr,
+        nullptr,  // user_data and the *_ctx functions: a plugin of the SDK needs no context
+        nullptr,
+        nullptr,
+        nullptr,
+        nullptr,
+        nullptr,
     };
     return &t;
   }

@@ -77,6 +77,16 @@ typedef int (*riccati_jac_fn)(double t, const double* u, const double* x, const 
 typedef int (*riccati_mech_fn)(double t, const double* x, const double* theta, double* c, double* Fc,
                                double* c_jac, double* Fc_jac, char* err, size_t err_len);
 
+/* The same functions with a context: `user_data` of the table comes first.
+ * For models whose code needs state of its own (the host's compiled text
+ * models; a plugin serving several models from one library). */
+typedef int (*riccati_eval_ctx_fn)(void* user_data, uint32_t n, size_t ld, double t, const double* u,
+                                   const double* x, const double* theta, double* out, char* err, size_t err_len);
+typedef int (*riccati_jac_ctx_fn)(void* user_data, double t, const double* u, const double* x,
+                                  const double* theta, double* out, double* jac, char* err, size_t err_len);
+typedef int (*riccati_mech_ctx_fn)(void* user_data, double t, const double* x, const double* theta, double* c,
+                                   double* Fc, double* c_jac, double* Fc_jac, char* err, size_t err_len);
+
 typedef struct riccati_model_v1 {
   uint32_t abi_version; /* RICCATI_MODEL_ABI_VERSION the plugin was built with */
   uint32_t struct_size; /* sizeof(riccati_model_v1) in the plugin: later versions only append */
@@ -106,6 +116,18 @@ typedef struct riccati_model_v1 {
    * form, a = M^-1 (H u - h). */
   uint32_t ndof;
   riccati_mech_fn mech;
+
+  /* Appended: functions with a context (optional). When f_ctx and g_ctx are
+   * set the host calls the *_ctx functions, with user_data first, and never
+   * f, g, f_jac, g_jac or mech (which may then be NULL); f_jac_ctx,
+   * g_jac_ctx and mech_ctx are optional as their plain forms are. user_data
+   * must stay valid as long as the table. */
+  void* user_data;
+  riccati_eval_ctx_fn f_ctx;
+  riccati_eval_ctx_fn g_ctx;
+  riccati_jac_ctx_fn f_jac_ctx;
+  riccati_jac_ctx_fn g_jac_ctx;
+  riccati_mech_ctx_fn mech_ctx;
 } riccati_model_v1;
 
 /* The size of the table before any field was appended: the least a plugin's
