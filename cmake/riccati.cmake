@@ -26,6 +26,15 @@ endfunction()
 # riccati_add_test(NAME SOURCES src... LIBS lib...): a GoogleTest binary whose
 # tests are registered with CTest. Tests find their data and the built-in
 # plugins through the two compile definitions below.
+# The test PKI (tests/data/tls) as riccatid may use it: git keeps only
+# 0644/0755, and riccatid refuses a private key others can read, so the keys
+# are copied here with mode 0600 (RICCATI_TEST_TLS_DIR).
+set(RICCATI_TEST_TLS_DIR "${PROJECT_BINARY_DIR}/test-tls")
+file(GLOB _riccati_test_tls "${PROJECT_SOURCE_DIR}/tests/data/tls/*")
+file(COPY ${_riccati_test_tls} DESTINATION "${RICCATI_TEST_TLS_DIR}")
+file(GLOB _riccati_test_keys "${RICCATI_TEST_TLS_DIR}/*.key")
+file(CHMOD ${_riccati_test_keys} PERMISSIONS OWNER_READ OWNER_WRITE)
+
 function(riccati_add_test name)
   cmake_parse_arguments(T "" "" "SOURCES;LIBS;LABELS" ${ARGN})
   add_executable(${name} ${T_SOURCES})
@@ -33,6 +42,7 @@ function(riccati_add_test name)
   target_include_directories(${name} PRIVATE ${PROJECT_SOURCE_DIR}/tests)
   target_compile_definitions(${name} PRIVATE
     RICCATI_TEST_DATA_DIR="${PROJECT_SOURCE_DIR}/tests/data"
+    RICCATI_TEST_TLS_DIR="${RICCATI_TEST_TLS_DIR}"
     RICCATI_TEST_PLUGIN_DIR="${RICCATI_PLUGIN_DIR}")
   if(RICCATI_SANITIZE)
     # Tests that measure memory (RSS) leave that check out under sanitizers,

@@ -133,7 +133,7 @@ int main(int argc, char** argv) {
   const RunFlags id_flags(identify_cmd, Command::kIdentify);
 
   auto* jobs = app.add_subcommand("jobs", "List jobs");
-  auto* job = app.add_subcommand("job", "One job: show, watch, cancel");
+  auto* job = app.add_subcommand("job", "One job: show, watch, cancel, delete");
   job->require_subcommand(1);
   std::string job_id;
   auto* job_show_cmd = job->add_subcommand("show", "Show a job");
@@ -142,6 +142,8 @@ int main(int argc, char** argv) {
   job_watch_cmd->add_option("id", job_id)->required();
   auto* job_cancel_cmd = job->add_subcommand("cancel", "Cancel a job");
   job_cancel_cmd->add_option("id", job_id)->required();
+  auto* job_delete_cmd = job->add_subcommand("delete", "Delete an ended job and its result");
+  job_delete_cmd->add_option("id", job_id)->required();
 
   auto* sessions_cmd = app.add_subcommand("sessions", "Filter sessions: list (the default), show, close");
   std::string session_id;
@@ -251,6 +253,7 @@ int main(int argc, char** argv) {
   if (*job_show_cmd) return job_show(client, job_id);
   if (*job_watch_cmd) return job_watch(client, job_id);
   if (*job_cancel_cmd) return job_cancel(client, job_id);
+  if (*job_delete_cmd) return job_delete(client, job_id);
   if (*result_cmd) {
     std::vector<double> truth;
     std::string error;

@@ -13,7 +13,9 @@
 # digest. Leaves existing files alone (delete the directory to start again).
 # Compose mounts these files as they are (bind mounts), so they must be
 # readable by the containers' users (uid 10001 for riccatid, 999 for
-# PostgreSQL): the files are 0644 in a directory only you can enter (0700).
+# PostgreSQL): the files are 0644 in a directory only you can enter (0700),
+# but tls.key, which riccatid refuses if others can read it: it is 0600 and
+# owned by uid 10001 (run as root, or `sudo chown 10001:10001 tls.key`).
 set -euo pipefail
 root=$(cd "$(dirname "$0")/../.." && pwd)
 dir=${RICCATI_SECRETS_DIR:-$root/deploy/compose/secrets}
@@ -38,6 +40,12 @@ if [ ! -f token ]; then
   printf '%s' "$(cat token)" | "$riccatid" --hash-token --tenant default >tokens
 fi
 [ -f postgres_password ] || head -c 24 /dev/urandom | od -An -tx1 | tr -d ' \n' >postgres_password
-chmod 644 ca.crt tls.crt tls.key tokens postgres_password
+chmod 644 ca.crt tls.crt tokens postgres_password
+chmod 600 tls.key  # riccatid refuses a private key others can read
+if [ "$(id -u)" -eq 0 ]; then
+  chown 10001:10001 tls.key  # the container's riccatid
+elif [ "$(stat -c %u tls.key)" != 10001 ]; then
+  echo "make-dev-secrets: for compose's riccatid (uid 10001) to read it: sudo chown 10001:10001 $(pwd)/tls.key" >&2
+fi
 chmod 600 token  # the client's copy: riccati refuses a token file others can read
 echo "make-dev-secrets: $(pwd): ca.crt tls.crt tls.key tokens token postgres_password"

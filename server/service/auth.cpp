@@ -7,6 +7,7 @@
 #include <unistd.h>
 
 #include <array>
+#include <cstdio>
 #include <cctype>
 #include <fstream>
 #include <memory>
@@ -78,6 +79,22 @@ Status check_tls_files(const SecurityConfig& config, const std::string& cert_pem
   }
   if (!config.tls_client_ca.empty()) {
     RICCATI_RETURN_IF_ERROR(first_certificate(ca_pem, config.tls_client_ca, "tls_client_ca").status());
+  }
+  return Status::ok();
+}
+
+// As sshd does: a private key others can read is no longer private, and
+// one its group or others can write can be replaced. Group read is allowed
+// (Debian's ssl-cert group, a Kubernetes secret with an fsGroup).
+Status check_private_key_mode(const std::string& path) {
+  struct stat st {};
+  if (::stat(path.c_str(), &st) != 0) return Status::ok();  // read_file says what is wrong
+  if ((st.st_mode & (S_IROTH | S_IWOTH | S_IWGRP)) != 0) {
+    char mode[8];
+    std::snprintf(mode, sizeof mode, "%04o", static_cast<unsigned>(st.st_mode & 07777));
+    return failed_precondition("tls_key " + path + " has mode " + mode + ": a private key must not be readable by " +
+                               "others nor writable by its group or others (chmod 600 " + path +
+                               ", or 640 with riccatid's group)");
   }
   return Status::ok();
 }
@@ -200,6 +217,7 @@ Result<std::shared_ptr<grpc::ServerCredentials>> server_credentials(const Securi
       return invalid_argument("TLS needs both tls_cert and tls_key");
     }
     RICCATI_ASSIGN_OR_RETURN(const std::string cert, read_file(config.tls_cert, "TLS certificate"));
+    RICCATI_RETURN_IF_ERROR(check_private_key_mode(config.tls_key));
     RICCATI_ASSIGN_OR_RETURN(const std::string key, read_file(config.tls_key, "TLS key"));
     grpc::SslServerCredentialsOptions options(config.tls_client_ca.empty()
                                                   ? GRPC_SSL_DONT_REQUEST_CLIENT_CERTIFICATE

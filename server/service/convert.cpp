@@ -1,7 +1,11 @@
 #include "service/convert.hpp"
 
+#include <spdlog/spdlog.h>
+
 #include <algorithm>
 #include <cmath>
+
+#include "service/ids.hpp"
 
 namespace riccati::service {
 
@@ -43,15 +47,32 @@ std::string printable(const std::string& text) {
   return out;
 }
 
+namespace {
+
+// What a client is told of an error. An INTERNAL one is a fault of the
+// daemon or of a plugin, not of the request: it is logged whole, under an
+// incident id that the client gets to quote to the operator, with the
+// message (which names no server path: the store's and the loader's
+// messages name none).
+std::string client_message(const Status& status) {
+  if (status.code() != StatusCode::kInternal) return printable(status.message());
+  const std::string incident = new_id("incident");
+  spdlog::error("internal error incident={} detail=\"{}\"", incident, printable(status.message()));
+  return "internal error (" + incident + ": quote it to riccatid's operator, whose log has it): " +
+         printable(status.message());
+}
+
+}  // namespace
+
 grpc::Status to_grpc(const Status& status) {
   if (status.is_ok()) return grpc::Status::OK;
-  return {static_cast<grpc::StatusCode>(status.code()), printable(status.message())};
+  return {static_cast<grpc::StatusCode>(status.code()), client_message(status)};
 }
 
 v1::Error to_error(const Status& status) {
   v1::Error e;
   e.set_code(static_cast<v1::Code>(status.code()));  // the same numbers
-  e.set_message(printable(status.message()));
+  e.set_message(client_message(status));
   return e;
 }
 

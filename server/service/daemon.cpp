@@ -154,9 +154,11 @@ Status Daemon::start() {
   RICCATI_ASSIGN_OR_RETURN(auth_, Authenticator::create(config_.security.tokens_file));
   model_service_ = std::make_unique<ModelServiceImpl>(models_, config_.limits);
   datasets_ = std::make_unique<DatasetManager>(*store_, config_.limits);
-  dataset_service_ = std::make_unique<DatasetServiceImpl>(*auth_, *datasets_);
-  job_service_ = std::make_unique<JobServiceImpl>(*auth_, *jobs_);
-  session_service_ = std::make_unique<SessionServiceImpl>(*auth_, *sessions_, config_.limits, metrics_);
+  stream_slots_ = std::make_unique<StreamSlots>(config_.limits);
+  dataset_service_ = std::make_unique<DatasetServiceImpl>(*auth_, *datasets_, *stream_slots_);
+  job_service_ = std::make_unique<JobServiceImpl>(*auth_, *jobs_, *stream_slots_);
+  session_service_ =
+      std::make_unique<SessionServiceImpl>(*auth_, *sessions_, config_.limits, metrics_, *stream_slots_);
 
   std::string security;
   RICCATI_ASSIGN_OR_RETURN(const std::shared_ptr<grpc::ServerCredentials> credentials,
@@ -221,6 +223,7 @@ void Daemon::shutdown(std::chrono::milliseconds grace) {
     // samples; a running job keeps its per-pass checkpoint and resumes at
     // the next start.
     session_service_->drain(deadline);
+    job_service_->drain(deadline);
     sessions_->shutdown();
     if (jobs_ != nullptr) jobs_->shutdown();
     server_->Shutdown(std::chrono::system_clock::now() +

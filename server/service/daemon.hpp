@@ -18,6 +18,7 @@
 #include "service/rpc/model_service.hpp"
 #include "service/rpc/session_service.hpp"
 #include "service/sessions/session_manager.hpp"
+#include "service/stream_slots.hpp"
 #include "store/store.hpp"
 
 namespace riccati::service {
@@ -72,6 +73,7 @@ class Daemon {
   std::unique_ptr<JobManager> jobs_;
   std::unique_ptr<SessionManager> sessions_;
   std::shared_ptr<const Authenticator> auth_;
+  std::unique_ptr<StreamSlots> stream_slots_;  // before the services whose calls hold its places
   std::unique_ptr<ModelServiceImpl> model_service_;
   std::unique_ptr<DatasetServiceImpl> dataset_service_;
   std::unique_ptr<JobServiceImpl> job_service_;

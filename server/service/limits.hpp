@@ -28,6 +28,11 @@ struct Limits {
   std::int64_t max_uploads = 16;                       // uploads in flight, all tenants
   std::int64_t max_result_bytes = 256ll << 20;         // a job's result, as estimated at submit
   std::int64_t max_job_attempts = 3;                   // claims of one job that did not end it
+  std::int64_t max_tenant_result_bytes = 4ll << 30;    // all of a tenant's stored job results
+  std::int64_t max_tenant_jobs_kept = 10'000;          // ended jobs kept per tenant (older ones deleted)
+  std::int64_t max_job_age_days = 365;                 // ended jobs older than this are deleted
+  std::int64_t max_streams = 4096;                     // long-lived calls open, all tenants
+  std::int64_t max_tenant_streams = 256;               // long-lived calls open, one tenant
 };
 
 struct LimitSpec {
@@ -57,6 +62,16 @@ inline constexpr LimitSpec kLimitSpecs[] = {
      "Largest result of one job (bytes), as estimated at submit from its samples, passes and model"},
     {"max_job_attempts", &Limits::max_job_attempts,
      "Most times a job is claimed without ending (its instance died, or could not store its end) before it fails"},
+    {"max_tenant_result_bytes", &Limits::max_tenant_result_bytes,
+     "All of a tenant's stored job results (bytes): a job whose estimated result would pass it is refused at submit"},
+    {"max_tenant_jobs_kept", &Limits::max_tenant_jobs_kept,
+     "Most ended jobs kept per tenant: the oldest beyond it are deleted with their results"},
+    {"max_job_age_days", &Limits::max_job_age_days,
+     "Ended jobs older than this (days) are deleted with their results"},
+    {"max_streams", &Limits::max_streams,
+     "Most long-lived calls open at once (session streams, job watches, uploads), all tenants"},
+    {"max_tenant_streams", &Limits::max_tenant_streams,
+     "Most long-lived calls open at once (session streams, job watches, uploads) of one tenant"},
 };
 
 // RESOURCE_EXHAUSTED: "limit <key> = <limit> reached: <what>".

@@ -100,6 +100,21 @@ class Metrics::Scraped final : public prometheus::Collectable {
         }
         out.push_back(std::move(jobs));
       }
+      auto usage = store_->usage();
+      if (usage.is_ok()) {
+        prometheus::MetricFamily bytes{"riccati_store_bytes",
+                                       "The store's size: the database on disk, and the datasets and results in it",
+                                       prometheus::MetricType::Gauge, {}};
+        for (const auto& [part, value] : {std::pair{"database", usage->database_bytes},
+                                          std::pair{"datasets", usage->dataset_bytes},
+                                          std::pair{"results", usage->result_bytes}}) {
+          prometheus::ClientMetric m;
+          m.label.push_back({"part", part});
+          m.gauge.value = static_cast<double>(value);
+          bytes.metric.push_back(m);
+        }
+        out.push_back(std::move(bytes));
+      }
     }
     return out;
   }

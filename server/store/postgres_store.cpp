@@ -613,6 +613,49 @@ class PostgresStore final : public Store {
     return get_job(tenant, id);
   }
 
+  Status delete_job(const std::string& tenant, const std::string& id) override {
+    return run<pqxx::nontransaction>("deleting job " + id, false, [&](auto& tx) -> Status {
+      const pqxx::result r = tx.exec_params(
+          "DELETE FROM jobs WHERE id = $1 AND tenant = $2 AND state IN " RICCATI_ENDED_STATES_SQL, id, tenant);
+      if (r.affected_rows() > 0) return Status::ok();
+      const pqxx::result state = tx.exec_params("SELECT state FROM jobs WHERE id = $1 AND tenant = $2", id, tenant);
+      if (state.empty()) return not_found("no job " + id);
+      return job_not_ended(id, state[0][0].as<std::string>());
+    });
+  }
+
+  Result<int> delete_ended_jobs(std::int64_t finished_before_ms, std::int64_t keep_per_tenant) override {
+    return run<pqxx::nontransaction>("deleting old jobs", true, [&](auto& tx) -> Result<int> {
+      const pqxx::result r = tx.exec_params(
+          "DELETE FROM jobs WHERE state IN " RICCATI_ENDED_STATES_SQL " AND (finished_ms < $1 OR id IN (SELECT id "
+          "FROM (SELECT id, ROW_NUMBER() OVER (PARTITION BY tenant ORDER BY finished_ms DESC, id DESC) AS newer FROM "
+          "jobs WHERE state IN " RICCATI_ENDED_STATES_SQL ") AS ranked WHERE newer > $2))",
+          finished_before_ms, keep_per_tenant);
+      return static_cast<int>(r.affected_rows());
+    });
+  }
+
+  Result<std::int64_t> result_bytes(const std::string& tenant) override {
+    return run<pqxx::nontransaction>("reading the size of the results", true, [&](auto& tx) -> Result<std::int64_t> {
+      const pqxx::result r =
+          tx.exec_params("SELECT COALESCE(SUM(octet_length(result)), 0) FROM results WHERE tenant = $1", tenant);
+      return r[0][0].as<std::int64_t>();
+    });
+  }
+
+  Result<StoreUsage> usage() override {
+    return run<pqxx::nontransaction>("reading the store's size", true, [&](auto& tx) -> Result<StoreUsage> {
+      const pqxx::result r = tx.exec(
+          "SELECT pg_database_size(current_database()), (SELECT COALESCE(SUM(size_bytes), 0) FROM datasets), "
+          "(SELECT COALESCE(SUM(octet_length(result)), 0) FROM results)");
+      StoreUsage usage;
+      usage.database_bytes = r[0][0].as<std::int64_t>();
+      usage.dataset_bytes = r[0][1].as<std::int64_t>();
+      usage.result_bytes = r[0][2].as<std::int64_t>();
+      return usage;
+    });
+  }
+
   Status put_result(const std::string& tenant, const std::string& job_id, const std::string& result) override {
     // Through the job's row, so that a result belongs to its job's tenant.
     return run<pqxx::nontransaction>("storing the result of job " + job_id, false, [&](auto& tx) -> Status {

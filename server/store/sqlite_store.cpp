@@ -567,6 +567,53 @@ class SqliteStore final : public Store {
     return get_job(tenant, id);
   }
 
+  Status delete_job(const std::string& tenant, const std::string& id) override {
+    std::lock_guard lock(mu_);
+    Statement q(db_.get(), "DELETE FROM jobs WHERE id = ? AND tenant = ? AND state IN " RICCATI_ENDED_STATES_SQL);
+    q.text(id).text(tenant);
+    RICCATI_RETURN_IF_ERROR(done(q, "deleting job " + id));
+    if (sqlite3_changes(db_.get()) > 0) return Status::ok();
+    Statement state(db_.get(), "SELECT state FROM jobs WHERE id = ? AND tenant = ?");
+    state.text(id).text(tenant);
+    const int rc = state.step();
+    if (rc == SQLITE_DONE) return not_found("no job " + id);
+    if (rc != SQLITE_ROW) return error("deleting job " + id);
+    return job_not_ended(id, state.column_text(0));
+  }
+
+  Result<int> delete_ended_jobs(std::int64_t finished_before_ms, std::int64_t keep_per_tenant) override {
+    std::lock_guard lock(mu_);
+    Statement q(db_.get(),
+                "DELETE FROM jobs WHERE state IN " RICCATI_ENDED_STATES_SQL " AND (finished_ms < ? OR id IN (SELECT id FROM "
+                "(SELECT id, ROW_NUMBER() OVER (PARTITION BY tenant ORDER BY finished_ms DESC, id DESC) AS newer "
+                "FROM jobs WHERE state IN " RICCATI_ENDED_STATES_SQL ") WHERE newer > ?))");
+    q.integer(finished_before_ms).integer(keep_per_tenant);
+    RICCATI_RETURN_IF_ERROR(done(q, "deleting old jobs"));
+    return sqlite3_changes(db_.get());
+  }
+
+  Result<std::int64_t> result_bytes(const std::string& tenant) override {
+    std::lock_guard lock(mu_);
+    Statement q(db_.get(), "SELECT COALESCE(SUM(length(result)), 0) FROM results WHERE tenant = ?");
+    q.text(tenant);
+    if (q.step() != SQLITE_ROW) return error("reading the size of the results");
+    return q.column_int(0);
+  }
+
+  Result<StoreUsage> usage() override {
+    std::lock_guard lock(mu_);
+    StoreUsage usage;
+    Statement q(db_.get(),
+                "SELECT (SELECT page_count FROM pragma_page_count()) * (SELECT page_size FROM pragma_page_size()), "
+                "(SELECT COALESCE(SUM(size_bytes), 0) FROM datasets), "
+                "(SELECT COALESCE(SUM(length(result)), 0) FROM results)");
+    if (q.step() != SQLITE_ROW) return error("reading the store's size");
+    usage.database_bytes = q.column_int(0);
+    usage.dataset_bytes = q.column_int(1);
+    usage.result_bytes = q.column_int(2);
+    return usage;
+  }
+
   Status put_result(const std::string& tenant, const std::string& job_id, const std::string& result) override {
     std::lock_guard lock(mu_);
     // Through the job's row, so that a result belongs to its job's tenant.

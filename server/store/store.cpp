@@ -61,6 +61,11 @@ Status job_lease_lost(const std::string& id, const std::string& owner) {
                                     " (it ended, or its lease expired and another instance took it)"};
 }
 
+Status job_not_ended(const std::string& id, const std::string& state) {
+  return failed_precondition("job " + id + " is " + state +
+                             ": cancel it (CancelJob, riccati job cancel) and delete it once it has ended");
+}
+
 Status session_lease_lost(const std::string& id, const std::string& owner) {
   return {StatusCode::kAborted, "session " + id + " is no longer held by " + owner +
                                     " (its lease expired and another instance resumed it)"};

@@ -58,6 +58,10 @@ std::optional<JobState> parse_job_state(const std::string& name);
 bool is_terminal(JobState state);
 // ABORTED: `owner` no longer holds job `id` (what renew_job and finish_job return then).
 Status job_lease_lost(const std::string& id, const std::string& owner);
+// FAILED_PRECONDITION: job `id` cannot be deleted in state `state` (queued, running).
+Status job_not_ended(const std::string& id, const std::string& state);
+// The ended states as an SQL list, for both stores' queries.
+#define RICCATI_ENDED_STATES_SQL "('succeeded', 'failed', 'cancelled')"
 // ABORTED: `owner` no longer holds session `id` (put_session_snapshot,
 // delete_session_snapshot).
 Status session_lease_lost(const std::string& id, const std::string& owner);
@@ -103,6 +107,13 @@ struct JobRecord {
   // release by a stopping owner takes its claim back): what bounds a job
   // that kills its instance, or whose end cannot be stored, to a few tries.
   int attempts = 0;
+};
+
+// How much a store holds (the metric riccati_store_bytes).
+struct StoreUsage {
+  std::int64_t database_bytes = 0;  // on disk: SQLite's file, PostgreSQL's pg_database_size
+  std::int64_t dataset_bytes = 0;   // uploaded files, as uploaded, every tenant's
+  std::int64_t result_bytes = 0;    // job results, every tenant's
 };
 
 // claim_request_id's answer from what is stored for `request_id`: the
@@ -174,10 +185,22 @@ class Store {
   // flagging it for its owner; an ended one is left as it is. Returns the job.
   virtual Result<JobRecord> cancel_job(const std::string& tenant, const std::string& id) = 0;
 
+  // Deletes an ended job with its result and pass records. NOT_FOUND if the
+  // tenant has no such job; FAILED_PRECONDITION naming its state if it is
+  // queued or running (it must be cancelled first).
+  virtual Status delete_job(const std::string& tenant, const std::string& id) = 0;
+  // Retention: deletes every tenant's ended jobs (with their results) that
+  // finished before `finished_before_ms` (0: none by age), and all but the
+  // newest `keep_per_tenant` ended jobs of each tenant. Returns how many.
+  virtual Result<int> delete_ended_jobs(std::int64_t finished_before_ms, std::int64_t keep_per_tenant) = 0;
+
   // Results: at most one per job, written once (ALREADY_EXISTS after);
   // NOT_FOUND if the tenant has no such job.
   virtual Status put_result(const std::string& tenant, const std::string& job_id, const std::string& result) = 0;
   virtual Result<std::string> get_result(const std::string& tenant, const std::string& job_id) = 0;
+  // The bytes of the tenant's stored results (its quota, max_tenant_result_bytes).
+  virtual Result<std::int64_t> result_bytes(const std::string& tenant) = 0;
+  virtual Result<StoreUsage> usage() = 0;
 
   // Job checkpoints: one record (opaque) per completed pass of an
   // identification job, so that a job restarted after a crash resumes after

@@ -402,7 +402,7 @@ class SecureCliTest : public CliTest {
     const std::string hash = std::string("printf 'alpha-token-1' | ") + RICCATI_DAEMON_BIN +
                              " --hash-token --tenant alpha > " + tokens.string();
     EXPECT_EQ(std::system(hash.c_str()), 0);
-    const std::string tls = std::string(RICCATI_TEST_DATA_DIR) + "/tls";
+    const std::string tls = RICCATI_TEST_TLS_DIR;
     return {"--tls-cert", tls + "/server.pem", "--tls-key", tls + "/server.key", "--tokens-file", tokens.string()};
   }
   std::string token_file(const std::string& token, std::filesystem::perms perms) {

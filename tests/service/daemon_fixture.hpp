@@ -169,16 +169,20 @@ class DaemonProcess {
   const std::filesystem::path& data_dir() const { return data_dir_; }
   pid_t pid() const { return pid_; }
   // Resident memory of the daemon (VmRSS), in KiB.
-  long rss_kib() const {
+  long rss_kib() const { return proc_status("VmRSS:"); }
+  long threads() const { return proc_status("Threads:"); }
+
+ private:
+  // A number from /proc/<pid>/status (-1: none).
+  long proc_status(const std::string& key) const {
     std::ifstream status("/proc/" + std::to_string(pid_) + "/status");
     std::string line;
     while (std::getline(status, line)) {
-      if (line.rfind("VmRSS:", 0) == 0) return std::stol(line.substr(6));
+      if (line.rfind(key, 0) == 0) return std::stol(line.substr(key.size()));
     }
     return -1;
   }
 
- private:
   int signal_and_wait(int sig) {
     if (pid_ <= 0) return -1;
     // Our channel goes first: a daemon that stops waits for its clients'
@@ -264,13 +268,17 @@ inline v1::UploadDatasetRequest upload_header(const std::string& name, const std
 }
 
 // Uploads `bytes` as the file `name` in chunks of `chunk_size`, on `ctx`
-// (which may carry a tenant's token); the status of the upload.
+// (which may carry a tenant's token); the status of the upload. With
+// `declare_size`, the header gives the size (as the CLI does).
 inline grpc::Status upload_dataset(v1::DatasetService::Stub& datasets, grpc::ClientContext* ctx,
                                    const std::string& name, const std::string& bytes,
                                    const std::vector<std::string>& inputs, const std::vector<std::string>& outputs,
-                                   v1::DatasetInfo* info, std::size_t chunk_size = 64 * 1024) {
+                                   v1::DatasetInfo* info, std::size_t chunk_size = 64 * 1024,
+                                   bool declare_size = false) {
   auto writer = datasets.UploadDataset(ctx, info);
-  if (writer->Write(upload_header(name, inputs, outputs))) {
+  v1::UploadDatasetRequest header = upload_header(name, inputs, outputs);
+  if (declare_size) header.mutable_header()->set_size_bytes(bytes.size());
+  if (writer->Write(header)) {
     for (std::size_t at = 0; at < bytes.size(); at += chunk_size) {
       v1::UploadDatasetRequest chunk;
       chunk.set_chunk(bytes.substr(at, chunk_size));

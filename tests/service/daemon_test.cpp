@@ -785,6 +785,38 @@ TEST(DaemonFaults, AFailingModelEndsOnlyItsOwnSessionAndJob) {
   EXPECT_TRUE(good->Finish().ok());
 }
 
+// An INTERNAL error (here a plugin that throws) is the daemon's or a
+// plugin's fault, not the request's: the client gets an incident id to quote
+// with the message, and the log has the same id.
+TEST(DaemonFaults, AnInternalErrorGivesTheClientAnIncidentIdThatTheLogHas) {
+  TempDir dir;
+  const auto models = dir.path() / "models";
+  std::filesystem::create_directories(models);
+  std::filesystem::copy_file(std::string(RICCATI_TEST_BAD_PLUGIN_DIR) + "/throwing_f.so", models / "throwing_f.so");
+  DaemonProcess daemon(dir.path() / "data", {"--models-dir", models.string(), "--log-level", "info"});
+  const auto log = dir.path() / "riccatid.log";
+  daemon.set_log_file(log);
+  daemon.start();
+  auto models_stub = v1::ModelService::NewStub(daemon.channel());
+  v1::SimulateRequest request;
+  request.set_model("throwing_f");
+  request.add_x0(0.0);
+  for (double t : {0.0, 0.1, 0.2}) request.add_t(t);
+  request.mutable_u()->set_cols(3);  // no inputs, three samples
+  grpc::ClientContext ctx;
+  v1::SimulateResponse response;
+  const grpc::Status s = models_stub->Simulate(&ctx, request, &response);
+  ASSERT_EQ(s.error_code(), grpc::StatusCode::INTERNAL) << s.error_message();
+  const auto at = s.error_message().find("incident-");
+  ASSERT_NE(at, std::string::npos) << s.error_message();
+  const std::string incident = s.error_message().substr(at, s.error_message().find(':', at) - at);
+  EXPECT_NE(s.error_message().find("deliberate exception from throwing_f"), std::string::npos) << s.error_message();
+  models_stub.reset();
+  EXPECT_EQ(daemon.stop(), 0) << daemon.exit_report();
+  const std::string logged = read_file(log);
+  EXPECT_NE(logged.find("internal error incident=" + incident), std::string::npos) << incident << "\n" << logged;
+}
+
 // A model whose hand-written Jacobian has a sign wrong
 // (bad_plugins/wrong_jacobian.cpp) loads and runs, as it must: only the check
 // can tell. GetModel says which entry disagrees, and an identification job
@@ -934,6 +966,23 @@ TEST_F(DaemonTest, BadInputGetsClearErrorsAndTheDaemonKeepsServing) {
     s = writer->Finish();
     EXPECT_EQ(s.error_code(), grpc::StatusCode::INVALID_ARGUMENT) << s.error_message();
     EXPECT_NE(s.error_message().find("a message of the upload of empty-message.csv is empty"), std::string::npos)
+        << s.error_message();
+  }
+  // A declared size the bytes do not match: more, or fewer (cut short).
+  for (const std::uint64_t declared : {10ull, 1000ull}) {
+    grpc::ClientContext ctx;
+    auto writer = datasets_->UploadDataset(&ctx, &info);
+    v1::UploadDatasetRequest header = testing::upload_header("sized.csv", {"u"}, {"y"});
+    header.mutable_header()->set_size_bytes(declared);
+    writer->Write(header);
+    v1::UploadDatasetRequest chunk;
+    chunk.set_chunk("t,u,y\n0,1,2\n1,1,2\n");
+    writer->Write(chunk);
+    writer->WritesDone();
+    s = writer->Finish();
+    EXPECT_EQ(s.error_code(), grpc::StatusCode::INVALID_ARGUMENT) << s.error_message();
+    EXPECT_NE(s.error_message().find(declared == 10 ? "sends more than the 10 bytes" : "ended after 18 of the 1000 bytes"),
+              std::string::npos)
         << s.error_message();
   }
 
@@ -1310,6 +1359,122 @@ TEST(DaemonMetrics, ThePrometheusEndpointCountsWhatHappened) {
   page = http_get(port, "/metrics");
   EXPECT_EQ(sample_value(page, "riccati_sessions_resumed_total"), 1) << page;
   EXPECT_EQ(daemon.stop(), 0) << daemon.exit_report();
+}
+
+// Jobs and results used to grow without end (3,066 small jobs made a 943 MB
+// database in 75 s): DeleteJob, a quota on results, retention by count.
+TEST(JobRetention, DeletedAndOldJobsGiveTheirRoomBackAndTheStoreSizeIsMeasured) {
+  TempDir dir;
+  const int port = free_port();
+  ASSERT_GT(port, 0);
+  const std::string metrics = "127.0.0.1:" + std::to_string(port);
+  auto run_to_end = [](v1::JobService::Stub& jobs, const std::string& dataset, int passes) {
+    grpc::ClientContext ctx;
+    v1::Job job;
+    const grpc::Status s = jobs.SubmitIdentification(&ctx, testing::hensen_spec(dataset, passes), &job);
+    if (!s.ok()) return s;
+    grpc::ClientContext watch_ctx;
+    v1::WatchJobRequest watch;
+    watch.set_id(job.id());
+    auto reader = jobs.WatchJob(&watch_ctx, watch);
+    v1::Job last;
+    while (reader->Read(&last)) {
+    }
+    EXPECT_EQ(last.state(), v1::JOB_STATE_SUCCEEDED) << last.ShortDebugString();
+    return grpc::Status(grpc::StatusCode::OK, job.id());  // the id, in the message
+  };
+  auto get = [](v1::JobService::Stub& jobs, const std::string& id) {
+    grpc::ClientContext ctx;
+    v1::GetJobRequest request;
+    request.set_id(id);
+    v1::Job job;
+    return jobs.GetJob(&ctx, request, &job).error_code();
+  };
+  auto remove = [](v1::JobService::Stub& jobs, const std::string& id) {
+    grpc::ClientContext ctx;
+    v1::DeleteJobRequest request;
+    request.set_id(id);
+    v1::DeleteJobResponse response;
+    return jobs.DeleteJob(&ctx, request, &response);
+  };
+  auto results_bytes = [&] {
+    return sample_value(http_get(port, "/metrics"), R"(riccati_store_bytes{part="results"})");
+  };
+
+  // Retention by count: the two newest ended jobs stay.
+  std::string dataset;
+  double one_result = 0;
+  {
+    DaemonProcess daemon(dir.path() / "data", {"--metrics-listen", metrics, "--max-tenant-jobs-kept", "2"});
+    daemon.start();
+    auto datasets = v1::DatasetService::NewStub(daemon.channel());
+    auto jobs = v1::JobService::NewStub(daemon.channel());
+    v1::DatasetInfo info;
+    ASSERT_TRUE(testing::upload_dataset(*datasets, "two_tank.csv", read_file(kData + "/two_tank.csv"), {"F1", "F2"},
+                                        {"h1", "h2"}, &info)
+                    .ok());
+    dataset = info.id();
+    EXPECT_EQ(sample_value(http_get(port, "/metrics"), R"(riccati_store_bytes{part="results"})"), 0);
+    std::vector<std::string> ended;
+    for (int i = 0; i < 3; ++i) {
+      const grpc::Status s = run_to_end(*jobs, dataset, 1);
+      ASSERT_TRUE(s.ok()) << s.error_message();
+      ended.push_back(s.error_message());
+      if (i == 0) one_result = results_bytes();
+    }
+    EXPECT_GT(one_result, 1000);
+    // The oldest, past max_tenant_jobs_kept (deleted once the third's end is stored: soon after its watch hears it).
+    EXPECT_TRUE(testing::wait_until([&] { return get(*jobs, ended[0]) == grpc::StatusCode::NOT_FOUND; }, kWait,
+                                    "the oldest job deleted"));
+    EXPECT_EQ(get(*jobs, ended[1]), grpc::StatusCode::OK);
+    EXPECT_EQ(get(*jobs, ended[2]), grpc::StatusCode::OK);
+    EXPECT_EQ(results_bytes(), 2 * one_result);
+    const std::string page = http_get(port, "/metrics");
+    EXPECT_GT(sample_value(page, R"(riccati_store_bytes{part="database"})"),
+              sample_value(page, R"(riccati_store_bytes{part="datasets"})"));
+    EXPECT_EQ(sample_value(page, R"(riccati_store_bytes{part="datasets"})"), info.size_bytes());
+
+    // DeleteJob: an ended job goes with its result; a running one must be cancelled first.
+    ASSERT_TRUE(remove(*jobs, ended[1]).ok());
+    EXPECT_EQ(get(*jobs, ended[1]), grpc::StatusCode::NOT_FOUND);
+    EXPECT_EQ(results_bytes(), one_result);
+    EXPECT_EQ(remove(*jobs, ended[1]).error_code(), grpc::StatusCode::NOT_FOUND);
+    grpc::ClientContext ctx;
+    v1::Job running;
+    ASSERT_TRUE(jobs->SubmitIdentification(&ctx, testing::hensen_spec(dataset, 2000), &running).ok());
+    const grpc::Status refused = remove(*jobs, running.id());
+    EXPECT_EQ(refused.error_code(), grpc::StatusCode::FAILED_PRECONDITION) << refused.error_message();
+    EXPECT_NE(refused.error_message().find("cancel it"), std::string::npos) << refused.error_message();
+    grpc::ClientContext cancel_ctx;
+    v1::CancelJobRequest cancel;
+    cancel.set_id(running.id());
+    ASSERT_TRUE(jobs->CancelJob(&cancel_ctx, cancel, &running).ok());
+    EXPECT_TRUE(testing::wait_until([&] { return remove(*jobs, running.id()).ok(); }, kWait,
+                                    "the cancelled job deleted once it has ended"));
+    ASSERT_TRUE(remove(*jobs, ended[2]).ok());
+    datasets.reset();
+    jobs.reset();
+  }
+
+  // The quota on results: the stored ones and the new one's estimate. With
+  // room for one and a half results, a second is refused until the first
+  // is deleted.
+  DaemonProcess daemon(dir.path() / "data",
+                       {"--metrics-listen", metrics, "--max-tenant-result-bytes",
+                        std::to_string(static_cast<std::int64_t>(1.5 * one_result))});
+  daemon.start();
+  auto jobs = v1::JobService::NewStub(daemon.channel());
+  const grpc::Status first = run_to_end(*jobs, dataset, 1);
+  ASSERT_TRUE(first.ok()) << first.error_message();
+  grpc::ClientContext ctx;
+  v1::Job job;
+  const grpc::Status over = jobs->SubmitIdentification(&ctx, testing::hensen_spec(dataset, 1), &job);
+  EXPECT_EQ(over.error_code(), grpc::StatusCode::RESOURCE_EXHAUSTED) << over.error_message();
+  EXPECT_NE(over.error_message().find("max_tenant_result_bytes"), std::string::npos) << over.error_message();
+  EXPECT_NE(over.error_message().find("DeleteJob"), std::string::npos) << over.error_message();
+  ASSERT_TRUE(remove(*jobs, first.error_message()).ok());
+  EXPECT_TRUE(run_to_end(*jobs, dataset, 1).ok());
+  jobs.reset();
 }
 
 TEST(DaemonConfig, IdleSessionsExpireAndBadConfigFilesAreRefused) {

@@ -27,7 +27,7 @@ using testing::read_file;
 using testing::TempDir;
 
 const std::string kData = RICCATI_TEST_DATA_DIR;
-const std::string kTls = kData + "/tls";
+const std::string kTls = RICCATI_TEST_TLS_DIR;  // the keys with mode 0600
 const std::string kAlpha = "alpha-7f3c9e2b4d1a";  // tokens of two tenants
 const std::string kBeta = "beta-0c5e8a6f2b9d";
 
@@ -304,6 +304,7 @@ TEST(Startup, RefusesBadTlsFilesNamingTheFileAndTheFault) {
   const auto empty = dir.path() / "empty.key";
   std::ofstream(junk) << "this is not a certificate\n";
   std::ofstream(empty).flush();
+  std::filesystem::permissions(empty, std::filesystem::perms::owner_read | std::filesystem::perms::owner_write);
   const std::string common = "--listen 127.0.0.1:0 --data-dir " + (dir.path() / "data").string() +
                              " --models-dir " RICCATI_TEST_PLUGIN_DIR;
   struct Case {
@@ -359,6 +360,22 @@ TEST(Startup, RefusesATokensFileOthersCanWrite) {
     EXPECT_NE(r.output.find("tokens file " + tokens + " is writable by its group or others"), std::string::npos)
         << r.output;
     EXPECT_NE(r.output.find("chmod go-w " + tokens), std::string::npos) << r.output;
+  }
+}
+
+TEST(Startup, RefusesATlsKeyOthersCanReadOrWrite) {
+  TempDir dir;
+  const auto key = dir.path() / "server.key";
+  std::filesystem::copy_file(kTls + "/server.key", key);
+  using std::filesystem::perms;
+  for (const perms mode : {perms::others_read, perms::group_write, perms::others_write}) {
+    std::filesystem::permissions(key, perms::owner_read | perms::owner_write | mode);
+    const Outcome r = riccatid("--listen 127.0.0.1:0 --data-dir " + (dir.path() / "data").string() +
+                               " --models-dir " RICCATI_TEST_PLUGIN_DIR " --tls-cert " + kTls + "/server.pem --tls-key " +
+                               key.string());
+    EXPECT_NE(r.exit_code, 0);
+    EXPECT_NE(r.output.find("tls_key " + key.string() + " has mode 0"), std::string::npos) << r.output;
+    EXPECT_NE(r.output.find("chmod 600 " + key.string()), std::string::npos) << r.output;
   }
 }
 

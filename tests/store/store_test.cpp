@@ -4,6 +4,8 @@
 // command beside a throw-away server).
 #include <gtest/gtest.h>
 
+#include <algorithm>
+
 #include <cmath>
 #include <filesystem>
 #include <functional>
@@ -281,6 +283,84 @@ TEST_P(StoreTest, JobPassRecordsComeBackInPassOrderAndBelongToTheJobsTenant) {
   EXPECT_EQ(store->put_job_pass("b", "job-1", 3, "theirs").code(), StatusCode::kNotFound);
   EXPECT_EQ(store->put_job_pass("a", "job-2", 1, "none").code(), StatusCode::kNotFound);
   EXPECT_EQ(store->list_job_passes("a", "job-1").value().size(), 3u);
+}
+
+TEST_P(StoreTest, AnEndedJobIsDeletedWithItsResultAndPassesAndARunningOneIsNot) {
+  auto store = open();
+  for (const char* id : {"job-1", "job-2"}) ASSERT_TRUE(store->put_job(job(id, "a", 1)).is_ok());
+  JobRecord ended = store->get_job("a", "job-1").value();
+  ended.state = JobState::kSucceeded;
+  ended.finished_ms = 10;
+  ASSERT_TRUE(store->update_job(ended).is_ok());
+  ASSERT_TRUE(store->put_result("a", "job-1", std::string(1000, 'r')).is_ok());
+  ASSERT_TRUE(store->put_job_pass("a", "job-1", 1, "p").is_ok());
+  EXPECT_EQ(store->result_bytes("a").value(), 1000);
+  EXPECT_EQ(store->result_bytes("b").value(), 0);
+  EXPECT_EQ(store->usage().value().result_bytes, 1000);
+
+  EXPECT_EQ(store->delete_job("b", "job-1").code(), StatusCode::kNotFound);  // another tenant's
+  const Status queued = store->delete_job("a", "job-2");
+  EXPECT_EQ(queued.code(), StatusCode::kFailedPrecondition);
+  EXPECT_NE(queued.message().find("job-2 is queued"), std::string::npos) << queued.message();
+  ASSERT_TRUE(store->delete_job("a", "job-1").is_ok());
+  EXPECT_EQ(store->get_job("a", "job-1").status().code(), StatusCode::kNotFound);
+  EXPECT_EQ(store->get_result("a", "job-1").status().code(), StatusCode::kNotFound);
+  EXPECT_TRUE(store->list_job_passes("a", "job-1").value().empty());
+  EXPECT_EQ(store->result_bytes("a").value(), 0);
+  EXPECT_EQ(store->delete_job("a", "job-1").code(), StatusCode::kNotFound);
+  EXPECT_TRUE(store->get_job("a", "job-2").is_ok());
+}
+
+TEST_P(StoreTest, RetentionDeletesEndedJobsByAgeAndKeepsTheNewestOfEachTenant) {
+  auto store = open();
+  // Tenant a: five ended jobs finished at 10..50 and one running; tenant b: two ended.
+  auto end = [&](const std::string& id, const std::string& tenant, std::int64_t finished, JobState state) {
+    ASSERT_TRUE(store->put_job(job(id, tenant, finished)).is_ok());
+    JobRecord j = store->get_job(tenant, id).value();
+    j.state = state;
+    j.finished_ms = finished;
+    ASSERT_TRUE(store->update_job(j).is_ok());
+    if (state == JobState::kSucceeded) ASSERT_TRUE(store->put_result(tenant, id, "r").is_ok());
+  };
+  for (int i = 1; i <= 5; ++i) end("a-" + std::to_string(i), "a", 10 * i, i % 2 ? JobState::kSucceeded : JobState::kFailed);
+  end("a-run", "a", 0, JobState::kRunning);
+  end("b-1", "b", 15, JobState::kCancelled);
+  end("b-2", "b", 25, JobState::kSucceeded);
+  auto ids = [&](const std::string& tenant) {
+    std::vector<std::string> out;
+    const std::vector<JobRecord> jobs = store->list_jobs(tenant).value();
+    for (const JobRecord& j : jobs) out.push_back(j.id);
+    std::sort(out.begin(), out.end());
+    return out;
+  };
+  // Nothing is old enough and every tenant has fewer than 10.
+  EXPECT_EQ(store->delete_ended_jobs(0, 10).value(), 0);
+  // By count: the newest three ended jobs of each tenant stay; a running job is never deleted.
+  EXPECT_EQ(store->delete_ended_jobs(0, 3).value(), 2);
+  EXPECT_EQ(ids("a"), (std::vector<std::string>{"a-3", "a-4", "a-5", "a-run"}));
+  EXPECT_EQ(ids("b"), (std::vector<std::string>{"b-1", "b-2"}));
+  // By age: those that finished before 40.
+  EXPECT_EQ(store->delete_ended_jobs(40, 100).value(), 3);
+  EXPECT_EQ(ids("a"), (std::vector<std::string>{"a-4", "a-5", "a-run"}));
+  EXPECT_TRUE(ids("b").empty());
+  EXPECT_EQ(store->get_result("b", "b-2").status().code(), StatusCode::kNotFound);
+}
+
+TEST_P(StoreTest, UsageCountsDatasetsResultsAndTheDatabase) {
+  auto store = open();
+  const StoreUsage empty = store->usage().value();
+  EXPECT_EQ(empty.dataset_bytes, 0);
+  EXPECT_EQ(empty.result_bytes, 0);
+  EXPECT_GT(empty.database_bytes, 0);
+  const Dataset d = random_dataset(20000, 4);
+  ASSERT_TRUE(store->put_dataset(record_for("ds-1", "t", d, 1), d).is_ok());
+  ASSERT_TRUE(store->put_job(job("job-1", "t", 1)).is_ok());
+  ASSERT_TRUE(store->put_result("t", "job-1", std::string(300'000, 'r')).is_ok());
+  const StoreUsage used = store->usage().value();
+  EXPECT_EQ(used.dataset_bytes, 1234);  // as uploaded (record_for's size_bytes)
+  EXPECT_EQ(used.result_bytes, 300'000);
+  // The samples and the result take room in the database itself.
+  EXPECT_GT(used.database_bytes, empty.database_bytes + 300'000);
 }
 
 TEST_P(StoreTest, ReopeningFindsEverything) {

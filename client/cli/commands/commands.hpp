@@ -47,6 +47,7 @@ int jobs_list(Client& c);
 int job_show(Client& c, const std::string& id);
 int job_watch(Client& c, const std::string& id);
 int job_cancel(Client& c, const std::string& id);
+int job_delete(Client& c, const std::string& id);
 // Follows a job to its end (a progress bar on a terminal); `last` is the job
 // as it ended.
 int watch_until_done(Client& c, const std::string& id, v1::Job* last);

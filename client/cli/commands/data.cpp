@@ -33,6 +33,10 @@ int data_upload(Client& c, const UploadOptions& o, std::string* dataset_id) {
   h->set_time_column(o.time);
   for (const auto& i : o.inputs) h->add_input_columns(i);
   for (const auto& n : o.outputs) h->add_output_columns(n);
+  // Declared, so that the daemon reserves the quota for the whole file at once.
+  std::error_code size_error;
+  const auto size = std::filesystem::file_size(o.file, size_error);
+  if (!size_error) h->set_size_bytes(size);
   bool open = writer->Write(header);
   std::string buffer(kChunkBytes, '\0');
   while (open && in) {

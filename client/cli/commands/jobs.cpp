@@ -58,6 +58,16 @@ int job_cancel(Client& c, const std::string& id) {
   return kExitOk;
 }
 
+int job_delete(Client& c, const std::string& id) {
+  auto ctx = c.context();
+  v1::DeleteJobRequest request;
+  request.set_id(id);
+  v1::DeleteJobResponse response;
+  const grpc::Status s = c.jobs->DeleteJob(ctx.get(), request, &response);
+  if (!s.ok()) return c.fail("deleting job " + id, s);
+  return kExitOk;
+}
+
 int watch_until_done(Client& c, const std::string& id, v1::Job* last) {
   auto ctx = c.stream_context();
   v1::WatchJobRequest request;

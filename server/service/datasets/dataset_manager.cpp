@@ -51,7 +51,9 @@ Status DatasetManager::quota_error(std::int64_t used) const {
 }
 
 Result<UploadTicket> DatasetManager::begin_upload(const std::string& tenant, const std::string& name) {
+  std::unique_lock stored_lock(stored_mu_);
   RICCATI_ASSIGN_OR_RETURN(const std::int64_t stored, stored_bytes(tenant));
+  stored_lock.unlock();
   std::lock_guard lock(mu_);
   if (uploads_ >= limits_.max_uploads) {
     return limit_reached("max_uploads", limits_.max_uploads, "as many uploads are in flight; try again shortly");
@@ -71,7 +73,7 @@ Result<Dataset> DatasetManager::parse(const DatasetUpload& upload, const std::st
   return parsed;
 }
 
-Result<DatasetRecord> DatasetManager::upload(const UploadTicket& ticket, const DatasetUpload& upload) {
+Result<DatasetRecord> DatasetManager::upload(UploadTicket& ticket, const DatasetUpload& upload) {
   const std::string& tenant = ticket.tenant();
   const std::string name = upload.name.empty() ? "upload" : upload.name;
   const auto size = static_cast<std::int64_t>(upload.bytes.size());
@@ -86,7 +88,10 @@ Result<DatasetRecord> DatasetManager::upload(const UploadTicket& ticket, const D
   }
   // Again with what is stored now: uploads that ended since this one began
   // are stored, those still in flight (this one too) hold their room, so
-  // every byte is counted at least once however uploads interleave.
+  // every byte is counted at least once however uploads interleave; and
+  // only once: this upload's room is given back as it is stored, while no
+  // other upload reads what is stored (stored_mu_).
+  std::lock_guard stored_lock(stored_mu_);
   RICCATI_ASSIGN_OR_RETURN(const std::int64_t stored, stored_bytes(tenant));
   {
     std::lock_guard lock(mu_);
@@ -120,6 +125,10 @@ Result<DatasetRecord> DatasetManager::upload(const UploadTicket& ticket, const D
     return store_.get_dataset(tenant, record.id);  // a retry of the same upload stored it first
   }
   RICCATI_RETURN_IF_ERROR(put);
+  {
+    std::lock_guard lock(mu_);
+    in_flight_bytes_[tenant] -= std::exchange(ticket.bytes_, 0);
+  }
   spdlog::info("dataset stored id={} name={} samples={} tenant={}", record.id, record.name, record.samples,
                record.tenant);
   return record;

@@ -63,7 +63,7 @@ class DatasetManager {
   Result<UploadTicket> begin_upload(const std::string& tenant, const std::string& name);
   // Parses, checks and stores an upload whose bytes `ticket` holds; the
   // stored record.
-  Result<DatasetRecord> upload(const UploadTicket& ticket, const DatasetUpload& upload);
+  Result<DatasetRecord> upload(UploadTicket& ticket, const DatasetUpload& upload);
 
   Result<DatasetRecord> get(const std::string& tenant, const std::string& id);
   Result<Dataset> load(const std::string& tenant, const std::string& id);
@@ -78,6 +78,7 @@ class DatasetManager {
 
   Store& store_;
   const Limits limits_;  // max_dataset_bytes, max_dataset_samples, max_tenant_dataset_bytes, max_uploads
+  std::mutex stored_mu_;  // reading what a tenant has stored, and storing an upload and giving back its room
   std::mutex mu_;
   std::int64_t uploads_ = 0;                             // in flight, all tenants
   std::map<std::string, std::int64_t> in_flight_bytes_;  // per tenant

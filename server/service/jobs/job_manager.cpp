@@ -4,6 +4,7 @@
 #include <unistd.h>
 
 #include <cstdio>
+#include <limits>
 #include <random>
 
 #include "engine/estimation/identification.hpp"
@@ -78,7 +79,7 @@ void JobManager::shutdown() {
     for (auto& [id, job] : live_) job.stop.request_stop();
   }
   work_ready_.notify_all();
-  changed_.notify_all();
+  notify_changed({});
   stopped_.notify_all();
   for (auto& w : workers_) w.join();
   workers_.clear();
@@ -102,7 +103,8 @@ Result<JobRecord> JobManager::submit_identification(const std::string& tenant, c
     datasets.push_back(std::move(record));
   }
   RICCATI_RETURN_IF_ERROR(check_against_datasets(plan, datasets, *model));
-  RICCATI_RETURN_IF_ERROR(check_result_size(estimated_result_size(plan, datasets, *model), limits_.max_result_bytes));
+  const ResultSize result_size = estimated_result_size(plan, datasets, *model);
+  RICCATI_RETURN_IF_ERROR(check_result_size(result_size, limits_.max_result_bytes));
   JobRecord job;
   job.id = new_id("job");
   job.tenant = tenant;
@@ -110,7 +112,7 @@ Result<JobRecord> JobManager::submit_identification(const std::string& tenant, c
   job.passes = plan.method == IdentificationMethod::kFilter ? plan.filter.passes : plan.init_passes;
   job.samples = datasets.front().samples;
   job.spec = spec.SerializeAsString();
-  return enqueue(std::move(job), spec.request_id());
+  return enqueue(std::move(job), result_size.bytes, spec.request_id());
 }
 
 Result<JobRecord> JobManager::submit_smoothing(const std::string& tenant, const v1::SmoothingSpec& spec) {
@@ -122,6 +124,7 @@ Result<JobRecord> JobManager::submit_smoothing(const std::string& tenant, const 
     return invalid_argument("the sample range [" + std::to_string(settings.first_sample) + ", " + std::to_string(end) +
                             ") must hold at least two of the dataset's " + std::to_string(dataset.samples) + " samples");
   }
+  ResultSize result_size;
   {
     // Per sample: t, the filtered and smoothed means and deviations of z
     // (the states, then the parameters), y_model and innovations, and with
@@ -129,14 +132,13 @@ Result<JobRecord> JobManager::submit_smoothing(const std::string& tenant, const 
     const double samples = static_cast<double>(end - settings.first_sample);
     const double nz = model->nx() + model->ntheta();
     const double per_sample = 1 + 4 * nz + 2 * model->ny() + (spec.full_covariance() ? nz * nz : 0);
-    RICCATI_RETURN_IF_ERROR(check_result_size(
-        {8 * samples * per_sample,
+    result_size = {8 * samples * per_sample,
          std::to_string(end - settings.first_sample) + " samples x " + std::to_string(static_cast<int>(per_sample)) +
              " values (" + std::to_string(static_cast<int>(nz)) + " states and parameters" +
              (spec.full_covariance() ? ", with their full covariance" : "") + ")",
          std::string("a shorter sample range (first_sample, end_sample)") +
-             (spec.full_covariance() ? ", or no full_covariance" : "")},
-        limits_.max_result_bytes));
+             (spec.full_covariance() ? ", or no full_covariance" : "")};
+    RICCATI_RETURN_IF_ERROR(check_result_size(result_size, limits_.max_result_bytes));
   }
   JobRecord job;
   job.id = new_id("job");
@@ -145,7 +147,7 @@ Result<JobRecord> JobManager::submit_smoothing(const std::string& tenant, const 
   job.passes = 2;  // forward and back
   job.samples = end - settings.first_sample;
   job.spec = spec.SerializeAsString();
-  return enqueue(std::move(job), spec.request_id());
+  return enqueue(std::move(job), result_size.bytes, spec.request_id());
 }
 
 Result<JobRecord> JobManager::submit_validation(const std::string& tenant, const v1::ValidationSpec& spec) {
@@ -191,21 +193,20 @@ Result<JobRecord> JobManager::submit_validation(const std::string& tenant, const
   }
   // Per sample: t, the measured and the simulated outputs.
   const int per_sample = 1 + 2 * model->ny();
-  RICCATI_RETURN_IF_ERROR(check_result_size({8.0 * static_cast<double>(dataset.samples) * per_sample,
-                                             std::to_string(dataset.samples) + " samples x " +
-                                                 std::to_string(per_sample) + " values",
-                                             "a dataset with fewer samples"},
-                                            limits_.max_result_bytes));
+  const ResultSize result_size{8.0 * static_cast<double>(dataset.samples) * per_sample,
+                               std::to_string(dataset.samples) + " samples x " + std::to_string(per_sample) + " values",
+                               "a dataset with fewer samples"};
+  RICCATI_RETURN_IF_ERROR(check_result_size(result_size, limits_.max_result_bytes));
   JobRecord job;
   job.id = new_id("job");
   job.tenant = tenant;
   job.kind = JobKind::kValidation;
   job.samples = dataset.samples;
   job.spec = spec.SerializeAsString();
-  return enqueue(std::move(job), spec.request_id());
+  return enqueue(std::move(job), result_size.bytes, spec.request_id());
 }
 
-Result<JobRecord> JobManager::enqueue(JobRecord job, const std::string& request_id) {
+Result<JobRecord> JobManager::enqueue(JobRecord job, double result_bytes, const std::string& request_id) {
   job.state = JobState::kQueued;
   job.created_ms = now_ms();
   if (!request_id.empty()) {
@@ -229,11 +230,19 @@ Result<JobRecord> JobManager::enqueue(JobRecord job, const std::string& request_
       return limit_reached("max_tenant_jobs", limits_.max_tenant_jobs,
                            "this tenant has that many jobs queued or running; wait for one to end or cancel one");
     }
-    const Status stored = store_.put_job(job);
-    if (stored.code() == StatusCode::kAlreadyExists && !request_id.empty()) {
+    // The tenant's stored results and this one's estimate: within its quota.
+    RICCATI_ASSIGN_OR_RETURN(const std::int64_t stored, store_.result_bytes(job.tenant));
+    if (static_cast<double>(stored) + result_bytes > static_cast<double>(limits_.max_tenant_result_bytes)) {
+      return limit_reached("max_tenant_result_bytes", limits_.max_tenant_result_bytes,
+                           "this tenant's results take " + std::to_string(stored) + " bytes, and this job's about " +
+                               std::to_string(static_cast<std::int64_t>(result_bytes)) +
+                               " more: delete jobs it no longer needs (DeleteJob, riccati job delete ID)");
+    }
+    const Status put = store_.put_job(job);
+    if (put.code() == StatusCode::kAlreadyExists && !request_id.empty()) {
       return get(job.tenant, job.id);  // a retry of the same request stored it first
     }
-    RICCATI_RETURN_IF_ERROR(stored);
+    RICCATI_RETURN_IF_ERROR(put);
   }
   {
     std::lock_guard lock(mu_);
@@ -305,47 +314,43 @@ std::uint64_t stored_version(const JobRecord& job) {
 
 }  // namespace
 
-Result<JobRecord> JobManager::wait_for_change(const std::string& tenant, const std::string& id,
-                                              std::uint64_t* version,
-                                              std::chrono::steady_clock::time_point deadline) {
-  // Not running here: the store has it. How often a watcher reads it.
-  constexpr auto kStorePoll = std::chrono::milliseconds(200);
-  std::unique_lock lock(mu_);
-  for (;;) {
+Result<std::optional<JobRecord>> JobManager::poll(const std::string& tenant, const std::string& id,
+                                                  std::uint64_t* version, bool* running_here) {
+  *running_here = false;
+  {
+    std::lock_guard lock(mu_);
     if (stopping_) {
       return Status(StatusCode::kUnavailable, "riccatid is shutting down; the job goes on after it restarts: watch again");
     }
     auto it = live_.find(id);
-    if (it != live_.end() && it->second.record.tenant == tenant) {
-      // Until its end is stored, or while it is being stored (then the store
-      // is read: it has the end and the result together, or neither).
-      changed_.wait_until(lock, deadline, [&] {
-        auto found = live_.find(id);
-        return stopping_ || found == live_.end() ||
-               (found->second.ending ? false : found->second.version != *version);
-      });
-      if (stopping_) continue;
-      auto found = live_.find(id);
-      if (found != live_.end() && !found->second.ending) {
-        *version = found->second.version;
-        return found->second.record;
-      }
+    // While its end is being stored, the store is read: it has the end and
+    // the result together, or neither.
+    if (it != live_.end() && it->second.record.tenant == tenant && !it->second.ending) {
+      *running_here = true;
+      if (it->second.version == *version) return std::optional<JobRecord>();
+      *version = it->second.version;
+      return std::optional<JobRecord>(it->second.record);
     }
-    lock.unlock();
-    RICCATI_ASSIGN_OR_RETURN(JobRecord stored, store_.get_job(tenant, id));
-    const std::uint64_t v = stored_version(stored);
-    if (v != *version || is_terminal(stored.state) || std::chrono::steady_clock::now() >= deadline) {
-      *version = v;
-      return stored;
-    }
-    lock.lock();
-    // A claim by a worker here ends the wait early (changed_ is notified).
-    changed_.wait_until(lock, std::min(deadline, std::chrono::steady_clock::now() + kStorePoll),
-                        [&] {
-                          auto found = live_.find(id);
-                          return stopping_ || (found != live_.end() && !found->second.ending);
-                        });
   }
+  RICCATI_ASSIGN_OR_RETURN(JobRecord stored, store_.get_job(tenant, id));
+  const std::uint64_t v = stored_version(stored);
+  if (v == *version) return std::optional<JobRecord>();
+  *version = v;
+  return std::optional<JobRecord>(std::move(stored));
+}
+
+void JobManager::set_change_listener(std::function<void(const std::string&)> listener) {
+  std::lock_guard lock(mu_);
+  change_listener_ = std::move(listener);
+}
+
+void JobManager::notify_changed(const std::string& id) {
+  std::function<void(const std::string&)> listener;
+  {
+    std::lock_guard lock(mu_);
+    listener = change_listener_;
+  }
+  if (listener) listener(id);
 }
 
 template <typename Change>
@@ -359,7 +364,7 @@ std::optional<JobRecord> JobManager::update(const std::string& id, Change&& chan
     ++it->second.version;
     copy = it->second.record;
   }
-  changed_.notify_all();
+  notify_changed(id);
   return copy;
 }
 
@@ -397,12 +402,19 @@ void JobManager::worker_loop() {
 
 void JobManager::lease_loop() {
   const auto every = std::min<std::chrono::milliseconds>(queue_.lease / 3, std::chrono::seconds(1));
+  // Jobs age past max_job_age_days without anything ending: looked for hourly (and at start).
+  constexpr auto kRetentionEvery = std::chrono::hours(1);
+  auto next_retention = std::chrono::steady_clock::now();
   std::unique_lock lock(mu_);
   while (!stopped_.wait_for(lock, every, [&] { return stopping_; })) {
     std::vector<JobRecord> running;
     for (const auto& [id, job] : live_) running.push_back(job.record);
     lock.unlock();
     for (const JobRecord& job : running) renew(job);
+    if (std::chrono::steady_clock::now() >= next_retention) {
+      delete_old_jobs();
+      next_retention = std::chrono::steady_clock::now() + kRetentionEvery;
+    }
     lock.lock();
   }
 }
@@ -412,7 +424,8 @@ void JobManager::renew(const JobRecord& job) {
   if (renewed.is_ok() && !renewed.value()) return;
   std::lock_guard lock(mu_);
   auto it = live_.find(job.id);
-  if (it == live_.end()) return;
+  // Its end was stored meanwhile (the store answers ABORTED for an ended job).
+  if (it == live_.end() || it->second.ending) return;
   if (renewed.is_ok()) {  // a client cancelled it through another instance
     it->second.cancel_requested = true;
     it->second.record.cancel_requested = true;
@@ -459,7 +472,7 @@ void JobManager::run(JobRecord job) {
     stop = live.stop.get_token();
     if (stopping_) live.stop.request_stop();
   }
-  changed_.notify_all();
+  notify_changed(id);
   spdlog::info("job started id={} kind={} instance={}", id, job_kind_name(job.kind), instance_);
 
   Result<std::string> result = execute(job, stop);
@@ -481,7 +494,7 @@ void JobManager::run(JobRecord job) {
       std::lock_guard lock(mu_);
       live_.erase(id);
     }
-    changed_.notify_all();
+    notify_changed(id);
     return;
   }
   finish(std::move(outcome.record), result, claimed);
@@ -524,7 +537,7 @@ void JobManager::finish(JobRecord job, const Result<std::string>& result,
     std::lock_guard lock(mu_);
     live_.erase(job.id);  // watchers read the end from the store
   }
-  changed_.notify_all();
+  notify_changed(job.id);
   if (!stored.is_ok()) {
     // ABORTED: another instance holds it now and writes the end itself.
     // Otherwise the store failed: the lease expires and the job runs again,
@@ -535,6 +548,27 @@ void JobManager::finish(JobRecord job, const Result<std::string>& result,
   } else {
     spdlog::info("job ended id={} state={} error=\"{}\"", job.id, job_state_name(job.state), job.error_message);
   }
+  if (stored.is_ok()) delete_old_jobs();  // one more ended job: one more past max_tenant_jobs_kept, maybe
+}
+
+void JobManager::delete_old_jobs() {
+  constexpr std::int64_t kDayMs = 24ll * 3600 * 1000;
+  const std::int64_t max_age_ms =
+      limits_.max_job_age_days > std::numeric_limits<std::int64_t>::max() / kDayMs ? -1 : limits_.max_job_age_days * kDayMs;
+  const std::int64_t finished_before = max_age_ms < 0 ? 0 : now_ms() - max_age_ms;
+  Result<int> deleted = store_.delete_ended_jobs(finished_before, limits_.max_tenant_jobs_kept);
+  if (!deleted.is_ok()) {
+    spdlog::warn("old jobs not deleted error=\"{}\"", deleted.status().message());
+  } else if (deleted.value() > 0) {
+    spdlog::info("old jobs deleted count={} max_tenant_jobs_kept={} max_job_age_days={}", deleted.value(),
+                 limits_.max_tenant_jobs_kept, limits_.max_job_age_days);
+  }
+}
+
+Status JobManager::remove(const std::string& tenant, const std::string& id) {
+  RICCATI_RETURN_IF_ERROR(store_.delete_job(tenant, id));
+  spdlog::info("job deleted id={} tenant={}", id, tenant);
+  return Status::ok();
 }
 
 Result<std::string> JobManager::execute(const JobRecord& job, std::stop_token stop) {

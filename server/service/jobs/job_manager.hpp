@@ -12,12 +12,12 @@
 // lease (Store::finish_job). Workers are the only threads that run the
 // engine; RPC threads submit, read and wait.
 //
-// Watchers of a job running here wait on a version number that changes with
-// every state or progress change (a filter's progress through its samples
-// is published at most every kProgressInterval, each optimiser iteration
-// and each pass's end always); watchers of a job queued or running
-// elsewhere poll the store, which has its progress at every lease renewal
-// and pass.
+// A job running here has a version number that changes with every state or
+// progress change (a filter's progress through its samples is published at
+// most every kProgressInterval, each optimiser iteration and each pass's
+// end always), and each change is told to the change listener; watchers of
+// a job queued or running elsewhere poll the store, which has its progress
+// at every lease renewal and pass.
 #pragma once
 
 #include "service/limits.hpp"
@@ -28,6 +28,7 @@
 #include <condition_variable>
 #include <cstdint>
 #include <deque>
+#include <functional>
 #include <map>
 #include <memory>
 #include <mutex>
@@ -84,6 +85,9 @@ class JobManager {
   Result<JobRecord> submit_validation(const std::string& tenant, const v1::ValidationSpec& spec);
   Result<JobRecord> submit_smoothing(const std::string& tenant, const v1::SmoothingSpec& spec);
   Result<JobRecord> cancel(const std::string& tenant, const std::string& id);
+  // Deletes an ended job with its result; FAILED_PRECONDITION while it is
+  // queued or running.
+  Status remove(const std::string& tenant, const std::string& id);
   Result<JobRecord> get(const std::string& tenant, const std::string& id);
   // The tenant's jobs, oldest first, with the progress of those running here.
   Result<std::vector<JobRecord>> list(const std::string& tenant);
@@ -91,10 +95,19 @@ class JobManager {
   // naming the job's state when it has none.
   Result<std::string> result(const std::string& tenant, const std::string& id);
 
-  // Blocks until the job has changed since `*version` (0 = return now),
-  // the job has ended, `deadline` passes, or shutdown; returns the job then.
-  Result<JobRecord> wait_for_change(const std::string& tenant, const std::string& id, std::uint64_t* version,
-                                    std::chrono::steady_clock::time_point deadline);
+  // The job if it has changed since `*version` (0: any job), updating
+  // `*version`; nullopt if it has not. Never waits on this instance's jobs:
+  // a job not running here is read from the store. `*running_here` says
+  // whether it runs here, so that a watcher knows whether the change
+  // listener will tell it of the job's next change or it must read the
+  // store again later.
+  Result<std::optional<JobRecord>> poll(const std::string& tenant, const std::string& id, std::uint64_t* version,
+                                        bool* running_here);
+  // Called (on the thread that made it) with the job's id after every
+  // change of a job running here (its claim here and its end included), and
+  // with an empty id at shutdown; empty: none. The watch pump
+  // (service/rpc/job_service.cpp) wakes on it.
+  void set_change_listener(std::function<void(const std::string& id)> listener);
 
   static constexpr std::chrono::milliseconds kProgressInterval{100};
 
@@ -112,7 +125,13 @@ class JobManager {
     bool ending = false;
   };
 
-  Result<JobRecord> enqueue(JobRecord record, const std::string& request_id);
+  // Stores the job as queued, within the jobs' limits and the tenant's
+  // result quota (with `result_bytes`, the estimate of its result); a
+  // request_id's job once (Store::claim_request_id).
+  Result<JobRecord> enqueue(JobRecord record, double result_bytes, const std::string& request_id);
+  // Retention: deletes the ended jobs past max_tenant_jobs_kept or
+  // max_job_age_days, every tenant's.
+  void delete_old_jobs();
   void worker_loop();
   void lease_loop();
   void run(JobRecord job);
@@ -129,10 +148,14 @@ class JobManager {
   // watchers; returns the changed record (nullopt: not running here).
   template <typename Change>
   std::optional<JobRecord> update(const std::string& id, Change&& change);
+  // Tells the change listener that job `id` changed (empty: every job).
+  void notify_changed(const std::string& id);
 
   Store& store_;
   const ModelRegistry& models_;
-  const Limits limits_;  // max_jobs, max_tenant_jobs, max_passes, max_result_bytes, max_job_attempts
+  // max_jobs, max_tenant_jobs, max_passes, max_result_bytes, max_job_attempts,
+  // max_tenant_result_bytes, max_tenant_jobs_kept, max_job_age_days
+  const Limits limits_;
   const int worker_count_;
   const JobQueueOptions queue_;
   const std::string instance_;
@@ -140,7 +163,7 @@ class JobManager {
 
   std::mutex submit_mu_;  // a limit check and the insert it allows go together
   std::mutex mu_;
-  std::condition_variable changed_;     // a running job changed (watchers), or shutdown
+  std::function<void(const std::string&)> change_listener_;  // a running job changed, or shutdown
   std::condition_variable work_ready_;  // a job was submitted here, or shutdown (workers)
   std::condition_variable stopped_;     // shutdown (the renewal thread)
   std::map<std::string, LiveJob> live_;  // the jobs running on this instance

@@ -2,6 +2,11 @@
 
 #include "service/convert.hpp"
 
+#include <algorithm>
+#include <cstdint>
+#include <optional>
+#include <thread>
+
 namespace riccati::service {
 namespace {
 
@@ -34,40 +39,113 @@ v1::DatasetInfo to_proto(const DatasetRecord& r) {
   return info;
 }
 
-grpc::Status DatasetServiceImpl::UploadDataset(grpc::ServerContext* context,
-                                               grpc::ServerReader<v1::UploadDatasetRequest>* reader,
-                                               v1::DatasetInfo* response) {
-  v1::UploadDatasetRequest part;
-  if (!reader->Read(&part) || !part.has_header()) {
-    return to_grpc(invalid_argument("the first message of an upload must be its header"));
-  }
-  if (!v1::DatasetFormat_IsValid(part.header().format())) {
-    return to_grpc(invalid_argument("format " + std::to_string(part.header().format()) +
-                                    " is unknown (expected " + api::enum_choice_list(*v1::DatasetFormat_descriptor()) +
-                                    ", or unspecified: from the name's extension)"));
-  }
-  DatasetUpload upload = upload_from_header(part.header());
-  Result<UploadTicket> ticket = datasets_.begin_upload(auth_.tenant(*context), upload.name);
-  if (!ticket.is_ok()) return to_grpc(ticket.status());
-  while (reader->Read(&part)) {
-    if (part.has_header()) return to_grpc(invalid_argument("only one header per upload"));
-    if (!part.has_chunk()) {
-      return to_grpc(invalid_argument("a message of the upload of " + upload.name +
-                                      " is empty: after the header, every message carries a chunk"));
+// Reads the chunks as they come (no thread is held while the client sends);
+// the upload is parsed and stored on a thread of its own, one per upload in
+// flight at most (max_uploads), so that the callback threads every stream
+// shares are never held by a parse.
+class DatasetServiceImpl::UploadReactor final : public grpc::ServerReadReactor<v1::UploadDatasetRequest> {
+ public:
+  UploadReactor(DatasetServiceImpl& service, grpc::CallbackServerContext* context, v1::DatasetInfo* response)
+      : service_(service), context_(context), tenant_(service.auth_.tenant(*context)), response_(response) {
+    Result<StreamSlot> slot = service_.slots_.acquire(tenant_, "upload");
+    if (!slot.is_ok()) {
+      end_with(to_grpc(slot.status()));
+      return;
     }
-    const Status room = ticket->grow(static_cast<std::int64_t>(upload.bytes.size() + part.chunk().size()));
-    if (!room.is_ok()) return to_grpc(room);
-    upload.bytes += part.chunk();
+    slot_ = std::move(slot.value());
+    StartRead(&part_);
   }
-  // Read() also ends when the client cancels or its deadline passes: what
-  // arrived may be cut at a line boundary and parse, so store nothing.
-  if (context->IsCancelled()) {
-    return {grpc::StatusCode::CANCELLED, "upload of " + upload.name + " cancelled by the client: nothing stored"};
+
+  void OnReadDone(bool ok) override {
+    if (!ok) return end();
+    if (!ticket_) {
+      if (!part_.has_header()) return end_with(to_grpc(invalid_argument("the first message of an upload must be its header")));
+      if (!v1::DatasetFormat_IsValid(part_.header().format())) {
+        return end_with(to_grpc(invalid_argument(
+            "format " + std::to_string(part_.header().format()) + " is unknown (expected " +
+            api::enum_choice_list(*v1::DatasetFormat_descriptor()) + ", or unspecified: from the name's extension)")));
+      }
+      upload_ = upload_from_header(part_.header());
+      Result<UploadTicket> ticket = service_.datasets_.begin_upload(tenant_, upload_.name);
+      if (!ticket.is_ok()) return end_with(to_grpc(ticket.status()));
+      ticket_.emplace(std::move(ticket.value()));
+      declared_ = static_cast<std::int64_t>(std::min<std::uint64_t>(part_.header().size_bytes(), INT64_MAX));
+      if (declared_ > 0) {
+        const Status room = ticket_->grow(declared_);
+        if (!room.is_ok()) return end_with(to_grpc(room));
+        upload_.bytes.reserve(static_cast<std::size_t>(declared_));
+      }
+      return StartRead(&part_);
+    }
+    if (part_.has_header()) return end_with(to_grpc(invalid_argument("only one header per upload")));
+    if (!part_.has_chunk()) {
+      return end_with(to_grpc(invalid_argument("a message of the upload of " + upload_.name +
+                                             " is empty: after the header, every message carries a chunk")));
+    }
+    const auto bytes = static_cast<std::int64_t>(upload_.bytes.size() + part_.chunk().size());
+    if (declared_ > 0 && bytes > declared_) {
+      return end_with(to_grpc(invalid_argument("the upload of " + upload_.name + " sends more than the " +
+                                             std::to_string(declared_) + " bytes its header declared (size_bytes)")));
+    }
+    if (declared_ == 0) {
+      const Status room = ticket_->grow(bytes);
+      if (!room.is_ok()) return end_with(to_grpc(room));
+    }
+    upload_.bytes += part_.chunk();
+    StartRead(&part_);
   }
-  const Result<DatasetRecord> stored = datasets_.upload(ticket.value(), upload);
-  if (!stored.is_ok()) return to_grpc(stored.status());
-  *response = to_proto(stored.value());
-  return grpc::Status::OK;
+
+  void OnDone() override {
+    if (storing_.joinable()) storing_.join();
+    delete this;
+  }
+
+ private:
+  // Gives back the upload's room and place before the client hears the
+  // status, so that a client that goes on at once finds them free.
+  void end_with(const grpc::Status& status) {
+    ticket_.reset();
+    slot_ = StreamSlot();
+    Finish(status);
+  }
+
+  // The client is done sending, or gone.
+  void end() {
+    if (!ticket_) return end_with(to_grpc(invalid_argument("the first message of an upload must be its header")));
+    // A read also ends when the client cancels or its deadline passes: what
+    // arrived may be cut at a line boundary and parse, so store nothing.
+    if (context_->IsCancelled()) {
+      return end_with({grpc::StatusCode::CANCELLED, "upload of " + upload_.name + " cancelled by the client: nothing stored"});
+    }
+    if (declared_ > 0 && static_cast<std::int64_t>(upload_.bytes.size()) != declared_) {
+      return end_with(to_grpc(invalid_argument("the upload of " + upload_.name + " ended after " +
+                                             std::to_string(upload_.bytes.size()) + " of the " +
+                                             std::to_string(declared_) + " bytes its header declared: nothing stored")));
+    }
+    storing_ = std::thread([this] {
+      const Result<DatasetRecord> stored = service_.datasets_.upload(*ticket_, upload_);
+      upload_.bytes = std::string();  // freed now rather than when the call is done
+      if (!stored.is_ok()) return end_with(to_grpc(stored.status()));
+      *response_ = to_proto(stored.value());
+      end_with(grpc::Status::OK);
+    });
+  }
+
+  DatasetServiceImpl& service_;
+  grpc::CallbackServerContext* const context_;
+  const std::string tenant_;
+  v1::DatasetInfo* const response_;
+  StreamSlot slot_;
+  v1::UploadDatasetRequest part_;
+  DatasetUpload upload_;
+  std::optional<UploadTicket> ticket_;
+  std::int64_t declared_ = 0;  // the header's size_bytes: reserved at once
+  std::thread storing_;
+};
+
+grpc::ServerReadReactor<v1::UploadDatasetRequest>* DatasetServiceImpl::UploadDataset(
+    grpc::CallbackServerContext* context, v1::DatasetInfo* response) {
+  return new UploadReactor(*this, context, response);
 }
 
 grpc::Status DatasetServiceImpl::GetDataset(grpc::ServerContext* context, const v1::GetDatasetRequest* request,

@@ -39,6 +39,12 @@ class SessionServiceImpl::StreamReactor final : public grpc::ServerBidiReactor<v
  public:
   StreamReactor(SessionServiceImpl& service, grpc::CallbackServerContext* context)
       : service_(service), tenant_(service.auth_.tenant(*context)) {
+    Result<StreamSlot> slot = service_.slots_.acquire(tenant_, "stream");
+    if (!slot.is_ok()) {
+      finish(to_grpc(slot.status()));
+      return;
+    }
+    slot_ = std::move(slot.value());
     {
       std::lock_guard lock(service_.streams_mu_);
       if (!service_.draining_) service_.streams_.insert(this);
@@ -165,11 +171,13 @@ class SessionServiceImpl::StreamReactor final : public grpc::ServerBidiReactor<v
       session_->detach();
       service_.sessions_.save(*session_);
     }
+    slot_ = StreamSlot();
     Finish(status);
   }
 
   SessionServiceImpl& service_;
   const std::string tenant_;
+  StreamSlot slot_;
   bool registered_ = false;
   std::shared_ptr<Session> session_;
   bool full_covariance_ = false;

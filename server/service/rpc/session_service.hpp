@@ -14,6 +14,7 @@
 #include "service/limits.hpp"
 #include "service/metrics.hpp"
 #include "service/sessions/session_manager.hpp"
+#include "service/stream_slots.hpp"
 
 namespace riccati::service {
 
@@ -24,8 +25,9 @@ namespace riccati::service {
 // every stream at once with UNAVAILABLE when the daemon stops.
 class SessionServiceImpl final : public v1::SessionService::WithCallbackMethod_Stream<v1::SessionService::Service> {
  public:
-  SessionServiceImpl(const Authenticator& auth, SessionManager& sessions, Limits limits, Metrics& metrics)
-      : auth_(auth), sessions_(sessions), limits_(limits), metrics_(metrics) {}
+  SessionServiceImpl(const Authenticator& auth, SessionManager& sessions, Limits limits, Metrics& metrics,
+                     StreamSlots& slots)
+      : auth_(auth), sessions_(sessions), limits_(limits), metrics_(metrics), slots_(slots) {}
   ~SessionServiceImpl() override;
   grpc::Status CreateSession(grpc::ServerContext*, const v1::CreateSessionRequest*, v1::SessionInfo*) override;
   grpc::Status GetSession(grpc::ServerContext*, const v1::GetSessionRequest*, v1::SessionInfo*) override;
@@ -43,6 +45,7 @@ class SessionServiceImpl final : public v1::SessionService::WithCallbackMethod_S
   SessionManager& sessions_;
   const Limits limits_;
   Metrics& metrics_;
+  StreamSlots& slots_;
   std::mutex streams_mu_;
   std::condition_variable streams_done_;
   std::set<StreamReactor*> streams_;  // open streams, for drain()
