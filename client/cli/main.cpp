@@ -150,6 +150,14 @@ int main(int argc, char** argv) {
   auto* job_delete_cmd = job->add_subcommand("delete", "Delete an ended job and its result");
   job_delete_cmd->add_option("id", job_id)->required();
 
+  auto* sessions_cmd = app.add_subcommand("sessions", "Filter sessions: list (the default), show, close");
+  std::string session_id;
+  auto* sessions_list_cmd = sessions_cmd->add_subcommand("list", "List the sessions, on every instance");
+  auto* session_show_cmd = sessions_cmd->add_subcommand("show", "Show a session: state, measurements, estimate");
+  session_show_cmd->add_option("id", session_id)->required();
+  auto* session_close_cmd = sessions_cmd->add_subcommand("close", "Close a session (its stream, if any, ends)");
+  session_close_cmd->add_option("id", session_id)->required();
+
   std::string format = "table", output, truth_text;
   auto* result_cmd = app.add_subcommand("result", "A finished job's result");
   result_cmd->add_option("id", job_id)->required();
@@ -246,6 +254,12 @@ int main(int argc, char** argv) {
     return identify(client, s, !no_wait);
   }
   if (*jobs) return jobs_list(client);
+  if (*sessions_cmd) {
+    if (*session_show_cmd) return session_show(client, session_id);
+    if (*session_close_cmd) return session_close(client, session_id);
+    (void)sessions_list_cmd;
+    return sessions_list(client);
+  }
   if (*job_show_cmd) return job_show(client, job_id);
   if (*job_watch_cmd) return job_watch(client, job_id);
   if (*job_cancel_cmd) return job_cancel(client, job_id);

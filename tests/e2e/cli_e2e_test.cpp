@@ -502,6 +502,33 @@ TEST_F(SecureCliTest, AWrongOrMissingTokenFailsWithTheReason) {
   EXPECT_EQ(r.exit_code, 3) << last_stderr();
 }
 
+// A session kept after its stream (--keep): listed, shown and closed by id.
+TEST_F(CliTest, SessionsAreListedShownAndClosed) {
+  const auto out = dir_.path() / "kept.csv";
+  CliRun r = riccati("stream --model two_tank --data " + kData +
+                     "/two_tank.csv --r 1e-3 --p0 0,0,10,10,10,10 --theta0 20,20,1,1 --batch 100 --keep -o " +
+                     out.string());
+  ASSERT_EQ(r.exit_code, 0) << last_stderr();
+  const std::string err = last_stderr();
+  const auto at = err.find("session ses-");
+  ASSERT_NE(at, std::string::npos) << err;
+  const std::string id = err.substr(at + 8, err.find('\n', at) - at - 8);
+  r = riccati("sessions");
+  ASSERT_EQ(r.exit_code, 0) << last_stderr();
+  EXPECT_NE(r.out.find(id), std::string::npos) << r.out;
+  r = riccati("sessions show " + id + " --json");
+  ASSERT_EQ(r.exit_code, 0) << last_stderr();
+  const auto info = nlohmann::json::parse(r.out);
+  EXPECT_EQ(info["measurements"], "2000") << r.out;  // uint64 as protobuf's JSON writes it
+  EXPECT_FALSE(info["instance"].get<std::string>().empty()) << r.out;
+  r = riccati("sessions show " + id);
+  EXPECT_NE(r.out.find("2000 measurements"), std::string::npos) << r.out;
+  r = riccati("sessions close " + id);
+  ASSERT_EQ(r.exit_code, 0) << last_stderr();
+  r = riccati("sessions show " + id);
+  EXPECT_EQ(r.exit_code, 4) << r.out;
+}
+
 // The noisy two-tank record through an EKF session, from Hensen's start
 // theta0 = [20 20 1 1] (A1, A2, k1, k2: 2, 4, 13 and 7 times the truth
 // [10 5 0.0791 0.1342], which is also the model's default theta0) with his

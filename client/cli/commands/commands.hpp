@@ -44,6 +44,9 @@ int dataset_for(Client& c, const std::string& data, const std::vector<std::strin
                 const std::vector<std::string>& outputs, std::string* id, const std::string& model = "");
 
 int identify(Client& c, const RunSettings& s, bool wait);
+int sessions_list(Client& c);
+int session_show(Client& c, const std::string& id);
+int session_close(Client& c, const std::string& id);
 int jobs_list(Client& c);
 int job_show(Client& c, const std::string& id);
 int job_watch(Client& c, const std::string& id);

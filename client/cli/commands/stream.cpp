@@ -27,16 +27,23 @@ struct Recording {
   std::size_t inputs = 0;
 };
 
-bool read_recording(const StreamOptions& o, Recording* out, std::string* error) {
+// The columns: --inputs and --outputs, or, when neither is given, the
+// model's input and output names.
+bool read_recording(const StreamOptions& o, const v1::ModelInfo& model, Recording* out, std::string* error) {
   const RunSettings& s = o.settings;
+  const bool named = s.inputs.empty() && s.outputs.empty();
+  const std::vector<std::string> inputs =
+      named ? std::vector<std::string>(model.input_names().begin(), model.input_names().end()) : s.inputs;
+  const std::vector<std::string> outputs =
+      named ? std::vector<std::string>(model.output_names().begin(), model.output_names().end()) : s.outputs;
   std::vector<std::string> columns{o.time};
-  columns.insert(columns.end(), s.inputs.begin(), s.inputs.end());
-  columns.insert(columns.end(), s.outputs.begin(), s.outputs.end());
+  columns.insert(columns.end(), inputs.begin(), inputs.end());
+  columns.insert(columns.end(), outputs.begin(), outputs.end());
   if (auto problem = csv::read_file(o.file, columns, &out->table)) {
     *error = *problem + " (stream reads CSV files)";
     return false;
   }
-  out->inputs = s.inputs.size();
+  out->inputs = inputs.size();
   return true;
 }
 
@@ -217,15 +224,15 @@ int stream(Client& c, const StreamOptions& o) {
     std::fprintf(stderr, "riccati: stream needs --model\n");
     return kExitUsage;
   }
-  Recording recording;
-  std::string error;
-  if (!read_recording(o, &recording, &error)) {
-    std::fprintf(stderr, "riccati: %s\n", error.c_str());
-    return kExitUsage;
-  }
   v1::ModelInfo info;  // names the estimates' columns and the live view's rows
   if (const grpc::Status status = c.get_model(*s.model, &info); !status.ok()) {
     return c.fail("model " + *s.model, status);
+  }
+  Recording recording;
+  std::string error;
+  if (!read_recording(o, info, &recording, &error)) {
+    std::fprintf(stderr, "riccati: %s\n", error.c_str());
+    return kExitUsage;
   }
   std::FILE* out = o.output.empty() ? stdout : std::fopen(o.output.c_str(), "w");
   if (out == nullptr) {

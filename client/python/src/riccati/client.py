@@ -148,7 +148,7 @@ class Client:
         file_name, content, inputs, outputs, time = _data.as_upload(data, inputs, outputs, time)
         header = datasets_pb2.UploadHeader(name=name or file_name, time_column=time,
                                            input_columns=list(inputs or []), output_columns=list(outputs or []),
-                                           request_id=request_id or str(uuid.uuid4()))
+                                           request_id=request_id or str(uuid.uuid4()), size_bytes=len(content))
 
         def parts():
             yield datasets_pb2.UploadDatasetRequest(header=header)
