@@ -25,6 +25,7 @@
 //   POST   /api/v1/sessions                  CreateSessionRequest -> SessionInfo
 //   GET    /api/v1/sessions/{id}             SessionInfo
 //   DELETE /api/v1/sessions/{id}             {}
+//   POST   /api/v1/sessions/{id}/retune      RetuneSessionRequest (id from the path) -> SessionInfo
 //   GET    /api/v1/sessions/{id}/events      server-sent events: {"info": SessionInfo, "estimate": Estimate},
 //                                            at most 10 a second, while the session lives
 //
