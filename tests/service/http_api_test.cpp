@@ -252,6 +252,17 @@ TEST_F(HttpApiTest, AnIdentificationSubmittedInJsonIsWatchedByEventsAndItsResult
   res = http_->Get("/api/v1/jobs", bearer(kAlpha));
   ASSERT_TRUE(res);
   EXPECT_EQ(parse<v1::ListJobsResponse>(res->body).jobs_size(), 1);
+
+  // DeleteJob: not another tenant's (404); the owner's goes with its result.
+  res = http_->Delete(("/api/v1/jobs/" + job.id()).c_str(), bearer(kBeta));
+  ASSERT_TRUE(res);
+  EXPECT_EQ(res->status, 404);
+  res = http_->Delete(("/api/v1/jobs/" + job.id()).c_str(), bearer(kAlpha));
+  ASSERT_TRUE(res);
+  EXPECT_EQ(res->status, 200) << res->body;
+  res = http_->Get(("/api/v1/jobs/" + job.id() + "/result").c_str(), bearer(kAlpha));
+  ASSERT_TRUE(res);
+  EXPECT_EQ(res->status, 404);
 }
 
 TEST_F(HttpApiTest, MalformedJsonIs400NamingTheFieldAndUnknownRoutesAre404) {
@@ -365,6 +376,86 @@ TEST_F(HttpApiTest, SessionEventsFollowMeasurementsStreamedOverGrpc) {
   ASSERT_TRUE(res);
   EXPECT_EQ(res->status, 200);
   res = http_->Get(("/api/v1/sessions/" + session.id() + "/events").c_str(), bearer(kBeta));
+  ASSERT_TRUE(res);
+  EXPECT_EQ(res->status, 404);
+}
+
+// Live retuning: two sessions fed the same record; one gets a large R over
+// the API between two measurements. At the next measurement (the same for
+// both, its h1 pushed off by 0.05) the retuned filter corrects its state
+// toward it far less: its gain responded. The retuning is in its history.
+TEST_F(HttpApiTest, ARetunedSessionsGainRespondsAtTheNextMeasurement) {
+  ColumnMapping mapping;
+  mapping.inputs = {"F1", "F2"};
+  mapping.outputs = {"h1", "h2"};
+  const Dataset data = read_csv_file(kData + "/two_tank.csv", mapping).value();
+  constexpr int kSamples = 200;
+  struct Fed {
+    std::string id;
+    v1::MeasurementResult last;
+  };
+  // Creates a session and streams the first samples into it, then `extra`.
+  auto feed = [&](const std::string& id, int from, int to, double h1_offset) {
+    auto ctx = as(kAlpha);
+    auto stream = sessions_->Stream(ctx.get());
+    v1::StreamRequest open;
+    open.mutable_open()->set_session_id(id);
+    EXPECT_TRUE(stream->Write(open));
+    v1::StreamRequest batch;
+    for (int k = from; k < to; ++k) testing::add_sample(batch, data, k);
+    batch.mutable_batch()->mutable_measurements()->rbegin()->set_y(0, data.y(0, to - 1) + h1_offset);
+    v1::StreamResponse response;
+    EXPECT_TRUE(stream->Write(batch));
+    EXPECT_TRUE(stream->Read(&response));
+    stream->WritesDone();
+    EXPECT_TRUE(stream->Finish().ok());
+    return response.results(response.results_size() - 1);
+  };
+  std::vector<Fed> sessions(2);
+  for (Fed& s : sessions) {
+    v1::SessionInfo info;
+    ASSERT_TRUE(sessions_->CreateSession(as(kAlpha).get(), testing::two_tank_session(), &info).ok());
+    s.id = info.id();
+    feed(s.id, 0, kSamples, 0.0);
+  }
+  auto res = http_->Post(("/api/v1/sessions/" + sessions[1].id + "/retune").c_str(), bearer(kAlpha),
+                         R"({"r": {"diagonal": {"values": [1000, 1000]}}})", "application/json");
+  ASSERT_TRUE(res);
+  ASSERT_EQ(res->status, 200) << res->body;
+  const auto retuned = parse<v1::SessionInfo>(res->body);
+  ASSERT_EQ(retuned.retunings_size(), 1);
+  EXPECT_EQ(retuned.retunings(0).measurements(), static_cast<std::uint64_t>(kSamples));
+  EXPECT_DOUBLE_EQ(retuned.retunings(0).t(), data.t[kSamples - 1]);
+  EXPECT_EQ(retuned.retunings(0).r().diagonal().values(0), 1000);
+
+  for (Fed& s : sessions) s.last = feed(s.id, kSamples, kSamples + 1, 0.05);
+  const v1::Estimate& as_created = sessions[0].last.estimate();
+  const v1::Estimate& with_large_r = sessions[1].last.estimate();
+  // The same prior and innovation (the retuning changed no estimate)...
+  EXPECT_DOUBLE_EQ(as_created.y_predicted(0), with_large_r.y_predicted(0));
+  EXPECT_NEAR(as_created.innovation(0), 0.05, 0.01);
+  // ...and a correction toward the measurement a gain's ratio apart.
+  const double correction = as_created.state(0) - as_created.y_predicted(0);
+  const double retuned_correction = with_large_r.state(0) - with_large_r.y_predicted(0);
+  EXPECT_GT(correction, 0.0);
+  EXPECT_LT(std::abs(retuned_correction), correction / 100) << correction << " " << retuned_correction;
+
+  // Over gRPC: the history, and weights a session would refuse are refused, nothing changed.
+  v1::GetSessionRequest get;
+  get.set_id(sessions[1].id);
+  v1::SessionInfo info;
+  ASSERT_TRUE(sessions_->GetSession(as(kAlpha).get(), get, &info).ok());
+  EXPECT_EQ(info.retunings_size(), 1);
+  v1::RetuneSessionRequest wrong;
+  wrong.set_id(sessions[1].id);
+  wrong.mutable_r()->mutable_diagonal()->add_values(1.0);  // ny = 2
+  EXPECT_EQ(sessions_->RetuneSession(as(kAlpha).get(), wrong, &info).error_code(), grpc::StatusCode::INVALID_ARGUMENT);
+  wrong.mutable_r()->mutable_diagonal()->add_values(-1.0);
+  EXPECT_EQ(sessions_->RetuneSession(as(kAlpha).get(), wrong, &info).error_code(), grpc::StatusCode::INVALID_ARGUMENT);
+  ASSERT_TRUE(sessions_->GetSession(as(kAlpha).get(), get, &info).ok());
+  EXPECT_EQ(info.retunings_size(), 1);
+  res = http_->Post(("/api/v1/sessions/" + sessions[1].id + "/retune").c_str(), bearer(kBeta),
+                    R"({"r": {"diagonal": {"values": [1, 1]}}})", "application/json");
   ASSERT_TRUE(res);
   EXPECT_EQ(res->status, 404);
 }

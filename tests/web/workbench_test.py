@@ -9,7 +9,7 @@ Signs in with a token (a wrong one refused), uploads the two-tank CSV, plots
 its signals, runs an identification whose result table must hold the JSON
 API's numbers (the API's own test holds them equal to gRPC's), checks that the
 trace and overlay plots are drawn, validates the estimate, watches a session
-fed by `riccati stream`, and shows a dataset named <script>alert(1)</script>
+fed by `riccati stream` and retunes its R on-line, and shows a dataset named <script>alert(1)</script>
 as text. With --screenshots, saves a PNG of every page there.
 """
 import argparse
@@ -269,7 +269,7 @@ class Workbench(unittest.TestCase):
         self.find("#validate-submit").click()
         job = self.wait_job()
         fits = self.api(f"/jobs/{job}/result")["validation"]["fits"]
-        cells = self.driver.find_elements(By.CSS_SELECTOR, "#fits td.fit")
+        cells = self.wait(lambda d: d.find_elements(By.CSS_SELECTOR, "#fits td.fit"))
         self.assertEqual([float(c.get_attribute("data-value")) for c in cells], [f["fitPercent"] for f in fits])
         self.assertGreater(fits[0]["fitPercent"], 90)
         self.assert_plots_drawn("#overlay", 2)
@@ -290,7 +290,7 @@ class Workbench(unittest.TestCase):
         self.__class__.stream = subprocess.Popen(
             [ARGS.riccati, "--server", f"127.0.0.1:{self.grpc_port}", "--token-file", self.token_file,
              "stream", "--config", os.path.join(ARGS.source_dir, "examples/two_tank_hensen.yaml"),
-             "--data", os.path.join(ARGS.source_dir, "tests/data/two_tank.csv"), "--rate", "100",
+             "--data", os.path.join(ARGS.source_dir, "tests/data/two_tank.csv"), "--rate", "50",
              "--live", "never", "--output", os.path.join(self.dir, "estimates.csv")],
             stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
         self.go("sessions")
@@ -306,6 +306,31 @@ class Workbench(unittest.TestCase):
             counts.append(int(summary.text.split(" · ")[1].split()[0]))
         self.assertEqual(counts, sorted(set(counts)))
         self.assert_plots_drawn("#session-plots", 6)
+
+        # Retune on-line: R 1000 times larger. The filter leans on the model
+        # now, so the uncertainty of h1 (its ±2σ) grows.
+        def two_sigma(name):  # read at once: the table is redrawn at every estimate
+            return self.driver.execute_script("""
+                for (const tr of document.querySelectorAll('#session-values tbody tr')) {
+                  if (tr.querySelector('th').textContent === arguments[0]) return Number(tr.querySelectorAll('td')[1].textContent);
+                }
+                return null;""", name)
+        before = two_sigma("h1")
+        self.assertIsNotNone(before)
+        for output in ("h1", "h2"):
+            self.find(f"#retune-r-{output}").send_keys("1")
+        self.find("#retune-apply").click()
+        self.wait(lambda d: d.find_element(By.ID, "retune-status").text != "")
+        self.assertIn("Retuned", self.driver.find_element(By.ID, "retune-status").text)
+        self.find("#retunings table tbody tr")
+        info = self.api("/sessions/" + self.driver.current_url.split("#/sessions/")[1])
+        self.assertEqual(len(info["retunings"]), 1)
+        self.assertEqual(info["retunings"][0]["r"]["diagonal"]["values"], [1, 1])
+        seen = []
+        try:
+            self.wait(lambda d: seen.append(two_sigma("h1")) or (seen[-1] or 0) > 1.5 * before, timeout=60)
+        except TimeoutException:
+            self.fail(f"the ±2σ of h1 did not grow after R was raised: {before} before, then {seen[-20:]}")
         self.shot("session")
 
 

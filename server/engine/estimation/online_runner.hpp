@@ -84,6 +84,8 @@ class OnlineRunner {
   bool diverged() const { return !divergence_.is_ok(); }
   const Status& divergence() const { return divergence_; }
   const Filter& filter() const { return *filter_; }
+  // Live retuning: Filter::retune, between two measurements.
+  Status retune(const FilterSettings& settings) { return filter_->retune(settings); }
   const Model& model() const { return filter_->model(); }
   const InitialEstimate& initial() const { return initial_; }
 

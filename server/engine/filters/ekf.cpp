@@ -115,9 +115,7 @@ class Ekf final : public KalmanFilter {
     A_.resize(nx, nx);
     Pthth0_.resize(nth, nth);
     Pthth_.resize(nth, nth);
-    q_thth_is_zero_ = settings_.Q.bottomRightCorner(nth, nth).isZero(0.0);
-    q_theta_is_zero_ = settings_.Q.rightCols(nth).isZero(0.0);
-    Qxx_ = settings_.Q.topLeftCorner(nx, nx);
+    noise_changed();
     covariance_derivative_ = covariance_derivative_for(nx);
     G_.resize(ny, nz);
     PGt_.resize(nz, ny);
@@ -125,6 +123,14 @@ class Ekf final : public KalmanFilter {
     IKGP_.resize(nz, nz);
     KR_.resize(nz, ny);
     Pnew_.resize(nz, nz);
+  }
+
+  // What the prediction takes from Q: its parameters' block's zero pattern, and its states' block.
+  void noise_changed() override {
+    const int nx = model_->nx(), nth = model_->nz() - nx;
+    q_thth_is_zero_ = settings_.Q.bottomRightCorner(nth, nth).isZero(0.0);
+    q_theta_is_zero_ = settings_.Q.rightCols(nth).isZero(0.0);
+    Qxx_ = settings_.Q.topLeftCorner(nx, nx);
   }
 
   Status predict(double t1, const double* u0, const double* u1) override {

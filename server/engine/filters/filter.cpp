@@ -110,6 +110,17 @@ Status Filter::reset(double t, const Eigen::VectorXd& z, const Eigen::MatrixXd& 
   return Status::ok();
 }
 
+Status Filter::retune(const FilterSettings& settings) {
+  if (settings.kind != settings_.kind) return invalid_argument("a retuning cannot change the filter's kind");
+  RICCATI_RETURN_IF_ERROR(validate(settings, *model_));
+  settings_.Q = settings.Q;
+  settings_.R = settings.R;
+  settings_.optimal.V = settings.optimal.V;
+  settings_.optimal.W = settings.optimal.W;
+  noise_changed();
+  return Status::ok();
+}
+
 Status Filter::restore(double t, const Eigen::VectorXd& z, const Eigen::MatrixXd& P, const Eigen::VectorXd& carried) {
   const Eigen::Index nz = model_->nz();
   if (z.size() != nz || P.rows() != nz || P.cols() != nz) {

@@ -150,6 +150,12 @@ class Filter {
   // filter of the same model and settings returned. Only sizes are checked:
   // the values are a filter's own, kept exactly (even a diverged one's).
   Status restore(double t, const Eigen::VectorXd& z, const Eigen::MatrixXd& P, const Eigen::VectorXd& carried);
+  // Live retuning (COCKPIT's weights changed on the rig): the noise of
+  // `settings` (Q and R; the optimal filter's V and W) from the next step
+  // on, the estimate and its covariance kept. The kind must be the filter's;
+  // the settings are checked as at construction (validate()). Nothing
+  // changes when they are refused.
+  Status retune(const FilterSettings& settings);
 
   const Model& model() const { return *model_; }
   const FilterSettings& settings() const { return settings_; }
@@ -176,6 +182,9 @@ class Filter {
   // Called at the end of reset(): a filter that keeps more than z and P
   // (the optimal filter's last measurement) clears it here.
   virtual void restarted() {}
+  // Called by retune() once settings_ holds the new noise: a filter that
+  // derived something from it (a zero pattern, an inverse) derives it again.
+  virtual void noise_changed() {}
   // restore()'s part for carried_state(); false if `carried` does not fit.
   virtual bool restore_carried(const Eigen::VectorXd& carried) { return carried.size() == 0; }
 

@@ -52,9 +52,7 @@ class OptimalFilter final : public Filter {
     n_ = model_->ndof();
     const int nu = model_->nu(), ny = model_->ny(), N = model_->nz();
     const int L = optimal_equation_count(*model_), P = nu + n_, Lp = n_ + ny;
-    V_ = settings_.optimal.V;
-    W_inv_ = settings_.optimal.W.llt().solve(Eigen::MatrixXd::Identity(N, N));
-    W_inv_ = 0.5 * (W_inv_ + W_inv_.transpose());
+    noise_changed();
     continuous_ = settings_.optimal.form == OptimalForm::kContinuous;
     f_.resize(Lp);
     F_.resize(Lp, P);
@@ -110,6 +108,14 @@ class OptimalFilter final : public Filter {
     Eigen::VectorXd c(2 + y_last_.size());
     c << (has_measurement_ ? 1.0 : 0.0), interval_, y_last_;
     return c;
+  }
+
+  // The weights as the steps use them: V, and W^-1 (symmetric to the bit).
+  void noise_changed() override {
+    const int N = model_->nz();
+    V_ = settings_.optimal.V;
+    W_inv_ = settings_.optimal.W.llt().solve(Eigen::MatrixXd::Identity(N, N));
+    W_inv_ = 0.5 * (W_inv_ + W_inv_.transpose());
   }
 
   Status predict(double t1, const double* u0, const double* u1) override {

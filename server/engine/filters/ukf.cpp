@@ -128,6 +128,8 @@ class Ukf final : public KalmanFilter {
     if (settings_.smoothing) dW_.resize(nz, nz);
   }
 
+  void noise_changed() override { q_is_zero_ = settings_.Q.isZero(0.0); }
+
   Status predict(double t1, const double* u0, const double* u1) override {
     if (!(t1 > t_)) {
       return invalid_argument("predict to t = " + std::to_string(t1) + " is not after the filter's time " +

@@ -15,6 +15,7 @@
 #include "service/rpc/dataset_service.hpp"
 #include "service/rpc/job_service.hpp"
 #include "service/rpc/model_service.hpp"
+#include "service/rpc/session_service.hpp"
 
 namespace riccati::service {
 namespace {
@@ -175,6 +176,12 @@ class HttpApi::Routes {
                                                                 Response& res) {
       reply_job(res, api_.jobs_.cancel(tenant, req.matches[1].str()));
     }));
+    server.Delete(R"(/api/v1/jobs/([^/]+))", authed([this](const std::string& tenant, const Request& req,
+                                                           Response& res) {
+      const Status removed = api_.jobs_.remove(tenant, req.matches[1].str());
+      if (!removed.is_ok()) return fail(res, removed);
+      reply(res, v1::DeleteJobResponse());
+    }));
     server.Get(R"(/api/v1/jobs/([^/]+)/result)", authed([this](const std::string& tenant, const Request& req,
                                                                Response& res) {
       const auto result = job_result(api_.jobs_, tenant, req.matches[1].str());
@@ -209,6 +216,17 @@ class HttpApi::Routes {
       if (!closed.is_ok()) return fail(res, closed);
       reply(res, v1::CloseSessionResponse());
     }));
+    server.Post(R"(/api/v1/sessions/([^/]+)/retune)", [this](const Request& req, Response& res) {
+      const std::string id = req.matches[1].str();
+      with_body<v1::RetuneSessionRequest>([this, id](const std::string& tenant, const v1::RetuneSessionRequest& body,
+                                                     Response& out) {
+        v1::RetuneSessionRequest request = body;
+        request.set_id(id);
+        const auto info = retune_session(api_.sessions_, tenant, request);
+        if (!info.is_ok()) return fail(out, info.status());
+        reply(out, info.value());
+      })(req, res);
+    });
     server.Get(R"(/api/v1/sessions/([^/]+)/events)", authed([this](const std::string& tenant, const Request& req,
                                                                    Response& res) {
       session_events(tenant, req.matches[1].str(), res);

@@ -19,12 +19,14 @@
 //   POST   /api/v1/jobs/smoothing            SmoothingSpec -> Job
 //   GET    /api/v1/jobs/{id}                 Job
 //   POST   /api/v1/jobs/{id}/cancel          Job
+//   DELETE /api/v1/jobs/{id}                 DeleteJobResponse (an ended job and its result)
 //   GET    /api/v1/jobs/{id}/result          JobResult
 //   GET    /api/v1/jobs/{id}/events          server-sent events: Job, at most 5 a second, until it ends
 //   GET    /api/v1/sessions                  ListSessionsResponse
 //   POST   /api/v1/sessions                  CreateSessionRequest -> SessionInfo
 //   GET    /api/v1/sessions/{id}             SessionInfo
 //   DELETE /api/v1/sessions/{id}             {}
+//   POST   /api/v1/sessions/{id}/retune      RetuneSessionRequest (id from the path) -> SessionInfo
 //   GET    /api/v1/sessions/{id}/events      server-sent events: {"info": SessionInfo, "estimate": Estimate},
 //                                            at most 10 a second, while the session lives
 //

@@ -35,6 +35,22 @@ grpc::Status SessionServiceImpl::ListSessions(grpc::ServerContext* context, cons
   return grpc::Status::OK;
 }
 
+Result<v1::SessionInfo> retune_session(SessionManager& sessions, const std::string& tenant,
+                                       const v1::RetuneSessionRequest& request) {
+  RICCATI_ASSIGN_OR_RETURN(const std::shared_ptr<Session> session, sessions.get(tenant, request.id()));
+  RICCATI_RETURN_IF_ERROR(session->retune(request));
+  sessions.save(*session);  // the new weights outlive this instance
+  return session->info();
+}
+
+grpc::Status SessionServiceImpl::RetuneSession(grpc::ServerContext* context, const v1::RetuneSessionRequest* request,
+                                               v1::SessionInfo* response) {
+  auto info = retune_session(sessions_, auth_.tenant(*context), *request);
+  if (!info.is_ok()) return to_grpc(info.status());
+  *response = std::move(info.value());
+  return grpc::Status::OK;
+}
+
 class SessionServiceImpl::StreamReactor final : public grpc::ServerBidiReactor<v1::StreamRequest, v1::StreamResponse> {
  public:
   StreamReactor(SessionServiceImpl& service, grpc::CallbackServerContext* context)

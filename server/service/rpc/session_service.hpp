@@ -33,6 +33,7 @@ class SessionServiceImpl final : public v1::SessionService::WithCallbackMethod_S
   grpc::Status GetSession(grpc::ServerContext*, const v1::GetSessionRequest*, v1::SessionInfo*) override;
   grpc::Status ListSessions(grpc::ServerContext*, const v1::ListSessionsRequest*, v1::ListSessionsResponse*) override;
   grpc::Status CloseSession(grpc::ServerContext*, const v1::CloseSessionRequest*, v1::CloseSessionResponse*) override;
+  grpc::Status RetuneSession(grpc::ServerContext*, const v1::RetuneSessionRequest*, v1::SessionInfo*) override;
   grpc::ServerBidiReactor<v1::StreamRequest, v1::StreamResponse>* Stream(grpc::CallbackServerContext*) override;
 
   // Ends every open stream with UNAVAILABLE and refuses new ones; returns
@@ -51,5 +52,9 @@ class SessionServiceImpl final : public v1::SessionService::WithCallbackMethod_S
   std::set<StreamReactor*> streams_;  // open streams, for drain()
   bool draining_ = false;
 };
+
+// Retunes a session of the tenant and stores its snapshot (RetuneSession).
+Result<v1::SessionInfo> retune_session(SessionManager& sessions, const std::string& tenant,
+                                       const v1::RetuneSessionRequest& request);
 
 }  // namespace riccati::service

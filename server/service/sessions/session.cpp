@@ -105,7 +105,34 @@ v1::SessionInfo Session::info() const {
   set_timestamp(created_ms_, info.mutable_created());
   set_timestamp(last_active_ms_, info.mutable_last_active());
   if (!diverged_.is_ok()) *info.mutable_error() = to_error(diverged_);
+  *info.mutable_retunings() = retunings_;
   return info;
+}
+
+Status Session::retune(const v1::RetuneSessionRequest& request) {
+  if (!request.has_q() && !request.has_r() && !request.has_v() && !request.has_w()) {
+    return invalid_argument("a retuning gives new weights: q and r (EKF, UKF), or v and w (optimal filter)");
+  }
+  std::lock_guard lock(mu_);
+  if (!diverged_.is_ok()) return failed_precondition("session " + id_ + " diverged: " + diverged_.message());
+  v1::FilterSettings filter = request_.filter();
+  if (request.has_q()) *filter.mutable_q() = request.q();
+  if (request.has_r()) *filter.mutable_r() = request.r();
+  if (request.has_v()) *filter.mutable_optimal()->mutable_v() = request.v();
+  if (request.has_w()) *filter.mutable_optimal()->mutable_w() = request.w();
+  RICCATI_ASSIGN_OR_RETURN(const FilterSettings settings, from_proto(filter, runner_.model()));
+  RICCATI_RETURN_IF_ERROR(runner_.retune(settings));
+  *request_.mutable_filter() = std::move(filter);
+  v1::Retuning* retuning = retunings_.Add();
+  retuning->set_t(runner_.started() ? runner_.filter().time() : 0.0);
+  retuning->set_measurements(accepted_);
+  set_timestamp(now_ms(), retuning->mutable_at());
+  if (request.has_q()) *retuning->mutable_q() = request.q();
+  if (request.has_r()) *retuning->mutable_r() = request.r();
+  if (request.has_v()) *retuning->mutable_v() = request.v();
+  if (request.has_w()) *retuning->mutable_w() = request.w();
+  spdlog::info("session retuned id={} t={} measurements={}", id_, retuning->t(), accepted_);
+  return Status::ok();
 }
 
 bool Session::latest(v1::Estimate* out, std::uint64_t* accepted) const {
@@ -141,6 +168,7 @@ std::string Session::encode(const std::string& instance) const {
   out.set_accepted(accepted_);
   if (!diverged_.is_ok()) *out.mutable_diverged() = to_error(diverged_);
   out.set_streaming(streaming_);
+  *out.mutable_retunings() = retunings_;
   return out.SerializeAsString();
 }
 
@@ -181,6 +209,7 @@ Status Session::restore(const internal::SessionSnapshot& s) {
   received_ = received_at_snapshot_ = s.received();
   accepted_ = s.accepted();
   last_active_ms_ = s.last_active_ms();
+  retunings_ = s.retunings();
   return Status::ok();
 }
 

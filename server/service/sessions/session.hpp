@@ -42,6 +42,9 @@ class Session {
   // stream), and the measurements accepted so far; no estimate (false)
   // before the first.
   bool latest(v1::Estimate* out, std::uint64_t* accepted) const;
+  // Live retuning: new noise weights between two measurements, kept in the
+  // session's request (what a snapshot rebuilds it from) and its history.
+  Status retune(const v1::RetuneSessionRequest& request);
   bool idle_since(std::chrono::steady_clock::time_point t) const;
 
   // The session as a snapshot (SessionSnapshot, encoded), stored by `instance`.
@@ -67,7 +70,8 @@ class Session {
 
   const std::string id_;
   const std::string tenant_;
-  const v1::CreateSessionRequest request_;  // as given: what a snapshot rebuilds the session from
+  // As given, its filter's weights as retuned: what a snapshot rebuilds the session from (mu_).
+  v1::CreateSessionRequest request_;
   const std::int64_t created_ms_;
 
   mutable std::mutex mu_;
@@ -76,6 +80,7 @@ class Session {
   bool closed_ = false;
   Status diverged_;             // the runner's divergence, as the session reports it
   Status lost_;                 // another instance resumed it
+  google::protobuf::RepeatedPtrField<v1::Retuning> retunings_;
   std::uint64_t received_ = 0;  // every measurement, accepted or not
   std::uint64_t accepted_ = 0;
   std::uint64_t received_at_snapshot_ = 0;

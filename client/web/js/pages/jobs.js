@@ -28,7 +28,7 @@ export async function show(main, r, signal) {
             h('td', {class: 'state ' + state}, state),
             h('td', {}, spec.model || ''),
             h('td', {}, names[spec.datasetId] || spec.datasetId || ''),
-            h('td', {}, num(p.passes) ? `pass ${num(p.pass)}/${num(p.passes)}` : ''),
+            h('td', {}, num(p.passes) ? `pass ${num(p.passNumber)}/${num(p.passes)}` : ''),
             h('td', {}, when(job.created)), h('td', {}, when(job.started)), h('td', {}, when(job.finished)),
             h('td', {}, terminal(state) ? null : h('button', {class: 'danger', onclick: async () => {
               await api('POST', `/jobs/${encodeURIComponent(job.id)}/cancel`);
@@ -71,9 +71,9 @@ async function showJob(main, id, signal) {
     clear(stateEl, state);
     cancel.style.display = terminal(state) ? 'none' : '';
     const passes = num(p.passes) || 1, samples = num(p.samples) || 1;
-    const done = state === 'SUCCEEDED' ? 1 : ((num(p.pass) || 1) - 1 + (num(p.sample) || 0) / samples) / passes;
+    const done = state === 'SUCCEEDED' ? 1 : ((num(p.passNumber) || 1) - 1 + (num(p.sample) || 0) / samples) / passes;
     bar.style.width = `${Math.min(100, 100 * done).toFixed(1)}%`;
-    clear(progressText, num(p.passes) ? `pass ${num(p.pass)} of ${num(p.passes)}, sample ${num(p.sample)} of ${num(p.samples)}` : '',
+    clear(progressText, num(p.passes) ? `pass ${num(p.passNumber)} of ${num(p.passes)}, sample ${num(p.sample)} of ${num(p.samples)}` : '',
       num(p.iteration) ? ` · iteration ${num(p.iteration)}, cost ${fmt(p.cost)}` : '');
     if (j.error && j.error.message) clear(result, errorBox(j.error.message));
     const theta = (p.theta || []).map(num);

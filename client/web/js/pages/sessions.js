@@ -40,11 +40,17 @@ async function showOne(main, id, signal) {
   const model = await api('GET', '/models/' + encodeURIComponent(info.model), undefined, {signal});
   const names = [...(model.stateNames || []), ...(model.paramNames || [])];
   const summary = h('p', {id: 'session-summary'});
+  const retunings = h('div', {id: 'retunings'});
+  const drawRetunings = (list) => clear(retunings, (list || []).length === 0 ? null : h('table', {},
+    h('thead', {}, h('tr', {}, ['Retuned at t (s)', 'After measurements', 'Q', 'R', 'V', 'W'].map((c) => h('th', {}, c)))),
+    h('tbody', {}, list.map((r) => h('tr', {}, h('td', {class: 'num'}, fmt(r.t)), h('td', {class: 'num'}, num(r.measurements)),
+      [r.q, r.r, r.v, r.w].map((c) => h('td', {}, covarianceText(c))))))));
   const values = h('tbody');
   const plots = h('div', {class: 'plots', id: 'session-plots'});
   clear(main, h('h1', {}, 'Session ', h('span', {}, id)),
     h('p', {class: 'muted'}, `${info.model} · ${enumName(info.filter, 'FILTER_KIND_')} · `, h('a', {href: '#/sessions'}, 'all sessions')),
     summary,
+    retuneForm(id, info, model, drawRetunings), retunings,
     h('table', {id: 'session-values'}, h('thead', {}, h('tr', {}, ['', 'Estimate', '±2σ'].map((c) => h('th', {class: 'num'}, c)))), values),
     plots);
   const t = [], z = names.map(() => []), s = names.map(() => []);
@@ -52,7 +58,10 @@ async function showOne(main, id, signal) {
     {label: n, values: [], color: '#1f6feb'},
     {label: '+2σ', values: [], color: 'rgba(31,111,235,.35)', width: 1},
     {label: '−2σ', values: [], color: 'rgba(31,111,235,.35)', width: 1}]}));
+  drawRetunings(info.retunings);
+  let shownRetunings = (info.retunings || []).length;
   const update = ({info: i, estimate: e}) => {
+    if ((i.retunings || []).length !== shownRetunings) { shownRetunings = (i.retunings || []).length; drawRetunings(i.retunings); }
     const state = enumName(i.state, 'SESSION_STATE_');
     clear(summary, h('span', {class: 'state ' + state, id: 'session-state'}, state),
       ` · ${num(i.measurements)} measurements · t = ${fmt(i.t)} s`,
@@ -68,4 +77,61 @@ async function showOne(main, id, signal) {
     if (name === 'session') update(data);
     if (name === 'error') summary.append(errorBox(data.message));
   }, signal);
+}
+
+function covarianceText(c) {
+  if (!c) return '';
+  if (c.diagonal) return `diag(${(c.diagonal.values || []).map((v) => fmt(v)).join(', ')})`;
+  if (c.scalar !== undefined) return `${fmt(c.scalar)} I`;
+  if (c.full) return `${num(c.full.rows)} x ${num(c.full.cols)} matrix`;
+  return '';
+}
+
+// Live retuning: new noise weights between two measurements (the EKF's and
+// UKF's R by output and Q by state and parameter; the optimal filter's V and
+// W as diagonals), recorded in the session's history.
+function retuneForm(id, info, model, drawRetunings) {
+  const optimal = info.filter === 'FILTER_KIND_OPTIMAL';
+  const outputs = model.outputNames || [], nz = [...(model.stateNames || []), ...(model.paramNames || [])];
+  const status = h('span', {id: 'retune-status'});
+  const input = (key) => h('input', {type: 'number', step: 'any', id: key, placeholder: 'unchanged'});
+  const fields = optimal
+    ? [h('label', {}, 'V (diagonal, comma-separated)', h('input', {id: 'retune-v', size: 30, placeholder: 'unchanged'})),
+       h('label', {}, 'W (diagonal, comma-separated)', h('input', {id: 'retune-w', size: 30, placeholder: 'unchanged'}))]
+    : [outputs.map((y) => h('label', {}, `R of ${y}`, input('retune-r-' + y))),
+       nz.map((n) => h('label', {}, `Q of ${n}`, input('retune-q-' + n)))];
+  const form = h('form', {class: 'panel', id: 'retune'}, h('h3', {}, 'Retune the filter while it runs'),
+    h('div', {class: 'row'}, fields, h('label', {}, '\u00a0', h('button', {class: 'primary', id: 'retune-apply', type: 'submit'}, 'Apply'))),
+    status);
+  const diag = (values) => ({diagonal: {values}});
+  const list = (text) => text.split(',').map((v) => v.trim()).filter((v) => v !== '').map(Number);
+  form.addEventListener('submit', async (e) => {
+    e.preventDefault();
+    const request = {};
+    if (optimal) {
+      const v = list(document.getElementById('retune-v').value), w = list(document.getElementById('retune-w').value);
+      if (v.length) request.v = diag(v);
+      if (w.length) request.w = diag(w);
+    } else {
+      // A weight left empty keeps its value: R and Q go whole, so empty ones need theirs.
+      const r = outputs.map((y) => document.getElementById('retune-r-' + y).value.trim());
+      const q = nz.map((n) => document.getElementById('retune-q-' + n).value.trim());
+      if (r.some((v) => v !== '')) {
+        if (r.some((v) => v === '')) return clear(status, errorBox('Give R for every output.'));
+        request.r = diag(r.map(Number));
+      }
+      if (q.some((v) => v !== '')) {
+        if (q.some((v) => v === '')) return clear(status, errorBox('Give Q for every state and parameter.'));
+        request.q = diag(q.map(Number));
+      }
+    }
+    try {
+      const updated = await api('POST', `/sessions/${encodeURIComponent(id)}/retune`, request);
+      clear(status, h('span', {class: 'ok'}, `Retuned at t = ${fmt(updated.t)} s.`));
+      drawRetunings(updated.retunings);
+    } catch (err) {
+      clear(status, errorBox(err));
+    }
+  });
+  return form;
 }
