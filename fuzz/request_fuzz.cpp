@@ -9,7 +9,9 @@
 #include <cstddef>
 #include <cstdint>
 #include <cstdlib>
+#include <stdlib.h>
 #include <memory>
+#include <string>
 #include <spdlog/spdlog.h>
 
 #include "engine/data/dataset.hpp"
@@ -18,7 +20,9 @@
 #include "riccati/v1/jobs.pb.h"
 #include "riccati/v1/sessions.pb.h"
 #include "service/jobs/job_convert.hpp"
+#include "service/models/model_catalog.hpp"
 #include "service/sessions/session_manager.hpp"
+#include "store/store.hpp"
 
 namespace {
 
@@ -31,6 +35,20 @@ const ModelRegistry& registry() {
     if (!loaded.is_ok()) std::abort();
     return std::move(loaded).value();
   }();
+  return models;
+}
+
+// Sessions resolve their model through a catalog, which also knows the
+// tenants' text models: those live in a store, here an empty SQLite one.
+const service::ModelCatalog& catalog() {
+  static const std::unique_ptr<Store> store = [] {
+    char dir[] = "/tmp/riccati-fuzz-XXXXXX";
+    if (::mkdtemp(dir) == nullptr) std::abort();
+    auto opened = open_sqlite_store(std::string(dir) + "/riccati.db");
+    if (!opened.is_ok()) std::abort();
+    return std::move(opened).value();
+  }();
+  static const service::ModelCatalog models(registry(), *store);
   return models;
 }
 
@@ -55,7 +73,7 @@ void fuzz_session(const std::uint8_t* data, std::size_t size) {
   v1::MeasurementBatch batch;
   if (!batch.ParseFromArray(data + 2 + create_size, static_cast<int>(size - 2 - create_size))) return;
   // No reaper thread work matters here: the timeout is long.
-  static service::SessionManager sessions(registry(), std::chrono::hours(1));
+  static service::SessionManager sessions(catalog(), std::chrono::hours(1));
   auto session = sessions.create("fuzz", create);
   if (!session.is_ok()) return;
   int processed = 0;
