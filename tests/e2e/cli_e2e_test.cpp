@@ -116,7 +116,8 @@ TEST_F(CliTest, ColumnsNamedAsTheModelsNeedNoMapping) {
             nlohmann::json::parse(mapped.out)["identification"]["theta_mean"]);
   const CliRun datasets = riccati("--json data list");
   ASSERT_EQ(datasets.exit_code, 0) << last_stderr();
-  for (const auto& d : nlohmann::json::parse(datasets.out)["datasets"]) {
+  const auto listed = nlohmann::json::parse(datasets.out);  // kept: the loop reads into it
+  for (const auto& d : listed["datasets"]) {
     EXPECT_EQ(d["input_names"], nlohmann::json::parse(R"(["F1", "F2"])"));
     EXPECT_EQ(d["output_names"], nlohmann::json::parse(R"(["h1", "h2"])"));
   }
