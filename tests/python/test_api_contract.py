@@ -191,6 +191,10 @@ def test_cancel_answers_cancelling_and_a_cancelled_job_holds_still(client, two_t
     final = job.proto.progress
     assert client.job(job.id).proto.progress == final
     assert client.job(job.id).cancel().proto.state == jobs_pb2.JOB_STATE_CANCELLED  # an ended job stays as it is
+    # An ended job is deleted (DeleteJob), and is then not found.
+    job.delete()
+    with pytest.raises(riccati.NotFound):
+        client.job(job.id)
 
 
 def test_session_info_names_its_instance(daemon, client):

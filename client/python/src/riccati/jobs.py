@@ -116,6 +116,12 @@ class Job:
                                          jobs_pb2.CancelJobRequest(id=self.id)))
         return self
 
+    def delete(self):
+        """Deletes the ended job with its result (DeleteJob); FailedPrecondition while
+        it is queued or running: cancel it first."""
+        self._client._call("deleting job " + self.id, self._client._jobs.DeleteJob,
+                           jobs_pb2.DeleteJobRequest(id=self.id))
+
     def result(self, progress=None):
         """Waits for the job, then its result (IdentificationResult, EstimationResult,
         ValidationResult or SmoothingResult); JobFailed if it failed or was cancelled."""
