@@ -17,8 +17,10 @@ function(riccati_add_model_plugin name)
     CXX_VISIBILITY_PRESET hidden
     VISIBILITY_INLINES_HIDDEN ON)
   # Math without errno lets the compiler vectorise sqrt across points; the
-  # host checks every result for NaN/Inf itself.
-  target_compile_options(model_${name} PRIVATE -fno-math-errno)
+  # host checks every result for NaN/Inf itself. No contraction of a * b + c
+  # into one fused operation: the vectorised points (lanes.hpp) and the one-
+  # point path then round alike on every architecture, to the bit.
+  target_compile_options(model_${name} PRIVATE -fno-math-errno -ffp-contract=off)
   riccati_warnings(model_${name})
   set_property(GLOBAL APPEND PROPERTY RICCATI_MODEL_PLUGINS model_${name})
 endfunction()

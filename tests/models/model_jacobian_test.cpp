@@ -4,6 +4,8 @@
 #include <gtest/gtest.h>
 
 #include <algorithm>
+#include <bit>
+#include <cstdint>
 #include <cmath>
 #include <fstream>
 #include <functional>
@@ -190,48 +192,96 @@ TEST_P(ModelJacobianTest, ExactJacobiansMatchCentralDifferences) {
   }
 }
 
-// A batch of n points with ld > n gives what n single calls give, and leaves
-// the padding between ld and n alone.
-TEST_P(ModelJacobianTest, BatchedEvaluationMatchesSinglePoints) {
+// f and g at n points stored with leading dimension ld, and at each point
+// alone (n = 1, the one-point path of the SDK).
+struct BatchAndSingles {
+  std::vector<double> batch;                 // rows x ld
+  std::vector<std::vector<double>> singles;  // one per point
+};
+
+BatchAndSingles evaluate_batch_and_singles(const Model& m, bool is_f, const std::vector<double>& u,
+                                           const std::vector<std::vector<double>>& xs,
+                                           const std::vector<std::vector<double>>& thetas, std::size_t ld) {
+  constexpr double kUntouched = -12345.0;
+  const double nan = std::numeric_limits<double>::quiet_NaN();
+  const int n = static_cast<int>(xs.size());
+  const int rows = is_f ? m.nx() : m.ny();
+  // Padding is NaN: a plugin reading it would produce NaN in a real column.
+  std::vector<double> x(m.nx() * ld, nan), theta(m.ntheta() * ld, nan);
+  for (int p = 0; p < n; ++p) {
+    for (int i = 0; i < m.nx(); ++i) x[i * ld + p] = xs[p][i];
+    for (int j = 0; j < m.ntheta(); ++j) theta[j * ld + p] = thetas[p][j];
+  }
+  BatchAndSingles r;
+  r.batch.assign(rows * ld, kUntouched);
+  const Status s = is_f ? m.f(0.5, u.data(), n, ld, x.data(), theta.data(), r.batch.data())
+                        : m.g(0.5, u.data(), n, ld, x.data(), theta.data(), r.batch.data());
+  EXPECT_TRUE(s.is_ok()) << s.to_string();
+  for (int p = 0; p < n; ++p) {
+    std::vector<double> single(rows);
+    const Status s1 = is_f ? m.f(0.5, u.data(), 1, 1, xs[p].data(), thetas[p].data(), single.data())
+                           : m.g(0.5, u.data(), 1, 1, xs[p].data(), thetas[p].data(), single.data());
+    EXPECT_TRUE(s1.is_ok()) << s1.to_string();
+    r.singles.push_back(single);
+  }
+  for (int i = 0; i < rows; ++i) {
+    for (std::size_t p = n; p < ld; ++p) EXPECT_EQ(r.batch[i * ld + p], kUntouched) << "padding written";
+  }
+  return r;
+}
+
+// The same value to the last bit (not merely within a few ulps).
+void expect_same_bits(const BatchAndSingles& r, int rows, std::size_t ld, const std::string& what) {
+  for (std::size_t p = 0; p < r.singles.size(); ++p) {
+    for (int i = 0; i < rows; ++i) {
+      const double batched = r.batch[i * ld + p], single = r.singles[p][i];
+      EXPECT_EQ(std::bit_cast<std::uint64_t>(batched), std::bit_cast<std::uint64_t>(single))
+          << what << " row " << i << " point " << p << ": batched " << batched << ", alone " << single;
+    }
+  }
+}
+
+// A batch of n points with ld > n gives, to the bit, what n single calls
+// give, and leaves the padding between ld and n alone. 13 points: the SDK
+// evaluates them four at a time (Lanes<4>, vectorised) and the last alone.
+TEST_P(ModelJacobianTest, BatchedEvaluationMatchesSinglePointsBitForBit) {
   const JacobianCase& c = GetParam();
   const ModelPtr m = builtin(c.model);
   ASSERT_NE(m, nullptr);
-  constexpr int kN = 5;
-  constexpr std::size_t kLd = 8;
-  constexpr double kUntouched = -12345.0;
-  const double nan = std::numeric_limits<double>::quiet_NaN();
-
+  constexpr int kN = 13;
+  constexpr std::size_t kLd = 16;
   std::mt19937 rng(7);
   const std::vector<double> u = draw(c.u, rng);
-  // Padding is NaN: a plugin reading it would produce NaN in a real column.
-  std::vector<double> x(m->nx() * kLd, nan), theta(m->ntheta() * kLd, nan);
   std::vector<std::vector<double>> xs, thetas;
   for (int p = 0; p < kN; ++p) {
     xs.push_back(draw(c.x, rng));
     thetas.push_back(draw(c.theta, rng));
-    for (int i = 0; i < m->nx(); ++i) x[i * kLd + p] = xs[p][i];
-    for (int j = 0; j < m->ntheta(); ++j) theta[j * kLd + p] = thetas[p][j];
   }
-
   for (const bool is_f : {true, false}) {
-    const int rows = is_f ? m->nx() : m->ny();
-    std::vector<double> batch(rows * kLd, kUntouched);
-    const Status s = is_f ? m->f(0.5, u.data(), kN, kLd, x.data(), theta.data(), batch.data())
-                          : m->g(0.5, u.data(), kN, kLd, x.data(), theta.data(), batch.data());
-    ASSERT_TRUE(s.is_ok()) << s.to_string();
-    for (int p = 0; p < kN; ++p) {
-      std::vector<double> single(rows);
-      const Status s1 = is_f ? m->f(0.5, u.data(), 1, 1, xs[p].data(), thetas[p].data(), single.data())
-                             : m->g(0.5, u.data(), 1, 1, xs[p].data(), thetas[p].data(), single.data());
-      ASSERT_TRUE(s1.is_ok()) << s1.to_string();
-      for (int i = 0; i < rows; ++i) {
-        EXPECT_DOUBLE_EQ(batch[i * kLd + p], single[i]) << (is_f ? "f" : "g") << " row " << i << " point " << p;
-      }
-    }
-    for (int i = 0; i < rows; ++i) {
-      for (std::size_t p = kN; p < kLd; ++p) EXPECT_EQ(batch[i * kLd + p], kUntouched) << "padding written";
-    }
+    const BatchAndSingles r = evaluate_batch_and_singles(*m, is_f, u, xs, thetas, kLd);
+    expect_same_bits(r, is_f ? m->nx() : m->ny(), kLd, std::string(is_f ? "f" : "g"));
   }
+}
+
+// Points of one group of lanes on both sides of a branch (a tank empty in
+// some, filled in others: sqrt(h) for h > 0, else 0) are evaluated one at a
+// time, and give what each gives alone; so do points on the same side.
+TEST(ModelLanes, PointsOnBothSidesOfABranchGiveWhatEachGivesAlone) {
+  const ModelPtr m = builtin("two_tank");
+  ASSERT_NE(m, nullptr);
+  const std::vector<double> u = {0.1, 0.05}, theta = {10.0, 5.0, 0.08, 0.13};
+  // Four groups of four: mixed signs, all empty, all filled, mixed again.
+  const std::vector<double> h1 = {0.3, -0.01, 0.2, 0.0, -0.1, -0.2, 0.0, -0.3,
+                                  0.1, 0.2, 0.3, 0.4, 1e-300, -1e-300, 0.5, 0.6};
+  std::vector<std::vector<double>> xs, thetas;
+  for (std::size_t p = 0; p < h1.size(); ++p) {
+    xs.push_back({h1[p], 0.25 - h1[p]});
+    thetas.push_back(theta);
+  }
+  const BatchAndSingles r = evaluate_batch_and_singles(*m, true, u, xs, thetas, h1.size());
+  expect_same_bits(r, m->nx(), h1.size(), "two_tank f");
+  // An empty tank has no outflow (the branch was taken per point).
+  EXPECT_EQ(r.batch[1], u[0] / theta[0]);
 }
 
 INSTANTIATE_TEST_SUITE_P(Builtins, ModelJacobianTest, testing::ValuesIn(jacobian_cases()),

@@ -102,7 +102,13 @@ class Pass {
       }
       if (last) {
         result->x_trace.col(k) = z.head(nx);
-        result->innovations.col(k) = measured ? filter.innovation() : Eigen::VectorXd::Zero(ny);
+        // Not `measured ? innovation() : Zero(ny)`: the conditional's common type is a
+        // new VectorXd, an allocation per sample.
+        if (measured) {
+          result->innovations.col(k) = filter.innovation();
+        } else {
+          result->innovations.col(k).setZero();
+        }
         st = model.g(bound_.t[s], u, 1, 1, z.data(), z.data() + nx, y_model.data());
         if (!st.is_ok()) return st.with_context(where());
         result->y_model.col(k) = y_model;

@@ -25,7 +25,9 @@
 #include <Eigen/Core>
 #include <algorithm>
 #include <string>
+#include <vector>
 
+#include "engine/filters/fixed_size.hpp"
 #include "engine/filters/kalman_filter.hpp"
 #include "engine/models/variational.hpp"
 
@@ -36,16 +38,15 @@ namespace {
 // The derivatives of Pxx and Pxth (see above) at one point. J = [Jx Jth] is
 // nx x nz; Pxx nx x nx, Pxth nx x nth and Pthth nth x nth (at time t); Q
 // nz x nz; A nx x nx scratch; all column-major. This runs at every stage of
-// every integration step: NX > 0 fixes nx at compile time so the innermost
-// loops (over a column of nx values) unroll instead of carrying the
-// vectoriser's run-time checks, which cost more than the arithmetic at these
-// sizes. NX = 0 is the general case.
-template <int NX>
-void covariance_derivative(int nx_runtime, int nth, const double* __restrict J, const double* __restrict Pxx,
-                           const double* __restrict Pxth, const double* __restrict Pthth,
-                           const double* __restrict Q, double* __restrict A, double* __restrict dPxx,
-                           double* __restrict dPxth) {
-  const int nx = NX > 0 ? NX : nx_runtime;
+// every integration step: NX and NTH fix nx and nth at compile time
+// (fixed_size.hpp) so the loops unroll; kDynamicSize is the general case.
+template <int NX, int NTH>
+void covariance_derivative(int nx_runtime, int nth_runtime, const double* __restrict J,
+                           const double* __restrict Pxx, const double* __restrict Pxth,
+                           const double* __restrict Pthth, const double* __restrict Q, double* __restrict A,
+                           double* __restrict dPxx, double* __restrict dPxth) {
+  const int nx = size_or<NX>(nx_runtime);
+  const int nth = size_or<NTH>(nth_runtime);
   const int nz = nx + nth;
   const double* Jth = J + nx * nx;
   // A = Jx Pxx + Jth Pthx, built column by column (Pthx(m, c) = Pxth(c, m)).
@@ -83,17 +84,74 @@ void covariance_derivative(int nx_runtime, int nth, const double* __restrict J, 
 using CovarianceDerivativeFn = void (*)(int, int, const double*, const double*, const double*, const double*,
                                         const double*, double*, double*, double*);
 
-CovarianceDerivativeFn covariance_derivative_for(int nx) {
-  switch (nx) {
-    case 1: return &covariance_derivative<1>;
-    case 2: return &covariance_derivative<2>;
-    case 3: return &covariance_derivative<3>;
-    case 4: return &covariance_derivative<4>;
-    case 5: return &covariance_derivative<5>;
-    case 6: return &covariance_derivative<6>;
-    default: return &covariance_derivative<0>;
+// The kernel for nx states and nth parameters: fixed sizes while
+// nx + nth <= kMaxFixedSize.
+CovarianceDerivativeFn covariance_derivative_for(int nx, int nth) {
+  if (nx + nth > kMaxFixedSize) return &covariance_derivative<kDynamicSize, kDynamicSize>;
+  return kernel_for<1, kMaxFixedSize>(nx, [nth]<int NX>() {
+    if constexpr (NX == kDynamicSize) {
+      return &covariance_derivative<kDynamicSize, kDynamicSize>;
+    } else {
+      return kernel_for<0, kMaxFixedSize - NX>(nth, []<int NTH>() { return &covariance_derivative<NX, NTH>; });
+    }
+  });
+}
+
+// The Joseph form of the covariance update, P = (I - K G) P (I - K G)^T +
+// K R K^T, symmetrised: exact for any gain, and positive semi-definite by
+// construction. P nz x nz, K nz x ny, G ny x nz, R ny x ny, all column-major;
+// `work` holds 3 nz^2 + nz ny. The loops run over columns of nz values, so
+// NZ (fixed_size.hpp) unrolls them; ny is small and stays a run-time value.
+template <int NZ>
+void joseph_update(int nz_runtime, int ny, const double* __restrict K, const double* __restrict G,
+                   const double* __restrict R, double* __restrict P, double* __restrict work) {
+  const int nz = size_or<NZ>(nz_runtime);
+  double* __restrict IKG = work;
+  double* __restrict IKGP = IKG + nz * nz;
+  double* __restrict Pnew = IKGP + nz * nz;
+  double* __restrict KR = Pnew + nz * nz;
+  for (int j = 0; j < nz; ++j) {  // I - K G
+    double* c = IKG + j * nz;
+    for (int i = 0; i < nz; ++i) c[i] = i == j ? 1.0 : 0.0;
+    for (int m = 0; m < ny; ++m) {
+      const double g = G[m + j * ny];
+      for (int i = 0; i < nz; ++i) c[i] -= K[i + m * nz] * g;
+    }
+  }
+  for (int j = 0; j < nz; ++j) {  // (I - K G) P
+    double* c = IKGP + j * nz;
+    for (int i = 0; i < nz; ++i) c[i] = 0.0;
+    for (int k = 0; k < nz; ++k) {
+      const double p = P[k + j * nz];
+      for (int i = 0; i < nz; ++i) c[i] += IKG[i + k * nz] * p;
+    }
+  }
+  for (int j = 0; j < ny; ++j) {  // K R
+    double* c = KR + j * nz;
+    for (int i = 0; i < nz; ++i) c[i] = 0.0;
+    for (int m = 0; m < ny; ++m) {
+      const double r = R[m + j * ny];
+      for (int i = 0; i < nz; ++i) c[i] += K[i + m * nz] * r;
+    }
+  }
+  for (int j = 0; j < nz; ++j) {  // (I - K G) P (I - K G)^T + K R K^T
+    double* c = Pnew + j * nz;
+    for (int i = 0; i < nz; ++i) c[i] = 0.0;
+    for (int k = 0; k < nz; ++k) {
+      const double a = IKG[j + k * nz];
+      for (int i = 0; i < nz; ++i) c[i] += IKGP[i + k * nz] * a;
+    }
+    for (int m = 0; m < ny; ++m) {
+      const double k = K[j + m * nz];
+      for (int i = 0; i < nz; ++i) c[i] += KR[i + m * nz] * k;
+    }
+  }
+  for (int j = 0; j < nz; ++j) {
+    for (int i = 0; i < nz; ++i) P[i + j * nz] = 0.5 * (Pnew[i + j * nz] + Pnew[j + i * nz]);
   }
 }
+
+using JosephUpdateFn = void (*)(int, int, const double*, const double*, const double*, double*, double*);
 
 class Ekf final : public KalmanFilter {
  public:
@@ -116,12 +174,12 @@ class Ekf final : public KalmanFilter {
     Pthth0_.resize(nth, nth);
     Pthth_.resize(nth, nth);
     noise_changed();
-    covariance_derivative_ = covariance_derivative_for(nx);
+    covariance_derivative_ = covariance_derivative_for(nx, nth);
+    held_covariance_derivative_ = covariance_derivative_for(nx, 0);
+    joseph_update_ = kernel_for<1, kMaxFixedSize>(nz, []<int NZ>() { return &joseph_update<NZ>; });
     G_.resize(ny, nz);
     PGt_.resize(nz, ny);
-    IKG_.resize(nz, nz);
-    IKGP_.resize(nz, nz);
-    KR_.resize(nz, ny);
+    joseph_work_.resize(3 * nz * nz + nz * ny);
     Pnew_.resize(nz, nz);
   }
 
@@ -186,22 +244,19 @@ class Ekf final : public KalmanFilter {
     RICCATI_RETURN_IF_ERROR(model_->g_jacobian(t_, u, z_.data(), z_.data() + nx, y_pred_.data(), G_.data())
                                 .with_context("EKF update"));
     for (int i = 0; i < ny; ++i) innovation_[i] = y[i] - y_pred_[i];
-    PGt_.noalias() = P_ * G_.transpose();
-    S_.noalias() = G_ * PGt_;
+    // Products of these small matrices coefficient by coefficient: Eigen's
+    // blocked kernel costs more in packing than it saves here.
+    PGt_.noalias() = P_.lazyProduct(G_.transpose());
+    S_.noalias() = G_.lazyProduct(PGt_);
     S_ += settings_.R;
     RICCATI_RETURN_IF_ERROR(gain_and_nis(PGt_));
     z_.noalias() += K_ * innovation_;
     if (settings_.joseph) {
-      IKG_.setIdentity();
-      IKG_.noalias() -= K_ * G_;
-      IKGP_.noalias() = IKG_ * P_;
-      Pnew_.noalias() = IKGP_ * IKG_.transpose();
-      KR_.noalias() = K_ * settings_.R;
-      Pnew_.noalias() += KR_ * K_.transpose();
-      P_ = 0.5 * (Pnew_ + Pnew_.transpose());
+      joseph_update_(static_cast<int>(P_.rows()), ny, K_.data(), G_.data(), settings_.R.data(), P_.data(),
+                     joseph_work_.data());
     } else {
       Pnew_ = P_;
-      Pnew_.noalias() -= K_ * PGt_.transpose();
+      Pnew_.noalias() -= K_.lazyProduct(PGt_.transpose());
       P_ = 0.5 * (Pnew_ + Pnew_.transpose());
     }
     return check_estimate("EKF update");
@@ -232,7 +287,8 @@ class Ekf final : public KalmanFilter {
     RICCATI_RETURN_IF_ERROR(model_->f_jacobian(t, hold_.at(t), y, theta, ydot, jac_f_.data()));
     const double* Pxx = y + nx;
     if constexpr (kSystem == System::kHeld) {
-      covariance_derivative_(nx, 0, jac_f_.data(), Pxx, nullptr, nullptr, Qxx_.data(), A_.data(), ydot + nx, nullptr);
+      held_covariance_derivative_(nx, 0, jac_f_.data(), Pxx, nullptr, nullptr, Qxx_.data(), A_.data(), ydot + nx,
+                                  nullptr);
       return Status::ok();
     }
     if (!q_thth_is_zero_) Pthth_ = Pthth0_ + settings_.Q.bottomRightCorner(nth, nth) * (t - hold_.t0());
@@ -253,12 +309,15 @@ class Ekf final : public KalmanFilter {
   bool q_thth_is_zero_ = true;
   bool q_theta_is_zero_ = true;  // Q's parameter rows and columns: no process noise on them
   Eigen::MatrixXd Qxx_;          // Q's states' block, alone (for kHeld: a covariance kernel with nth = 0)
-  CovarianceDerivativeFn covariance_derivative_ = nullptr;
+  CovarianceDerivativeFn covariance_derivative_ = nullptr;       // for [x; Pxx; Pxth]
+  CovarianceDerivativeFn held_covariance_derivative_ = nullptr;  // for [x; Pxx] (nth = 0)
+  JosephUpdateFn joseph_update_ = nullptr;
   VariationalDerivativeFn transition_derivative_ = nullptr;  // Phi_x' = Jx Phi_x + [0 Jth]
   Eigen::MatrixXd P_start_;  // P_k|k, kept over the prediction when smoothing
   // Work space, sized once.
   std::vector<double> y_;
-  Eigen::MatrixXd jac_f_, A_, G_, PGt_, IKG_, IKGP_, KR_, Pnew_;
+  Eigen::MatrixXd jac_f_, A_, G_, PGt_, Pnew_;
+  std::vector<double> joseph_work_;
   Eigen::MatrixXd Pthth0_, Pthth_;  // parameter covariance at the start of the interval, and at time t
 };
 

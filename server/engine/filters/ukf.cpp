@@ -34,6 +34,7 @@
 #include <limits>
 #include <string>
 
+#include "engine/filters/fixed_size.hpp"
 #include "engine/filters/kalman_filter.hpp"
 
 namespace riccati {
@@ -44,50 +45,57 @@ namespace {
 // diagonal pivoting: each step takes the largest remaining variance; once it
 // is below n eps max(diag P) the rest is rounding noise and is set to zero.
 // Returns false if a remaining variance is clearly negative (P indefinite)
-// or P is not finite. `work` is scratch of P's size; nothing is allocated.
-bool psd_square_root(const Eigen::MatrixXd& P, Eigen::MatrixXd& work, Eigen::VectorXi& perm, Eigen::MatrixXd& S) {
-  const Eigen::Index n = P.rows();
-  if (!P.allFinite()) return false;
-  work = P;
-  S.setZero();
-  double* w = work.data();  // column-major: w[i + j * n]
-  double* s = S.data();
-  int* p = perm.data();
-  for (Eigen::Index i = 0; i < n; ++i) p[i] = static_cast<int>(i);
+// or P is not finite. `w` is scratch of P's size, `perm` of n; nothing is
+// allocated. All n x n, column-major. N: the size, fixed at compile time
+// (fixed_size.hpp), or kDynamicSize.
+template <int N>
+bool psd_square_root(int n_runtime, const double* __restrict P, double* __restrict w, int* __restrict p,
+                     double* __restrict s) {
+  const int n = size_or<N>(n_runtime);
   double max_diag = 0.0;
-  for (Eigen::Index i = 0; i < n; ++i) max_diag = std::max(max_diag, std::abs(w[i + i * n]));
+  for (int i = 0; i < n * n; ++i) {
+    if (!std::isfinite(P[i])) return false;
+    w[i] = P[i];
+    s[i] = 0.0;
+  }
+  for (int i = 0; i < n; ++i) {
+    p[i] = i;
+    max_diag = std::max(max_diag, std::abs(w[i + i * n]));
+  }
   const double negligible = static_cast<double>(n) * std::numeric_limits<double>::epsilon() * max_diag;
-  for (Eigen::Index k = 0; k < n; ++k) {
-    Eigen::Index pivot = k;
-    for (Eigen::Index j = k + 1; j < n; ++j) {
+  for (int k = 0; k < n; ++k) {
+    int pivot = k;
+    for (int j = k + 1; j < n; ++j) {
       if (w[j + j * n] > w[pivot + pivot * n]) pivot = j;
     }
     if (w[pivot + pivot * n] <= negligible) {
       // The rest is zero up to rounding; a clearly negative variance is not.
-      for (Eigen::Index j = k; j < n; ++j) {
+      for (int j = k; j < n; ++j) {
         if (w[j + j * n] < -1e-9 * std::max(1.0, max_diag)) return false;
       }
       break;
     }
-    if (pivot != k) {
-      work.row(k).swap(work.row(pivot));
-      work.col(k).swap(work.col(pivot));
+    if (pivot != k) {  // symmetric swap of rows and columns k and pivot
+      for (int j = 0; j < n; ++j) std::swap(w[k + j * n], w[pivot + j * n]);
+      for (int i = 0; i < n; ++i) std::swap(w[i + k * n], w[i + pivot * n]);
       std::swap(p[k], p[pivot]);
     }
     const double lkk = std::sqrt(w[k + k * n]);
     double* lk = w + k * n;  // column k of the factor, in pivoted order; rows < k unused
-    for (Eigen::Index i = k; i < n; ++i) lk[i] /= lkk;
+    for (int i = k; i < n; ++i) lk[i] /= lkk;
     // The whole trailing block (both triangles), so later symmetric swaps
     // of rows and columns stay consistent.
-    for (Eigen::Index j = k + 1; j < n; ++j) {
+    for (int j = k + 1; j < n; ++j) {
       double* wj = w + j * n;
       const double ljk = lk[j];
-      for (Eigen::Index i = k + 1; i < n; ++i) wj[i] -= lk[i] * ljk;
+      for (int i = k + 1; i < n; ++i) wj[i] -= lk[i] * ljk;
     }
-    for (Eigen::Index i = k; i < n; ++i) s[p[i] + k * n] = lk[i];
+    for (int i = k; i < n; ++i) s[p[i] + k * n] = lk[i];
   }
   return true;
 }
+
+using PsdSquareRootFn = bool (*)(int, const double*, double*, int*, double*);
 
 // lambda of the sigma points' spread sqrt(n + lambda) for n augmented states,
 // from the settings' weights and kappa (NaN: the usual default).
@@ -126,6 +134,7 @@ class Ukf final : public KalmanFilter {
     Pnew_.resize(nz, nz);
     q_is_zero_ = settings_.Q.isZero(0.0);
     if (settings_.smoothing) dW_.resize(nz, nz);
+    psd_square_root_ = kernel_for<1, kMaxFixedSize>(nz, []<int N>() { return &psd_square_root<N>; });
   }
 
   void noise_changed() override { q_is_zero_ = settings_.Q.isZero(0.0); }
@@ -162,20 +171,22 @@ class Ukf final : public KalmanFilter {
     RICCATI_RETURN_IF_ERROR(
         model_->g(t_, u, npts_, npts_, X_.data(), X_.data() + std::size_t(npts_) * nx, Ypts_.data())
             .with_context("UKF update"));
-    y_pred_.noalias() = Ypts_.transpose() * wm_;
+    y_pred_.noalias() = Ypts_.transpose().lazyProduct(wm_);
     dY_ = Ypts_.rowwise() - y_pred_.transpose();
     dX_ = X_.rowwise() - z_.transpose();
     // The weighted deviations once, so that each product is one (no temporary).
+    // Products of these small matrices coefficient by coefficient (lazyProduct):
+    // Eigen's blocked kernel costs more in packing than it saves here.
     wdY_.noalias() = wc_.asDiagonal() * dY_;
-    S_.noalias() = dY_.transpose() * wdY_;
+    S_.noalias() = dY_.transpose().lazyProduct(wdY_);
     S_ += settings_.R;
-    C_.noalias() = dX_.transpose() * wdY_;
+    C_.noalias() = dX_.transpose().lazyProduct(wdY_);
     for (int i = 0; i < ny; ++i) innovation_[i] = y[i] - y_pred_[i];
     RICCATI_RETURN_IF_ERROR(gain_and_nis(C_));
     z_.noalias() += K_ * innovation_;
     // P - K S K^T = P - K C^T (as K S = C).
     Pnew_ = P_;
-    Pnew_.noalias() -= K_ * C_.transpose();
+    Pnew_.noalias() -= K_.lazyProduct(C_.transpose());
     P_ = 0.5 * (Pnew_ + Pnew_.transpose());
     return check_estimate("UKF update");
   }
@@ -198,7 +209,7 @@ class Ukf final : public KalmanFilter {
   // X = [z, z + c s_1 .. z + c s_n, z - c s_1 .. z - c s_n] (rows), c = spread.
   Status draw_sigma_points() {
     const Eigen::Index nz = model_->nz();
-    if (!psd_square_root(P_, work_, perm_, sqrtP_)) {
+    if (!psd_square_root_(static_cast<int>(nz), P_.data(), work_.data(), perm_.data(), sqrtP_.data())) {
       return failed_precondition("UKF covariance is not positive semi-definite at t = " + std::to_string(t_) +
                                  ": the filter diverged");
     }
@@ -217,10 +228,10 @@ class Ukf final : public KalmanFilter {
   }
 
   void weighted_mean_and_covariance() {
-    z_.noalias() = X_.transpose() * wm_;
+    z_.noalias() = X_.transpose().lazyProduct(wm_);
     dX_ = X_.rowwise() - z_.transpose();
     wdX_.noalias() = wc_.asDiagonal() * dX_;
-    P_.noalias() = dX_.transpose() * wdX_;
+    P_.noalias() = dX_.transpose().lazyProduct(wdX_);
   }
 
   std::unique_ptr<Integrator> integrator_;
@@ -236,6 +247,7 @@ class Ukf final : public KalmanFilter {
   Eigen::MatrixXd dW_;  // Dplus - Dminus, when smoothing
   Eigen::MatrixXd work_;
   Eigen::VectorXi perm_;
+  PsdSquareRootFn psd_square_root_ = nullptr;  // the kernel for this nz
 };
 
 }  // namespace

@@ -98,6 +98,7 @@
 #include <type_traits>
 
 #include "riccati/dual.hpp"
+#include "riccati/lanes.hpp"
 #include "riccati/model_abi.h"
 
 namespace riccati {
@@ -318,23 +319,77 @@ struct Plugin {
     });
   }
 
+  // A batch of at least kLanes points is evaluated kLanes at a time with T =
+  // Lanes<kLanes> (lanes.hpp), which vectorises across them; fewer points,
+  // and a chunk whose points take different branches, one at a time with
+  // T = double.
+  // Mechanical models solve for the accelerations with pivoting chosen by
+  // value, where the lanes would rarely agree: they go one point at a time,
+  // as does a model that declares `static constexpr bool vectorize = false;`
+  // (one whose code needs a plain double, for instance).
+  static constexpr uint32_t kLanes = 4;
+  static constexpr bool vectorized = [] {
+    if constexpr (MechanicalModel<M>) return false;
+    else if constexpr (requires { M::vectorize; }) return bool(M::vectorize);
+    return true;
+  }();
+
+  template <bool which_f>
+  static void eval_points(uint32_t first, uint32_t end, size_t ld, double t, const double* u, const double* x,
+                          const double* theta, double* out) {
+    constexpr int rows = which_f ? nx : ny;
+    std::array<double, nx> xp;
+    std::array<double, (ntheta > 0 ? ntheta : 1)> tp;
+    std::array<double, rows> op;
+    for (uint32_t p = first; p < end; ++p) {
+      for (int i = 0; i < nx; ++i) xp[i] = x[i * ld + p];
+      for (int j = 0; j < ntheta; ++j) tp[j] = theta[j * ld + p];
+      call<which_f, double>(xp.data(), tp.data(), u, t, op.data());
+      for (int i = 0; i < rows; ++i) out[i * ld + p] = op[i];
+    }
+  }
+
   template <bool which_f>
   static int eval(uint32_t n, size_t ld, double t, const double* u, const double* x, const double* theta,
                   double* out, char* err, size_t err_len) {
-    constexpr int rows = which_f ? nx : ny;
     return guarded(err, err_len, [&] {
-      // One point at a time through local arrays; the loop over points is
-      // what a vectorising SDK would widen.
-      std::array<double, nx> xp;
-      std::array<double, (ntheta > 0 ? ntheta : 1)> tp;
-      std::array<double, rows> op;
-      for (uint32_t p = 0; p < n; ++p) {
-        for (int i = 0; i < nx; ++i) xp[i] = x[i * ld + p];
-        for (int j = 0; j < ntheta; ++j) tp[j] = theta[j * ld + p];
-        call<which_f, double>(xp.data(), tp.data(), u, t, op.data());
-        for (int i = 0; i < rows; ++i) out[i * ld + p] = op[i];
+      if constexpr (vectorized) {
+        if (n >= kLanes) {
+          // Chunks of kLanes points; the last chunk ends at n and may overlap
+          // the one before (its points get the same values again).
+          for (uint32_t p = 0; p < n; p += kLanes) eval_lanes<which_f>(std::min(p, n - kLanes), ld, t, u, x, theta, out);
+          return;
+        }
       }
+      eval_points<which_f>(0, n, ld, t, u, x, theta, out);
     });
+  }
+
+  // Points first .. first + kLanes - 1 together.
+  template <bool which_f>
+  static void eval_lanes(uint32_t first, size_t ld, double t, const double* u, const double* x, const double* theta,
+                         double* out) {
+    using L = Lanes<kLanes>;
+    constexpr int rows = which_f ? nx : ny;
+    std::array<L, nx> xl;
+    std::array<L, (ntheta > 0 ? ntheta : 1)> tl;
+    std::array<L, rows> ol;
+    for (int i = 0; i < nx; ++i) {
+      for (uint32_t l = 0; l < kLanes; ++l) xl[i].v[l] = x[i * ld + first + l];
+    }
+    for (int j = 0; j < ntheta; ++j) {
+      for (uint32_t l = 0; l < kLanes; ++l) tl[j].v[l] = theta[j * ld + first + l];
+    }
+    try {
+      call<which_f, L>(xl.data(), tl.data(), u, t, ol.data());
+    } catch (...) {
+      // Diverging branches, or an error that the points will report one by one.
+      eval_points<which_f>(first, first + kLanes, ld, t, u, x, theta, out);
+      return;
+    }
+    for (int i = 0; i < rows; ++i) {
+      for (uint32_t l = 0; l < kLanes; ++l) out[i * ld + first + l] = ol[i].v[l];
+    }
   }
 
   // Seeds zeroed Jets with the values of [x; theta] and unit derivatives, in
