@@ -243,7 +243,8 @@ void expect_same_bits(const BatchAndSingles& r, int rows, std::size_t ld, const 
 
 // A batch of n points with ld > n gives, to the bit, what n single calls
 // give, and leaves the padding between ld and n alone. 13 points: the SDK
-// evaluates them four at a time (Lanes<4>, vectorised) and the last alone.
+// evaluates them in groups of lanes (lanes.hpp, vectorised), the last group
+// overlapping the one before.
 TEST_P(ModelJacobianTest, BatchedEvaluationMatchesSinglePointsBitForBit) {
   const JacobianCase& c = GetParam();
   const ModelPtr m = builtin(c.model);
@@ -270,7 +271,8 @@ TEST(ModelLanes, PointsOnBothSidesOfABranchGiveWhatEachGivesAlone) {
   const ModelPtr m = builtin("two_tank");
   ASSERT_NE(m, nullptr);
   const std::vector<double> u = {0.1, 0.05}, theta = {10.0, 5.0, 0.08, 0.13};
-  // Four groups of four: mixed signs, all empty, all filled, mixed again.
+  // Pairs and quadruples (whatever the SDK's lane count) with mixed signs, all
+  // empty, all filled.
   const std::vector<double> h1 = {0.3, -0.01, 0.2, 0.0, -0.1, -0.2, 0.0, -0.3,
                                   0.1, 0.2, 0.3, 0.4, 1e-300, -1e-300, 0.5, 0.6};
   std::vector<std::vector<double>> xs, thetas;

@@ -41,7 +41,12 @@
 // and with T = riccati::Dual<nx + ntheta> for the exact Jacobians with respect
 // to [x; theta]; the macro emits the C entry point of model_abi.h and catches
 // every exception at that boundary (a throw becomes an error message for that
-// evaluation, never a crash of the host).
+// evaluation, never a crash of the host). When the host asks for many points
+// at once (a UKF's sigma points), they are evaluated a few at a time with
+// T = riccati::Lanes<W> (lanes.hpp): the same code, vectorised across the
+// points, with results equal to the one-point evaluation's to the bit. A
+// model whose code cannot take it (it needs a plain double somewhere)
+// declares `static constexpr bool vectorize = false;`.
 //
 // Mechanical models (for the optimal filter, and for every other filter too)
 // are written in their implicit form instead: declare the degrees of freedom
@@ -81,6 +86,8 @@
 //    thread-safe; the host calls them from many threads at once.
 //  - Branching on a T: comparisons work (they compare values), but the
 //    derivative is that of the branch taken; prefer riccati::sat, min, max.
+//    (Points of a vectorised group that take different branches are
+//    evaluated one at a time instead: correct, a little slower.)
 //  - Inputs u are plain doubles: the Jacobians are with respect to x and
 //    theta only.
 //  - Mechanical models: a mass matrix M that is singular somewhere (a zero
@@ -327,7 +334,7 @@ struct Plugin {
   // value, where the lanes would rarely agree: they go one point at a time,
   // as does a model that declares `static constexpr bool vectorize = false;`
   // (one whose code needs a plain double, for instance).
-  static constexpr uint32_t kLanes = 4;
+  static constexpr uint32_t kLanes = 2;  // what SSE2 holds; measured faster than 4 here
   static constexpr bool vectorized = [] {
     if constexpr (MechanicalModel<M>) return false;
     else if constexpr (requires { M::vectorize; }) return bool(M::vectorize);
