@@ -2,8 +2,10 @@
 #include <spdlog/spdlog.h>
 #include <sqlite3.h>
 
+#include <fcntl.h>
 #include <sys/resource.h>
 #include <sys/statvfs.h>
+#include <unistd.h>
 
 #include <cerrno>
 #include <filesystem>
@@ -290,6 +292,11 @@ class SqliteStore final : public Store {
  public:
   SqliteStore(std::unique_ptr<sqlite3, CloseDb> db, std::string path) : db_(std::move(db)), path_(std::move(path)) {}
 
+  void keep_reserve_at_start() {
+    std::lock_guard lock(mu_);
+    keep_reserve();
+  }
+
   // PRAGMA quick_check at start: damage anywhere in the file is reported
   // now, refusing to serve, rather than object by object as clients read
   // them. It reads the whole file (about a second per GB).
@@ -413,11 +420,13 @@ class SqliteStore final : public Store {
 
   Status delete_dataset(const std::string& tenant, const std::string& id) override {
     std::lock_guard lock(mu_);
-    Statement q(db_.get(), "DELETE FROM datasets WHERE id = ? AND tenant = ?");
-    q.text(id).text(tenant);
-    RICCATI_RETURN_IF_ERROR(done(q, "deleting dataset " + id));
-    if (sqlite3_changes(db_.get()) == 0) return not_found("no dataset " + id);
-    return Status::ok();
+    return with_reserve([&]() -> Status {
+      Statement q(db_.get(), "DELETE FROM datasets WHERE id = ? AND tenant = ?");
+      q.text(id).text(tenant);
+      RICCATI_RETURN_IF_ERROR(done(q, "deleting dataset " + id));
+      if (sqlite3_changes(db_.get()) == 0) return not_found("no dataset " + id);
+      return Status::ok();
+    });
   }
 
   Status put_job(const JobRecord& j) override {
@@ -581,9 +590,11 @@ class SqliteStore final : public Store {
 
   Status delete_job(const std::string& tenant, const std::string& id) override {
     std::lock_guard lock(mu_);
-    Statement q(db_.get(), "DELETE FROM jobs WHERE id = ? AND tenant = ? AND state IN " RICCATI_ENDED_STATES_SQL);
-    q.text(id).text(tenant);
-    RICCATI_RETURN_IF_ERROR(done(q, "deleting job " + id));
+    RICCATI_RETURN_IF_ERROR(with_reserve([&] {
+      Statement q(db_.get(), "DELETE FROM jobs WHERE id = ? AND tenant = ? AND state IN " RICCATI_ENDED_STATES_SQL);
+      q.text(id).text(tenant);
+      return done(q, "deleting job " + id);
+    }));
     if (sqlite3_changes(db_.get()) > 0) return Status::ok();
     Statement state(db_.get(), "SELECT state FROM jobs WHERE id = ? AND tenant = ?");
     state.text(id).text(tenant);
@@ -840,11 +851,13 @@ class SqliteStore final : public Store {
 
   Status delete_model(const std::string& tenant, const std::string& name) override {
     std::lock_guard lock(mu_);
-    Statement q(db_.get(), "UPDATE models SET deleted = 1 WHERE tenant = ? AND name = ? AND deleted = 0");
-    q.text(tenant).text(name);
-    RICCATI_RETURN_IF_ERROR(done(q, "deleting model " + name));
-    if (sqlite3_changes(db_.get()) == 0) return not_found("no model \"" + name + "\"");
-    return Status::ok();
+    return with_reserve([&]() -> Status {
+      Statement q(db_.get(), "UPDATE models SET deleted = 1 WHERE tenant = ? AND name = ? AND deleted = 0");
+      q.text(tenant).text(name);
+      RICCATI_RETURN_IF_ERROR(done(q, "deleting model " + name));
+      if (sqlite3_changes(db_.get()) == 0) return not_found("no model \"" + name + "\"");
+      return Status::ok();
+    });
   }
 
  private:
@@ -940,6 +953,55 @@ class SqliteStore final : public Store {
   // past 1000 pages, so a log stopped short of that by a full disk or a size
   // limit would otherwise stay full and refuse even the deletions that make
   // room.
+  // Room kept on the data directory's file system for the writes that make
+  // room: on a disk that is really full, SQLite cannot even delete (the
+  // deletion's pages go to the write-ahead log first, which cannot grow,
+  // and copying the log into the database may need to grow that too). A
+  // file of kReserveBytes beside the database holds that room; a deletion
+  // that finds no room removes it, checkpoints and tries again, and the
+  // reserve is made again once the file system has room for it and more.
+  static constexpr std::uintmax_t kReserveBytes = 4 << 20;
+
+  std::string reserve_path() const { return path_ + "-reserve"; }
+
+  // Makes the reserve if it is missing and there is room for it and as much
+  // again (so that making it does not itself fill the disk).
+  void keep_reserve() {
+    std::error_code ec;
+    if (std::filesystem::file_size(reserve_path(), ec) >= kReserveBytes && !ec) return;
+    struct statvfs fs {};
+    if (statvfs(std::filesystem::path(path_).parent_path().c_str(), &fs) != 0 ||
+        std::uintmax_t(fs.f_bavail) * fs.f_frsize < 2 * kReserveBytes) {
+      return;
+    }
+    const int fd = ::open(reserve_path().c_str(), O_WRONLY | O_CREAT | O_CLOEXEC, 0600);
+    if (fd < 0) return;
+    const int rc = posix_fallocate(fd, 0, static_cast<off_t>(kReserveBytes));
+    ::close(fd);
+    if (rc != 0) {
+      std::filesystem::remove(reserve_path(), ec);
+      return;
+    }
+    spdlog::info("store reserve in place file={} bytes={}", reserve_path(), kReserveBytes);
+  }
+
+  // Runs `op` (a write that makes room, mu_ held); if it finds no room, gives
+  // the reserve back to the file system and runs it once more.
+  template <typename Op>
+  Status with_reserve(Op&& op) {
+    Status first = op();
+    if (first.code() != StatusCode::kResourceExhausted) {
+      if (first.is_ok()) keep_reserve();
+      return first;
+    }
+    std::error_code ec;
+    if (!std::filesystem::remove(reserve_path(), ec)) return first;  // no reserve left
+    spdlog::warn("store reserve given back to delete on a full disk file={} bytes={}", reserve_path(), kReserveBytes);
+    room_needed_ = true;
+    make_room();
+    return op();
+  }
+
   void make_room() {
     if (!room_needed_ || sqlite3_get_autocommit(db_.get()) == 0) return;
     room_needed_ = false;
@@ -1000,6 +1062,7 @@ Result<std::unique_ptr<Store>> open_sqlite_store(const std::string& path) {
   auto store = std::make_unique<SqliteStore>(std::move(db), path);
   RICCATI_RETURN_IF_ERROR(store->check_integrity());
   RICCATI_RETURN_IF_ERROR(store->migrate());
+  store->keep_reserve_at_start();
   return std::unique_ptr<Store>(std::move(store));
 }
 
