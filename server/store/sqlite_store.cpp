@@ -191,6 +191,13 @@ class Statement {
     bound(sqlite3_bind_blob64(stmt_.get(), ++index_, v.data(), v.size(), SQLITE_TRANSIENT));
     return *this;
   }
+  // n doubles as a blob, read in place (no copy: a dataset's samples can be
+  // hundreds of MB): they must outlive the statement's step.
+  Statement& doubles(const double* v, std::size_t n) {
+    static const double kNone = 0.0;  // an empty blob, not SQL NULL (what a null pointer binds)
+    bound(sqlite3_bind_blob64(stmt_.get(), ++index_, n > 0 ? v : &kNone, n * sizeof(double), SQLITE_STATIC));
+    return *this;
+  }
   Statement& integer(std::int64_t v) {
     sqlite3_bind_int64(stmt_.get(), ++index_, v);
     return *this;
@@ -364,9 +371,9 @@ class SqliteStore final : public Store {
       RICCATI_RETURN_IF_ERROR(done(insert, "storing dataset " + r.id));
       Statement samples(db_.get(), "INSERT INTO dataset_samples (dataset_id, t, u, y) VALUES (?, ?, ?, ?)");
       samples.text(r.id)
-          .blob(to_blob(data.t.data(), static_cast<std::size_t>(data.t.size())))
-          .blob(to_blob(data.u.data(), static_cast<std::size_t>(data.u.size())))
-          .blob(to_blob(data.y.data(), static_cast<std::size_t>(data.y.size())));
+          .doubles(data.t.data(), static_cast<std::size_t>(data.t.size()))
+          .doubles(data.u.data(), static_cast<std::size_t>(data.u.size()))
+          .doubles(data.y.data(), static_cast<std::size_t>(data.y.size()));
       return done(samples, "storing the samples of dataset " + r.id);
     });
   }

@@ -170,6 +170,8 @@ class DaemonProcess {
   pid_t pid() const { return pid_; }
   // Resident memory of the daemon (VmRSS), in KiB.
   long rss_kib() const { return proc_status("VmRSS:"); }
+  // The most resident memory the daemon has had (its high-water mark).
+  long peak_rss_kib() const { return proc_status("VmHWM:"); }
   long threads() const { return proc_status("Threads:"); }
 
  private:

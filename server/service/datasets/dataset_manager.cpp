@@ -73,7 +73,7 @@ Result<Dataset> DatasetManager::parse(const DatasetUpload& upload, const std::st
   return parsed;
 }
 
-Result<DatasetRecord> DatasetManager::upload(UploadTicket& ticket, const DatasetUpload& upload) {
+Result<DatasetRecord> DatasetManager::upload(UploadTicket& ticket, DatasetUpload& upload) {
   const std::string& tenant = ticket.tenant();
   const std::string name = upload.name.empty() ? "upload" : upload.name;
   const auto size = static_cast<std::int64_t>(upload.bytes.size());
@@ -82,6 +82,7 @@ Result<DatasetRecord> DatasetManager::upload(UploadTicket& ticket, const Dataset
   const DatasetFormat format =
       upload.format.value_or(extension == ".mat" || extension == ".MAT" ? DatasetFormat::kMat : DatasetFormat::kCsv);
   RICCATI_ASSIGN_OR_RETURN(const Dataset data, parse(upload, name, format));
+  upload.bytes = std::string();  // parsed: the bytes go before the samples are stored (memory peaks once)
   if (data.size() > limits_.max_dataset_samples) {
     return limit_reached("max_dataset_samples", limits_.max_dataset_samples,
                          name + " has " + std::to_string(data.size()) + " samples");

@@ -62,8 +62,8 @@ class DatasetManager {
   // max_uploads when that many are in flight, or the quota when it is full.
   Result<UploadTicket> begin_upload(const std::string& tenant, const std::string& name);
   // Parses, checks and stores an upload whose bytes `ticket` holds; the
-  // stored record.
-  Result<DatasetRecord> upload(UploadTicket& ticket, const DatasetUpload& upload);
+  // stored record. The bytes are released once parsed.
+  Result<DatasetRecord> upload(UploadTicket& ticket, DatasetUpload& upload);
 
   Result<DatasetRecord> get(const std::string& tenant, const std::string& id);
   Result<Dataset> load(const std::string& tenant, const std::string& id);
