@@ -5,6 +5,9 @@
 // inputs, each refused with its own message and place.
 #include <gtest/gtest.h>
 
+#include <bit>
+#include <cstdint>
+
 #include <cmath>
 #include <unistd.h>
 
@@ -196,6 +199,43 @@ TEST_P(ShippedTextModel, FGAndJacobiansEqualThePluginsAtAThousandRandomPoints) {
   }
   RecordProperty("worst_jacobian_entry_relative_difference", std::to_string(worst_entry));
   std::printf("%s: worst Jacobian entry relative difference %.3g\n", c.plugin.c_str(), worst_entry);
+}
+
+// A batch (the tapes run 16 points per instruction) gives, to the bit,
+// what each point gives alone (the one-point tape): 37 points, so two full
+// groups of lanes and a part.
+TEST_P(ShippedTextModel, BatchedEvaluationEqualsSinglePointsBitForBit) {
+  const Case& c = GetParam();
+  auto text = shipped_text_model(c.plugin);
+  ASSERT_TRUE(text.is_ok()) << text.status().to_string();
+  const Model& m = *text->model;
+  const int nx = m.nx(), ny = m.ny();
+  constexpr int kPoints = 37;
+  std::mt19937_64 rng(29);
+  Eigen::MatrixXd XT(kPoints, nx), ThetaT(kPoints, m.ntheta());  // value i of point p at i * kPoints + p
+  for (int p = 0; p < kPoints; ++p) {
+    XT.row(p) = draw(c.x, rng).transpose();
+    ThetaT.row(p) = draw(c.theta, rng).transpose();
+  }
+  const Eigen::VectorXd u = draw(c.u, rng);
+  const double t = 0.75;
+  Eigen::MatrixXd f(kPoints, nx), g(kPoints, ny);
+  ASSERT_TRUE(m.f(t, u.data(), kPoints, kPoints, XT.data(), ThetaT.data(), f.data()).is_ok());
+  ASSERT_TRUE(m.g(t, u.data(), kPoints, kPoints, XT.data(), ThetaT.data(), g.data()).is_ok());
+  for (int p = 0; p < kPoints; ++p) {
+    const Eigen::VectorXd x = XT.row(p).transpose(), theta = ThetaT.row(p).transpose();
+    Eigen::VectorXd f1(nx), g1(ny);
+    ASSERT_TRUE(m.f(t, u.data(), 1, 1, x.data(), theta.data(), f1.data()).is_ok());
+    ASSERT_TRUE(m.g(t, u.data(), 1, 1, x.data(), theta.data(), g1.data()).is_ok());
+    for (int i = 0; i < nx; ++i) {
+      EXPECT_EQ(std::bit_cast<std::uint64_t>(f(p, i)), std::bit_cast<std::uint64_t>(f1[i]))
+          << "f row " << i << " point " << p << ": batched " << f(p, i) << ", alone " << f1[i];
+    }
+    for (int i = 0; i < ny; ++i) {
+      EXPECT_EQ(std::bit_cast<std::uint64_t>(g(p, i)), std::bit_cast<std::uint64_t>(g1[i]))
+          << "g row " << i << " point " << p << ": batched " << g(p, i) << ", alone " << g1[i];
+    }
+  }
 }
 
 TEST_P(ShippedTextModel, JacobiansAgreeWithFiniteDifferences) {
