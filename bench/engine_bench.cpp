@@ -472,14 +472,14 @@ namespace {
 // error against the truth of two_tank.json, the simulations of the record
 // (evaluations, of which jacobian_evaluations with sensitivities) and the
 // iterations; the label is the estimate.
-void TwoTankOutputError(benchmark::State& state) {
+void TwoTankOutputErrorWith(benchmark::State& state, IntegratorKind integrator) {
   static TwoTankFixture fixture;
   Experiment e;
   e.data = bind_dataset(*fixture.model, fixture.data).value();
   e.x0 = e.data.y.col(0);
   OutputErrorSettings settings;
   settings.parameters = default_parameters(*fixture.model, Eigen::Vector4d(20, 20, 1, 1));
-  settings.simulation.integrator.kind = IntegratorKind::kRk4;
+  settings.simulation.integrator.kind = integrator;
   settings.simulation.integrator.substeps = static_cast<int>(state.range(0));
   const std::vector<Experiment> experiments{e};
   EstimationResult last;
@@ -508,7 +508,13 @@ void TwoTankOutputError(benchmark::State& state) {
                 last.theta[3]);
   state.SetLabel(label + last.termination);
 }
+void TwoTankOutputError(benchmark::State& state) { TwoTankOutputErrorWith(state, IntegratorKind::kRk4); }
 BENCHMARK(TwoTankOutputError)->ArgName("substeps")->Arg(10)->Arg(4)->Arg(2)->Unit(benchmark::kMillisecond);
+// The same with Dormand and Prince's 8th-order method, one or two steps a
+// sample (12 evaluations a step against RK4's 4): the two-tank model's time
+// constants (minutes) are long against its 1 s samples.
+void TwoTankOutputErrorDop853(benchmark::State& state) { TwoTankOutputErrorWith(state, IntegratorKind::kDop853); }
+BENCHMARK(TwoTankOutputErrorDop853)->ArgName("substeps")->Arg(1)->Arg(2)->Unit(benchmark::kMillisecond);
 
 // Maximum likelihood on the same record from the same start, as
 // MaxLikelihood.TwoTankFromHensensStartRecoversTheTruth runs it: the EKF as

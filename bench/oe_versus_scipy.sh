@@ -1,15 +1,16 @@
 #!/usr/bin/env bash
 # Output error on the two-tank record: riccati (engine_bench's
-# TwoTankOutputError/substeps:10) against scipy.optimize.least_squares
+# TwoTankOutputError/substeps:10, RK4, and TwoTankOutputErrorDop853/substeps:1,
+# the 8th-order method one step a sample) against scipy.optimize.least_squares
 # (bench/oe_scipy.py) on the same data, start, bounds and tolerances, in one
 # run on the same machine state (docs/benchmarks.md, "Identification: output
 # error against scipy").
 #
 #   bench/oe_versus_scipy.sh [rounds] [repetitions]      # default 2 rounds of 5
 #
-# Each round runs, for every scipy variant in turn, riccati and then that
-# variant, `repetitions` times each, so every ratio comes from two adjacent
-# measurements; each time is the median of its repetitions. Prints a Markdown
+# Each round runs, for every scipy variant in turn, riccati (both
+# integrators) and then that variant, `repetitions` times each, so every
+# ratio comes from adjacent measurements; each time is the median of its repetitions. Prints a Markdown
 # table (CPU and wall time, the ratio, the worst relative error against the
 # truth of two_tank.json, the simulations of the record); the raw JSON stays
 # in $OUT (default build/oe_versus_scipy).
@@ -54,6 +55,8 @@ for ((r = 1; r <= rounds; r++)); do
     echo "round $r: riccati, then scipy $integrator $jacobian" >&2
     "$bench" --benchmark_filter='^TwoTankOutputError/substeps:10$' --benchmark_repetitions="$repetitions" \
       --benchmark_format=json 2>/dev/null >"$out/riccati.$r.$v.json"
+    "$bench" --benchmark_filter='^TwoTankOutputErrorDop853/substeps:1$' --benchmark_repetitions="$repetitions" \
+      --benchmark_format=json 2>/dev/null >"$out/riccati-dop853.$r.$v.json"
     "$python" bench/oe_scipy.py --integrator "$integrator" --jacobian "$jacobian" \
       --repetitions "$repetitions" >"$out/scipy.$r.$v.json"
   done
@@ -83,27 +86,34 @@ def ms(values):
 print(open(out + "/machine.txt").read().rstrip())
 print()
 print("| solver | integrator | Jacobian | CPU ms (each round) | wall ms (each round) | "
-      "worst rel. error | simulations: states + with sensitivities | riccati faster by (CPU, each round) |")
-print("| --- | --- | --- | --- | --- | --- | --- | --- |")
-all_riccati = [riccati("%s/riccati.%d.%s.json" % (out, r, v)) for r in range(1, rounds + 1) for v in variants]
-rc = all_riccati[0]
-print("| riccati `oe` (Ceres LM) | RK4, 10 substeps | forward sensitivities "
-      "| %.0f (median of %d medians, %.0f-%.0f) | %.0f | %.1e | %d + %d | |" % (
-    1e3 * statistics.median(x["cpu_s"] for x in all_riccati), len(all_riccati),
-    1e3 * min(x["cpu_s"] for x in all_riccati), 1e3 * max(x["cpu_s"] for x in all_riccati),
-    1e3 * statistics.median(x["wall_s"] for x in all_riccati), rc["worst_rel_error"],
-    rc["simulations"] - rc["sensitivity_simulations"], rc["sensitivity_simulations"]))
+      "worst rel. error | simulations: states + with sensitivities | riccati RK4 faster by | riccati DOP853 faster by |")
+print("| --- | --- | --- | --- | --- | --- | --- | --- | --- |")
+runs = {tag: [riccati("%s/%s.%d.%s.json" % (out, tag, r, v)) for r in range(1, rounds + 1) for v in variants]
+        for tag in ("riccati", "riccati-dop853")}
+rc = runs["riccati"][0]
+for tag, what in (("riccati", "RK4, 10 substeps"), ("riccati-dop853", "DOP853 (8th order), 1 step a sample")):
+    all_runs = runs[tag]
+    first = all_runs[0]
+    print("| riccati `oe` (Ceres LM) | %s | forward sensitivities "
+          "| %.0f (median of %d medians, %.0f-%.0f) | %.0f | %.1e | %d + %d | | |" % (
+        what, 1e3 * statistics.median(x["cpu_s"] for x in all_runs), len(all_runs),
+        1e3 * min(x["cpu_s"] for x in all_runs), 1e3 * max(x["cpu_s"] for x in all_runs),
+        1e3 * statistics.median(x["wall_s"] for x in all_runs), first["worst_rel_error"],
+        first["simulations"] - first["sensitivity_simulations"], first["sensitivity_simulations"]))
 for v in variants:
     integrator, jacobian = v.split(":", 1)
     s = [json.load(open("%s/scipy.%d.%s.json" % (out, r, v))) for r in range(1, rounds + 1)]
-    ric = [riccati("%s/riccati.%d.%s.json" % (out, r, v)) for r in range(1, rounds + 1)]
-    ratios = ", ".join("%.1f" % (a["cpu_s"] / b["cpu_s"]) for a, b in zip(s, ric))
-    print("| scipy least_squares (trf) | %s | %s | %s | %s | %.1e | %d + %d | %s |" % (
+    ratios = []
+    for tag in ("riccati", "riccati-dop853"):
+        ric = [riccati("%s/%s.%d.%s.json" % (out, tag, r, v)) for r in range(1, rounds + 1)]
+        ratios.append(", ".join("%.1f" % (a["cpu_s"] / b["cpu_s"]) for a, b in zip(s, ric)))
+    print("| scipy least_squares (trf) | %s | %s | %s | %s | %.1e | %d + %d | %s | %s |" % (
         names.get(integrator, integrator), "finite differences (2-point)" if jacobian == "2-point" else
         "forward sensitivities", ms(x["cpu_s"] for x in s), ms(x["wall_s"] for x in s), s[0]["worst_rel_error"],
-        s[0]["simulations"], s[0]["sensitivity_simulations"], ratios))
+        s[0]["simulations"], s[0]["sensitivity_simulations"], ratios[0], ratios[1]))
 print()
-print("riccati's estimate: " + rc["label"])
+print("riccati's estimate (RK4): " + rc["label"])
+print("riccati's estimate (DOP853): " + runs["riccati-dop853"][0]["label"])
 for v in variants:
     s = json.load(open("%s/scipy.%d.%s.json" % (out, 1, v)))
     print("scipy %-22s theta=%s  nfev=%d njev=%s, %s (scipy %s, numpy %s)" % (

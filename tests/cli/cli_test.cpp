@@ -72,7 +72,7 @@ TEST(EnumChoices, DerivedFromTheValueNamesOrTheirShortName) {
   EXPECT_EQ(api::enum_choice_names(*v1::FilterKind_descriptor()), (Names{"ekf", "ukf", "optimal"}));
   EXPECT_EQ(api::enum_choice_names(*v1::HoldOrder_descriptor()), (Names{"zoh", "foh"}));
   EXPECT_EQ(api::enum_choice_names(*v1::IntegratorKind_descriptor()),
-            (Names{"rk4", "rk3", "cvode-bdf", "cvode-adams", "arkode-erk"}));
+            (Names{"rk4", "rk3", "cvode-bdf", "cvode-adams", "arkode-erk", "dop853"}));
   EXPECT_EQ(api::enum_choice_names(*v1::GainInversion_descriptor()), (Names{"cholesky", "pinv"}));
   EXPECT_EQ(api::enum_choice_names(*v1::SigmaWeights_descriptor()), (Names{"julier", "scaled"}));
   EXPECT_EQ(api::enum_choice_names(*v1::OptimalForm_descriptor()), (Names{"continuous", "split-step"}));

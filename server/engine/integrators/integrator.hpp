@@ -1,5 +1,6 @@
 // ODE integrators behind one interface: fixed-step RK4/RK3 with substeps for
-// hard real-time use, SUNDIALS CVODE (BDF, Adams) and ARKODE explicit adaptive
+// hard real-time use, fixed-step 8th-order Dormand-Prince for smooth, slow
+// models where one step a sample is as accurate as ten of RK4, SUNDIALS CVODE (BDF, Adams) and ARKODE explicit adaptive
 // Runge-Kutta. An integrator is created once per filter (or job) and reused at
 // every sample: the SUNDIALS ones re-initialise, they do not re-allocate.
 #pragma once
@@ -25,6 +26,7 @@ class OdeRhs {
 enum class IntegratorKind {
   kRk4,         // classic 4th-order Runge-Kutta, `substeps` equal steps per interval
   kRk3,         // Kutta's 3rd-order method, `substeps` equal steps per interval
+  kDop853,      // Dormand-Prince 8th order (DOP853's 12 stages), `substeps` equal steps per interval
   kCvodeBdf,    // SUNDIALS CVODE, BDF with dense Newton (stiff models)
   kCvodeAdams,  // SUNDIALS CVODE, Adams-Moulton with fixed-point iteration
   kArkodeErk,   // SUNDIALS ARKODE ERKStep, adaptive explicit Runge-Kutta
@@ -39,7 +41,9 @@ struct IntegratorSettings {
 };
 
 const char* integrator_kind_name(IntegratorKind kind);
-// Parses "rk4", "rk3", "cvode-bdf", "cvode-adams", "arkode-erk".
+// The kinds that take `substeps` equal steps (rk4, rk3, dop853).
+bool is_fixed_step(IntegratorKind kind);
+// Parses "rk4", "rk3", "dop853", "cvode-bdf", "cvode-adams", "arkode-erk".
 Result<IntegratorKind> parse_integrator_kind(std::string_view name);
 Status validate(const IntegratorSettings& settings);
 

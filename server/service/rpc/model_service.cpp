@@ -121,8 +121,7 @@ grpc::Status ModelServiceImpl::Simulate(grpc::ServerContext* context, const v1::
   if (!m.is_ok()) return to_grpc(m.status());
   const Result<Simulation> s = simulation_from_proto(*request, *m.value());
   if (!s.is_ok()) return to_grpc(s.status());
-  const bool fixed_step = s->settings.integrator.kind == IntegratorKind::kRk4 ||
-                          s->settings.integrator.kind == IntegratorKind::kRk3;
+  const bool fixed_step = is_fixed_step(s->settings.integrator.kind);
   const std::int64_t steps = (s->t.size() - 1) * (fixed_step ? std::int64_t{s->settings.integrator.substeps} : 1);
   if (steps > limits_.max_simulation_steps) {
     return to_grpc(limit_reached("max_simulation_steps", limits_.max_simulation_steps,

@@ -9,7 +9,7 @@ const kMethods = [['IDENTIFICATION_METHOD_FILTER', 'Iterated filter (1999 toolbo
 const kFilters = [['FILTER_KIND_EKF', 'EKF'], ['FILTER_KIND_UKF', 'UKF']];
 const kIntegrators = [['INTEGRATOR_KIND_RK4', 'RK4'], ['INTEGRATOR_KIND_RK3', 'RK3'],
   ['INTEGRATOR_KIND_CVODE_BDF', 'CVODE BDF'], ['INTEGRATOR_KIND_CVODE_ADAMS', 'CVODE Adams'],
-  ['INTEGRATOR_KIND_ARKODE_ERK', 'ARKODE ERK']];
+  ['INTEGRATOR_KIND_ARKODE_ERK', 'ARKODE ERK'], ['INTEGRATOR_KIND_DOP853', 'DOP853 (8th order)']];
 const kHolds = [['HOLD_ORDER_ZERO', 'zero order'], ['HOLD_ORDER_FIRST', 'first order']];
 
 export function select(id, options, value) {
