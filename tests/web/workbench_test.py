@@ -253,6 +253,7 @@ class Workbench(unittest.TestCase):
             std = row.find_element(By.CSS_SELECTOR, 'td[data-col="Std error"]')
             self.assertEqual(float(estimate.get_attribute("data-value")), result["thetaMean"][i])
             self.assertEqual(float(std.get_attribute("data-value")), result["thetaStd"][i])
+            self.assertEqual(row.find_element(By.CSS_SELECTOR, "td.unit").text, ["m^2", "m^2", "m^2.5/s", "m^2.5/s"][i])
             # What is shown: the same number to five significant digits.
             self.assertAlmostEqual(float(estimate.text) / result["thetaMean"][i], 1.0, places=4)
         # Hensen's estimates near the truth (two_tank.json: 10, 5, 0.0791, 0.1342).
