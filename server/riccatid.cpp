@@ -5,7 +5,8 @@
 //
 // Flags override the config file. SIGTERM or SIGINT: stop accepting calls,
 // let running calls finish (a few seconds), leave running jobs stored to run
-// again at the next start, exit 0.
+// again at the next start, exit 0. SIGHUP: read the models directory again
+// (as ReloadModels); sessions and jobs keep the models they started with.
 #include <CLI/CLI.hpp>
 #include <csignal>
 #include <cstdio>
@@ -164,6 +165,7 @@ int main(int argc, char** argv) {
   sigemptyset(&signals);
   sigaddset(&signals, SIGTERM);
   sigaddset(&signals, SIGINT);
+  sigaddset(&signals, SIGHUP);  // read the models directory again
   pthread_sigmask(SIG_BLOCK, &signals, nullptr);
   // A write past a file size limit (ulimit -f, systemd's LimitFSIZE) would
   // kill the daemon with SIGXFSZ, logging nothing; ignored, the write fails
@@ -183,7 +185,10 @@ int main(int argc, char** argv) {
     std::ofstream(http_port_file) << daemon.http_port() << "\n";
   }
   int signal_number = 0;
-  sigwait(&signals, &signal_number);
+  for (sigwait(&signals, &signal_number); signal_number == SIGHUP; sigwait(&signals, &signal_number)) {
+    const auto reloaded = daemon.reload_models();  // the catalog logs what it found
+    if (!reloaded.is_ok()) spdlog::error("models not reloaded: {}", reloaded.status().message());
+  }
   spdlog::info("signal received signal={}", signal_number == SIGTERM ? "SIGTERM" : "SIGINT");
   daemon.shutdown(std::chrono::seconds(5));
   return 0;

@@ -102,7 +102,7 @@ int main(int argc, char** argv) {
       "health", "Is riccatid serving? grpc.health.v1 Check: prints SERVING (exit 0) or the status (exit 1)");
   health_cmd->add_option("--service", health_service, "A service's name (default: the daemon as a whole)");
 
-  auto* models = app.add_subcommand("models", "List the models (models show NAME: one in detail; add FILE, remove NAME)");
+  auto* models = app.add_subcommand("models", "List the models (models show NAME: one in detail; add FILE, remove NAME, reload)");
   auto* models_show_cmd = models->add_subcommand("show", "Show one model (a text model: its equations and Jacobian sparsity)");
   std::string model_name;
   models_show_cmd->add_option("name", model_name, "Model name (a text model's revision: name@3)")->required();
@@ -111,6 +111,8 @@ int main(int argc, char** argv) {
   models_add_cmd->add_option("file", model_file, "The model's YAML file")->required();
   auto* models_remove_cmd = models->add_subcommand("remove", "Remove a text model (jobs that use it keep it)");
   models_remove_cmd->add_option("name", model_name, "Model name")->required();
+  auto* models_reload_cmd = models->add_subcommand(
+      "reload", "Read riccatid's models directory again (as SIGHUP): new and changed plugins and text models");
 
   auto* data = app.add_subcommand("data", "Datasets: upload, list, show, delete");
   data->require_subcommand(1);
@@ -242,6 +244,7 @@ int main(int argc, char** argv) {
     if (*models_show_cmd) return models_show(client, model_name);
     if (*models_add_cmd) return models_add(client, model_file);
     if (*models_remove_cmd) return models_remove(client, model_name);
+    if (*models_reload_cmd) return models_reload(client);
     return models_list(client);
   }
   if (*upload_cmd) return data_upload(client, upload);

@@ -29,6 +29,10 @@ struct FlexibleManipulator {
       .outputs = {"s1", "s2"},
       .theta_default = {0.004, 0.003, 5.8, 0.012, 0.0045, 0.0028},
       .theta_lower = {0.0, 0.0, 0.0, 0.0, 0.0, 0.0},
+      .state_units = {"rad", "rad", "rad/s", "rad/s"},
+      .param_units = {"N m", "N m", "N m/rad", "N m s/rad", "kg m^2", "kg m^2"},
+      .input_units = {"N m"},
+      .output_units = {"rad", "rad"},
   };
 
   static constexpr double kFrictionVelocity = 0.05;  // vg [rad/s]

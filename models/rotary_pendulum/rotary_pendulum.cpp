@@ -29,6 +29,10 @@ struct RotaryPendulum {
       .outputs = {"phi", "alpha"},
       .theta_default = {0.05, 0.175, 0.198},
       .theta_lower = {0.0, 0.0, 0.0},
+      .state_units = {"rad", "rad", "rad/s", "rad/s"},
+      .param_units = {"kg", "m", "m"},
+      .input_units = {"V"},
+      .output_units = {"rad", "rad"},
   };
 
   static constexpr double kG = 9.8;

@@ -25,6 +25,10 @@ struct TwoTank {
       .outputs = {"h1", "h2"},
       .theta_default = {10.0, 5.0, 0.0791, 0.1342},
       .theta_lower = {0.0, 0.0, 0.0, 0.0},
+      .state_units = {"m", "m"},
+      .param_units = {"m^2", "m^2", "m^2.5/s", "m^2.5/s"},
+      .input_units = {"m^3/s", "m^3/s"},
+      .output_units = {"m", "m"},
   };
 
   // sqrt(h) for h > 0, else 0 (with derivative 0, not sqrt's infinite one at 0).

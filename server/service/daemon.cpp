@@ -127,18 +127,12 @@ Status Daemon::start() {
   std::filesystem::create_directories(config_.data_dir, ec);
   if (ec) return failed_precondition("cannot create data directory " + config_.data_dir + ": " + ec.message());
   const std::string models_dir = config_.models_dir.empty() ? default_models_dir() : config_.models_dir;
-  RICCATI_ASSIGN_OR_RETURN(models_, ModelRegistry::load_directory(models_dir));
-  for (const auto& m : models_.models()) {
-    spdlog::info("model loaded name={} version={} path={} sha256={}", m->name(), m->version(), m->origin(),
-                 models_.sha256(*m));
-    for (const std::string& d : models_.jacobian_check(*m).disagreements) {
-      spdlog::warn("model Jacobian disagrees with finite differences name={} detail=\"{}\"", m->name(), d);
-    }
-  }
-  for (const auto& r : models_.refused()) spdlog::warn("model refused path={} reason=\"{}\"", r.path, r.reason);
+  RICCATI_ASSIGN_OR_RETURN(ModelRegistry models, ModelRegistry::load_directory(models_dir));
+  log_models(models);
+  const std::size_t models_loaded = models.models().size();
 
   RICCATI_ASSIGN_OR_RETURN(store_, open_store(config_));
-  catalog_ = std::make_unique<ModelCatalog>(models_, *store_);
+  catalog_ = std::make_unique<ModelCatalog>(std::move(models), *store_, config_.limits, models_dir);
 
   const int workers = config_.workers > 0 ? config_.workers
                                           : static_cast<int>(std::max(1u, std::thread::hardware_concurrency()));
@@ -194,7 +188,7 @@ Status Daemon::start() {
     }
   }
   spdlog::info("riccatid listening address={} port={} security=\"{}\" workers={} models={}", config_.listen, port_,
-               security, workers, models_.models().size());
+               security, workers, models_loaded);
   if (!config_.metrics_listen.empty()) {
     if (!config_.metrics_public && !is_loopback(config_.metrics_listen)) {
       return failed_precondition("metrics_listen " + config_.metrics_listen +
@@ -208,7 +202,8 @@ Status Daemon::start() {
     spdlog::info("metrics listening address={} port={} path=/metrics", config_.metrics_listen, metrics_port_);
   }
   if (!config_.http_listen.empty()) {
-    http_ = std::make_unique<HttpApi>(*auth_, models_, *datasets_, *jobs_, *sessions_, config_.limits);
+    http_ = std::make_unique<HttpApi>(*auth_, *catalog_, *datasets_, *jobs_, *sessions_, *stream_slots_,
+                                      config_.limits);
     std::string http_security;
     RICCATI_ASSIGN_OR_RETURN(http_port_, http_->serve({config_.http_listen, config_.http_public}, config_.security,
                                                       &http_security));
@@ -247,6 +242,11 @@ void Daemon::shutdown(std::chrono::milliseconds grace) {
   }
   metrics_.stop_serving();
   if (jobs_ != nullptr) jobs_->shutdown();
+}
+
+Result<ReloadReport> Daemon::reload_models() {
+  if (catalog_ == nullptr) return failed_precondition("riccatid has not started");
+  return catalog_->reload();
 }
 
 void Daemon::wait() {

@@ -69,14 +69,15 @@ class Daemon {
   // Stops accepting calls, gives running calls `grace` to finish, then stops
   // the workers (running jobs stay queued in the store for the next start).
   void shutdown(std::chrono::milliseconds grace);
+  // Reads the models directory again (SIGHUP; ReloadModels does the same).
+  Result<ReloadReport> reload_models();
   void wait();
 
  private:
   DaemonConfig config_;
   Metrics metrics_;  // first in, last out: the server's interceptor counts into it
-  ModelRegistry models_;
   std::unique_ptr<Store> store_;
-  std::unique_ptr<ModelCatalog> catalog_;  // models_ and the tenants' text models in store_
+  std::unique_ptr<ModelCatalog> catalog_;  // the models directory's models and the tenants' text models in store_
   std::unique_ptr<DatasetManager> datasets_;
   std::unique_ptr<JobManager> jobs_;
   std::unique_ptr<SessionManager> sessions_;

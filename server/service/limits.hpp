@@ -33,6 +33,8 @@ struct Limits {
   std::int64_t max_job_age_days = 365;                 // ended jobs older than this are deleted
   std::int64_t max_streams = 4096;                     // long-lived calls open, all tenants
   std::int64_t max_tenant_streams = 256;               // long-lived calls open, one tenant
+  std::int64_t max_tenant_models = 1000;               // stored text model revisions of one tenant
+  std::int64_t max_tenant_model_bytes = 64ll << 20;    // their sources, bytes
 };
 
 struct LimitSpec {
@@ -69,9 +71,15 @@ inline constexpr LimitSpec kLimitSpecs[] = {
     {"max_job_age_days", &Limits::max_job_age_days,
      "Ended jobs older than this (days) are deleted with their results"},
     {"max_streams", &Limits::max_streams,
-     "Most long-lived calls open at once (session streams, job watches, uploads), all tenants"},
+     "Most long-lived calls open at once (session streams, job watches, uploads, workbench event streams), all "
+     "tenants"},
     {"max_tenant_streams", &Limits::max_tenant_streams,
-     "Most long-lived calls open at once (session streams, job watches, uploads) of one tenant"},
+     "Most long-lived calls open at once (session streams, job watches, uploads, workbench event streams) of one "
+     "tenant"},
+    {"max_tenant_models", &Limits::max_tenant_models,
+     "Most stored text model revisions of one tenant (every CreateModel is one; a deleted model's no longer count)"},
+    {"max_tenant_model_bytes", &Limits::max_tenant_model_bytes,
+     "All of a tenant's stored text model revisions (bytes of source; a deleted model's no longer count)"},
 };
 
 // RESOURCE_EXHAUSTED: "limit <key> = <limit> reached: <what>".

@@ -1,5 +1,6 @@
 // StreamSlots: the places for long-lived calls (session streams, job
-// watches, uploads), per tenant and in all, so that one client holding
+// watches, uploads over gRPC; the workbench's event streams), per tenant and
+// in all, so that one client holding
 // thousands of them open cannot take the daemon's memory and file
 // descriptors from the other tenants. A call takes its place when it opens
 // and gives it back when it ends (the StreamSlot goes out of scope).

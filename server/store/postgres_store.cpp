@@ -911,6 +911,21 @@ class PostgresStore final : public Store {
     });
   }
 
+  Result<std::vector<ModelRevision>> list_model_revisions(const std::string& tenant) override {
+    return run<pqxx::nontransaction>("listing model revisions", true,
+                                     [&](auto& tx) -> Result<std::vector<ModelRevision>> {
+      const pqxx::result r = tx.exec_params(
+          "SELECT name, revision, octet_length(source) FROM models WHERE tenant = $1 AND NOT deleted "
+          "ORDER BY name, revision",
+          tenant);
+      std::vector<ModelRevision> out;
+      for (const auto& row : r) {
+        out.push_back({row[0].as<std::string>(), row[1].as<std::int64_t>(), row[2].as<std::int64_t>()});
+      }
+      return out;
+    });
+  }
+
  private:
   // Runs `body` in a transaction of type Tx (pqxx::work for several
   // statements that go together, pqxx::nontransaction for one: a round trip

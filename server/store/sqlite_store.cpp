@@ -867,6 +867,19 @@ class SqliteStore final : public Store {
     });
   }
 
+  Result<std::vector<ModelRevision>> list_model_revisions(const std::string& tenant) override {
+    std::lock_guard lock(mu_);
+    Statement q(db_.get(),
+                "SELECT name, revision, length(source) FROM models WHERE tenant = ? AND deleted = 0 "
+                "ORDER BY name, revision");
+    q.text(tenant);
+    std::vector<ModelRevision> out;
+    int rc;
+    while ((rc = q.step()) == SQLITE_ROW) out.push_back({q.column_text(0), q.column_int(1), q.column_int(2)});
+    if (rc != SQLITE_DONE) return error("listing model revisions");
+    return out;
+  }
+
  private:
   // Runs `body` in a write transaction (mu_ held by the caller): committed if
   // it returns ok, rolled back otherwise.

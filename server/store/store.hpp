@@ -122,6 +122,14 @@ struct ModelRecord {
   bool deleted = false;  // DeleteModel: hidden from the name, kept for the jobs that use it
 };
 
+// One stored revision of a text model, without its source: what ListModels
+// shows of a name's revisions and what the tenant's model quota counts.
+struct ModelRevision {
+  std::string name;
+  std::int64_t revision = 0;
+  std::int64_t source_bytes = 0;
+};
+
 // How much a store holds (the metric riccati_store_bytes).
 struct StoreUsage {
   std::int64_t database_bytes = 0;  // on disk: SQLite's file, PostgreSQL's pg_database_size
@@ -278,6 +286,9 @@ class Store {
   virtual Result<ModelRecord> get_model(const std::string& tenant, const std::string& name, std::int64_t revision) = 0;
   virtual Result<std::vector<ModelRecord>> list_models(const std::string& tenant) = 0;
   virtual Status delete_model(const std::string& tenant, const std::string& name) = 0;
+  // Every revision of the tenant's models that is not deleted, by name then
+  // revision.
+  virtual Result<std::vector<ModelRevision>> list_model_revisions(const std::string& tenant) = 0;
 };
 
 // Opens (creating if needed) the SQLite store in `path` and brings its schema

@@ -135,9 +135,14 @@ TEST_F(CliTest, AddShowIdentifyAndRemoveATextModel) {
   ASSERT_EQ(shown.exit_code, 0) << last_stderr();
   for (const char* line : {"h1' = (F1 - q1) / A1", "q1 := k1 * if(h1 > 0, sqrt(h1), 0)",
                            "Jacobian columns [x; theta]: h1 h2 A1 A2 k1 k2", "h1'          x.x.x.",
-                           "h2'          xx.xxx"}) {
+                           "h2'          xx.xxx", "states:  h1 [m], h2 [m]", "inputs:  F1 [m^3/s], F2 [m^3/s]",
+                           "0          inf  m^2.5/s", "stored revisions: 1"}) {
     EXPECT_NE(shown.out.find(line), std::string::npos) << line << "\n" << shown.out;
   }
+  // The models directory read again: nothing changed in it.
+  const CliRun reloaded = riccati("models reload");
+  ASSERT_EQ(reloaded.exit_code, 0) << last_stderr();
+  EXPECT_EQ(reloaded.out, "unchanged: 4\n");
 
   const CliRun upload = riccati("data upload " + kData + "/two_tank.csv --inputs F1,F2 --outputs h1,h2");
   ASSERT_EQ(upload.exit_code, 0) << last_stderr();

@@ -263,6 +263,20 @@ TEST(PluginLoaderTest, TableFromBeforeAppendedFieldsStillLoads) {
   EXPECT_EQ(old.value()->ndof(), 0);
   EXPECT_FALSE(old.value()->has_mechanical_form());
 
+  // Nor the units, appended later still: a table that ends before them has none.
+  static const char* const kUnits[] = {"m", "m", "m", "m"};
+  t.state_units = kUnits;
+  t.ndof = 0;
+  t.struct_size = offsetof(riccati_model_v1, state_units);
+  auto before_units = Model::create(&t, nullptr, "before_units (in-process)");
+  ASSERT_TRUE(before_units.is_ok()) << before_units.status().to_string();
+  EXPECT_EQ(before_units.value()->state_units(), std::vector<std::string>(static_cast<std::size_t>(t.nx), ""));
+  t.struct_size = sizeof(riccati_model_v1);
+  auto with_units = Model::create(&t, nullptr, "with_units (in-process)");
+  ASSERT_TRUE(with_units.is_ok()) << with_units.status().to_string();
+  EXPECT_EQ(with_units.value()->state_units().front(), "m");
+  EXPECT_EQ(with_units.value()->param_units(), std::vector<std::string>(static_cast<std::size_t>(t.ntheta), ""));
+
   t.struct_size = RICCATI_MODEL_V1_BASE_SIZE - 1;
   auto truncated = Model::create(&t, nullptr, "truncated (in-process)");
   ASSERT_FALSE(truncated.is_ok());

@@ -2,8 +2,9 @@
 // under /api/v1/ against the gRPC services of the same daemon (one store, one
 // schema), bearer tokens and tenants, bad requests (malformed JSON, unknown
 // routes, bodies too large), server-sent events of a job and of a session fed
-// over gRPC, TLS with the gRPC certificates, and the refusal to serve plain
-// HTTP off loopback.
+// over gRPC, event streams counted with gRPC's streams against a tenant's
+// cap, TLS with the gRPC certificates, and the refusal to serve plain HTTP
+// off loopback.
 #include <google/protobuf/util/json_util.h>
 #include <google/protobuf/util/message_differencer.h>
 #include <gtest/gtest.h>
@@ -378,6 +379,81 @@ TEST_F(HttpApiTest, SessionEventsFollowMeasurementsStreamedOverGrpc) {
   res = http_->Get(("/api/v1/sessions/" + session.id() + "/events").c_str(), bearer(kBeta));
   ASSERT_TRUE(res);
   EXPECT_EQ(res->status, 404);
+}
+
+// Event streams are long-lived calls like gRPC's: with max_tenant_streams 2,
+// a gRPC session stream and one event stream take a tenant's places, and its
+// next event stream is 429 naming the limit; another tenant is served, and
+// the place comes back when the browser goes away.
+TEST_F(HttpApiTest, EventStreamsCountWithGrpcStreamsAgainstATenantsCap) {
+  daemon_.reset();
+  start({"--max-tenant-streams", "2"});
+  auto res = http_->Post("/api/v1/sessions", bearer(kAlpha), json_of(testing::two_tank_session()), "application/json");
+  ASSERT_TRUE(res);
+  ASSERT_EQ(res->status, 200) << res->body;
+  const auto session = parse<v1::SessionInfo>(res->body);
+
+  // Place 1: a gRPC stream, open (one batch answered) and held.
+  auto ctx = as(kAlpha);
+  auto stream = sessions_->Stream(ctx.get());
+  v1::StreamRequest open;
+  open.mutable_open()->set_session_id(session.id());
+  ASSERT_TRUE(stream->Write(open));
+  const Dataset data = read_csv_file(kData + "/two_tank.csv", ColumnMapping{"t", {"F1", "F2"}, {"h1", "h2"}}).value();
+  v1::StreamRequest batch;
+  testing::add_sample(batch, data, 0);
+  v1::StreamResponse response;
+  ASSERT_TRUE(stream->Write(batch) && stream->Read(&response));
+
+  // Place 2: an event stream, held until `release`.
+  std::atomic<bool> receiving{false}, release{false};
+  httplib::Client held_client("127.0.0.1", http_port_);
+  std::thread held([&] {
+    held_client.Get(("/api/v1/sessions/" + session.id() + "/events").c_str(), bearer(kAlpha),
+                    [&](const char*, std::size_t) {
+                      receiving = true;
+                      return !release.load();
+                    });
+  });
+  ASSERT_TRUE(testing::wait_until([&] { return receiving.load(); }, testing::kWait, "the event stream is open"));
+
+  res = http_->Get(("/api/v1/sessions/" + session.id() + "/events").c_str(), bearer(kAlpha));
+  ASSERT_TRUE(res);
+  EXPECT_EQ(res->status, 429) << res->body;
+  const auto refused = parse<v1::Error>(res->body);
+  EXPECT_EQ(refused.message().rfind("limit max_tenant_streams = 2 reached", 0), 0u) << refused.message();
+  EXPECT_NE(refused.message().find("session event stream"), std::string::npos) << refused.message();
+
+  // Another tenant has places of its own.
+  res = http_->Post("/api/v1/sessions", bearer(kBeta), json_of(testing::two_tank_session()), "application/json");
+  ASSERT_TRUE(res);
+  const auto other = parse<v1::SessionInfo>(res->body);
+  bool beta_served = false;
+  res = http_->Get(("/api/v1/sessions/" + other.id() + "/events").c_str(), bearer(kBeta),
+                   [&](const char*, std::size_t) {
+                     beta_served = true;
+                     return false;
+                   });
+  EXPECT_TRUE(beta_served);
+
+  // The browser goes away: its place is given back.
+  release = true;
+  held.join();
+  bool alpha_served = false;
+  ASSERT_TRUE(testing::wait_until(
+      [&] {
+        http_->Get(("/api/v1/sessions/" + session.id() + "/events").c_str(), bearer(kAlpha),
+                   [&](const char*, std::size_t) {
+                     alpha_served = true;
+                     return false;
+                   });
+        return alpha_served;
+      },
+      testing::kWait, "the event stream's place is free again"));
+  stream->WritesDone();
+  while (stream->Read(&response)) {
+  }
+  stream->Finish();
 }
 
 // Live retuning: two sessions fed the same record; one gets a large R over

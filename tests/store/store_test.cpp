@@ -257,6 +257,21 @@ TEST_P(StoreTest, TextModelsKeepEveryRevisionPerTenant) {
   EXPECT_EQ(store->put_model(model("alice", "tank", "v3")).value().revision, 3);
   EXPECT_EQ(store->get_model("alice", "tank", 0).value().source, "v3");
   EXPECT_EQ(store->get_model("alice", "tank", 2).value().source, binary);
+  // The revisions not deleted, with their sizes: arm@1, then tank@3 alone.
+  const auto revisions = store->list_model_revisions("alice").value();
+  ASSERT_EQ(revisions.size(), 2u);
+  EXPECT_EQ(revisions[0].name, "arm");
+  EXPECT_EQ(revisions[0].revision, 1);
+  EXPECT_EQ(revisions[0].source_bytes, 2);
+  EXPECT_EQ(revisions[1].name, "tank");
+  EXPECT_EQ(revisions[1].revision, 3);
+  EXPECT_EQ(revisions[1].source_bytes, 2);
+  ASSERT_TRUE(store->put_model(model("alice", "tank", binary)).is_ok());
+  const auto more = store->list_model_revisions("alice").value();
+  ASSERT_EQ(more.size(), 3u);
+  EXPECT_EQ(more[2].revision, 4);
+  EXPECT_EQ(more[2].source_bytes, 11);  // bytes, NUL included
+  EXPECT_TRUE(store->list_model_revisions("carol").value().empty());
 }
 
 TEST_P(StoreTest, DuplicatesAndMissingRecords) {

@@ -9,8 +9,10 @@ Signs in with a token (a wrong one refused), uploads the two-tank CSV, plots
 its signals, runs an identification whose result table must hold the JSON
 API's numbers (the API's own test holds them equal to gRPC's), checks that the
 trace and overlay plots are drawn, validates the estimate, watches a session
-fed by `riccati stream` and retunes its R on-line, and shows a dataset named <script>alert(1)</script>
-as text. With --screenshots, saves a PNG of every page there.
+fed by `riccati stream` and retunes its R on-line, writes a text model in the
+Models page's editor (an error shown at its line as one types; fixed, it is
+uploaded, listed with its units and opens Identify), and shows a dataset named
+<script>alert(1)</script> as text. With --screenshots, saves a PNG of every page there.
 """
 import argparse
 import ctypes
@@ -251,6 +253,7 @@ class Workbench(unittest.TestCase):
             std = row.find_element(By.CSS_SELECTOR, 'td[data-col="Std error"]')
             self.assertEqual(float(estimate.get_attribute("data-value")), result["thetaMean"][i])
             self.assertEqual(float(std.get_attribute("data-value")), result["thetaStd"][i])
+            self.assertEqual(row.find_element(By.CSS_SELECTOR, "td.unit").text, ["m^2", "m^2", "m^2.5/s", "m^2.5/s"][i])
             # What is shown: the same number to five significant digits.
             self.assertAlmostEqual(float(estimate.text) / result["thetaMean"][i], 1.0, places=4)
         # Hensen's estimates near the truth (two_tank.json: 10, 5, 0.0791, 0.1342).
@@ -282,8 +285,43 @@ class Workbench(unittest.TestCase):
         self.assertIn(Workbench.job, [r.get_attribute("data-id") for r in rows])
         self.shot("jobs")
         self.go("models")
-        self.find('section[data-model="two_tank"]')
+        self.find('#model-list section[data-model="two_tank"]')
+        # Units as the plugin declares them.
+        unit = self.find('section[data-model="two_tank"] tr[data-param="k1"] td.unit')
+        self.assertEqual(unit.text, "m^2.5/s")
+
+    def test_6b_write_a_model(self):
+        self.go("models")
+        source = self.find("#model-source")
+        # A model with an error on line 4: the error is shown at its line as one types.
+        source.clear()
+        source.send_keys("model: wb_tank\nstates: [x]\nder:\n  x: (x +) * 2\noutputs: {y: x}\n")
+        line = self.wait(lambda d: (lambda e: e if e and "Line 4" in e[0].text else False)(
+            d.find_elements(By.ID, "model-error-line")))[0]
+        self.assertEqual(line.text, "Line 4, column 10:")
+        self.assertEqual([s.text for s in self.driver.find_elements(By.CSS_SELECTOR, "#model-gutter span.bad")], ["4"])
+        self.assertIn("unexpected ')'", self.find("#model-error").text)
+        self.assertFalse(self.find("#model-upload").is_enabled())
+        self.shot("models-editor-error")
+        # Fixed: it checks, uploads, is listed with its units, and Identify opens with it.
+        source.clear()
+        source.send_keys("model: wb_tank\nstates: {h: {unit: m}}\ninputs: {F: {unit: m^3/s}}\nparameters:\n"
+                         "  A: {value: 10, min: 0, unit: m^2}\n  k: {value: 0.08, min: 0, unit: m^2.5/s}\n"
+                         "der:\n  h: (F - k * sqrt(max(h, 0))) / A\noutputs:\n  h: h\n")
+        self.wait(lambda d: "✓ wb_tank" in d.find_element(By.ID, "model-check").text)
+        self.assertEqual(self.driver.find_elements(By.CSS_SELECTOR, "#model-gutter span.bad"), [])
+        self.wait(lambda d: d.find_element(By.ID, "model-upload").is_enabled())
+        self.find("#model-upload").click()
+        self.wait(lambda d: "Stored wb_tank@1" in d.find_element(By.ID, "model-stored").text)
+        unit = self.find('#model-list section[data-model="wb_tank"] tr[data-param="A"] td.unit')
+        self.assertEqual(unit.text, "m^2")
+        self.assertEqual([m["name"] for m in self.api("/models")["models"] if m["name"] == "wb_tank"], ["wb_tank"])
         self.shot("models")
+        self.find("#model-identify").click()
+        self.wait(lambda d: Select(d.find_element(By.ID, "model")).first_selected_option.get_attribute("value")
+                  == "wb_tank")
+        self.assertEqual(self.find('#parameters tr[data-param="A"] th').text, "A [m^2]")
+        self.assertIn("#/identify?model=wb_tank", self.driver.current_url)
 
     def test_7_session_live(self):
         # A rig: `riccati stream` replays the record into a session at 100 Hz.

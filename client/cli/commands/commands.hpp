@@ -25,6 +25,7 @@ int models_show(Client& c, const std::string& name);
 // A text model (docs/text-models.md): stored for the caller's tenant.
 int models_add(Client& c, const std::string& file);
 int models_remove(Client& c, const std::string& name);
+int models_reload(Client& c);
 void print_text_model(const v1::ModelInfo& info);
 
 struct UploadOptions {

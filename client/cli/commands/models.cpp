@@ -25,6 +25,21 @@ int models_list(Client& c) {
   return kExitOk;
 }
 
+namespace {
+
+// "h1 [m], h2 [m]": names with their units, where the model gives them.
+std::string with_units(const google::protobuf::RepeatedPtrField<std::string>& names,
+                       const google::protobuf::RepeatedPtrField<std::string>& units) {
+  std::string out;
+  for (int i = 0; i < names.size(); ++i) {
+    out += (i > 0 ? ", " : "") + names.Get(i);
+    if (i < units.size() && !units.Get(i).empty()) out += " [" + units.Get(i) + "]";
+  }
+  return out;
+}
+
+}  // namespace
+
 int models_show(Client& c, const std::string& name) {
   v1::ModelInfo info;
   if (const grpc::Status s = c.get_model(name, &info); !s.ok()) return c.fail("model " + name, s);
@@ -33,8 +48,10 @@ int models_show(Client& c, const std::string& name) {
     return kExitOk;
   }
   std::printf("%s %s: %s\n", info.name().c_str(), info.version().c_str(), info.description().c_str());
-  std::printf("  states:  %s\n  inputs:  %s\n  outputs: %s\n", join(info.state_names()).c_str(),
-              join(info.input_names()).c_str(), join(info.output_names()).c_str());
+  std::printf("  states:  %s\n  inputs:  %s\n  outputs: %s\n",
+              with_units(info.state_names(), info.state_units()).c_str(),
+              with_units(info.input_names(), info.input_units()).c_str(),
+              with_units(info.output_names(), info.output_units()).c_str());
   std::printf("  Jacobians: f %s, g %s\n", info.exact_f_jacobian() ? "exact" : "finite differences",
               info.exact_g_jacobian() ? "exact" : "finite differences");
   const v1::JacobianCheck& check = info.jacobian_check();
@@ -47,10 +64,11 @@ int models_show(Client& c, const std::string& name) {
     std::printf("    WRONG: they disagree with finite differences (%s):\n", check.detail().c_str());
     for (const std::string& d : check.disagreements()) std::printf("      %s\n", d.c_str());
   }
-  std::printf("  %-10s %12s %12s %12s\n", "parameter", "default", "lower", "upper");
+  std::printf("  %-10s %12s %12s %12s  %s\n", "parameter", "default", "lower", "upper", "unit");
   for (int i = 0; i < info.param_names_size(); ++i) {
-    std::printf("  %-10s %12.6g %12.6g %12.6g\n", info.param_names(i).c_str(), info.theta_default(i),
-                info.theta_lower(i), info.theta_upper(i));
+    const std::string unit = i < info.param_units_size() ? info.param_units(i) : "";
+    std::printf("  %-10s %12.6g %12.6g %12.6g  %s\n", info.param_names(i).c_str(), info.theta_default(i),
+                info.theta_lower(i), info.theta_upper(i), unit.c_str());
   }
   if (info.has_text()) print_text_model(info);
   return kExitOk;
@@ -77,6 +95,9 @@ void print_text_model(const v1::ModelInfo& info) {
   if (text.revision() > 0) {
     std::printf("  text model, revision %llu (%s@%llu), sha256 %s\n", static_cast<unsigned long long>(text.revision()),
                 info.name().c_str(), static_cast<unsigned long long>(text.revision()), text.sha256().c_str());
+    std::string revisions;
+    for (const auto r : text.revisions()) revisions += (revisions.empty() ? "" : ", ") + std::to_string(r);
+    if (!revisions.empty()) std::printf("  stored revisions: %s\n", revisions.c_str());
   } else {
     std::printf("  text model from the models directory, sha256 %s\n", text.sha256().c_str());
   }
@@ -136,6 +157,27 @@ int models_remove(Client& c, const std::string& name) {
   } else {
     std::printf("removed %s\n", name.c_str());
   }
+  return kExitOk;
+}
+
+int models_reload(Client& c) {
+  auto ctx = c.context();
+  v1::ReloadModelsResponse report;
+  if (const grpc::Status s = c.models->ReloadModels(ctx.get(), {}, &report); !s.ok()) {
+    return c.fail("reloading the models directory", s);
+  }
+  if (c.json) {
+    std::printf("%s\n", to_json(report).c_str());
+    return kExitOk;
+  }
+  auto line = [](const char* what, const google::protobuf::RepeatedPtrField<std::string>& names) {
+    if (!names.empty()) std::printf("%-10s %s\n", what, join(names).c_str());
+  };
+  line("added:", report.added());
+  line("changed:", report.changed());
+  line("removed:", report.removed());
+  std::printf("%-10s %d\n", "unchanged:", report.unchanged_size());
+  for (const auto& r : report.refused()) std::printf("refused:   %s\n", r.reason().c_str());
   return kExitOk;
 }
 

@@ -41,6 +41,17 @@ bool valid_model_name(const char* name) {
   return true;
 }
 
+// Copies `count` units from a plugin's table: NULL (the table has none, or
+// is older than its units) and NULL entries are "".
+std::vector<std::string> read_units(const char* const* units, uint32_t count) {
+  std::vector<std::string> out(count);
+  if (units == nullptr) return out;
+  for (uint32_t i = 0; i < count; ++i) {
+    if (units[i] != nullptr) out[i] = units[i];
+  }
+  return out;
+}
+
 int index_of(const std::vector<std::string>& names, std::string_view n) {
   for (std::size_t i = 0; i < names.size(); ++i) {
     if (names[i] == n) return static_cast<int>(i);
@@ -124,6 +135,11 @@ Result<ModelPtr> Model::create(const riccati_model_v1* t, std::shared_ptr<void> 
   if (s.is_ok()) s = read_names(t->input_names, t->nu, "input", &m->input_names_);
   if (s.is_ok()) s = read_names(t->output_names, t->ny, "output", &m->output_names_);
   if (!s.is_ok()) return fail(who + s.message());
+  const bool has_unit_fields = t->struct_size >= offsetof(riccati_model_v1, output_units) + sizeof(t->output_units);
+  m->state_units_ = read_units(has_unit_fields ? t->state_units : nullptr, t->nx);
+  m->param_units_ = read_units(has_unit_fields ? t->param_units : nullptr, t->ntheta);
+  m->input_units_ = read_units(has_unit_fields ? t->input_units : nullptr, t->nu);
+  m->output_units_ = read_units(has_unit_fields ? t->output_units : nullptr, t->ny);
 
   const Eigen::Index nth = m->ntheta_;
   m->theta_default_ = Eigen::VectorXd::Zero(nth);

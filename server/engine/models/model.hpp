@@ -41,6 +41,11 @@ class Model {
   const std::vector<std::string>& param_names() const { return param_names_; }
   const std::vector<std::string>& input_names() const { return input_names_; }
   const std::vector<std::string>& output_names() const { return output_names_; }
+  // Units as the table declares them, one per name; "" where none is given.
+  const std::vector<std::string>& state_units() const { return state_units_; }
+  const std::vector<std::string>& param_units() const { return param_units_; }
+  const std::vector<std::string>& input_units() const { return input_units_; }
+  const std::vector<std::string>& output_units() const { return output_units_; }
   const Eigen::VectorXd& theta_default() const { return theta_default_; }
   const Eigen::VectorXd& theta_lower() const { return theta_lower_; }
   const Eigen::VectorXd& theta_upper() const { return theta_upper_; }
@@ -96,6 +101,7 @@ class Model {
   bool with_context_ = false;
   riccati_mech_ctx_fn mech_ctx_ = nullptr;
   std::vector<std::string> state_names_, param_names_, input_names_, output_names_;
+  std::vector<std::string> state_units_, param_units_, input_units_, output_units_;
   Eigen::VectorXd theta_default_, theta_lower_, theta_upper_;
 };
 

@@ -1,8 +1,13 @@
 #include "engine/models/plugin_loader.hpp"
 
 #include <dlfcn.h>
+#include <sys/mman.h>
 #include <sys/stat.h>
 #include <unistd.h>
+
+#include <cerrno>
+#include <cstring>
+#include <iterator>
 
 #include <algorithm>
 #include <filesystem>
@@ -17,15 +22,61 @@ namespace riccati {
 
 namespace fs = std::filesystem;
 
-Result<ModelPtr> load_model_plugin(const std::string& path) {
+namespace {
+
+// dlopen knows a loaded library by the name it was opened with: a plugin
+// file replaced in place and loaded again while its old version is still
+// held (by a session, a job) would give back the old code. So when a library
+// of that path is loaded already, the new file is loaded from a private
+// copy, an anonymous memory file opened as /proc/self/fd/N, whose descriptor
+// stays open while the library is loaded (so no other copy gets its name).
+Result<std::shared_ptr<void>> open_library(const std::string& path) {
   // RTLD_LOCAL: two plugins may define the same internal symbols without
   // clashing. RTLD_NOW: a missing symbol is found here, not mid-filter.
-  void* handle = ::dlopen(path.c_str(), RTLD_NOW | RTLD_LOCAL);
-  if (handle == nullptr) {
+  constexpr int kFlags = RTLD_NOW | RTLD_LOCAL;
+  auto cannot = [&path](const std::string& why) {
+    return invalid_argument("plugin " + path + " refused: cannot load it: " + why);
+  };
+  auto dl_error = [] {
     const char* why = ::dlerror();
-    return invalid_argument("plugin " + path + " refused: cannot load it: " + (why != nullptr ? why : "unknown error"));
+    return std::string(why != nullptr ? why : "unknown error");
+  };
+  void* loaded = ::dlopen(path.c_str(), kFlags | RTLD_NOLOAD);
+  if (loaded == nullptr) {
+    void* handle = ::dlopen(path.c_str(), kFlags);
+    if (handle == nullptr) return cannot(dl_error());
+    return std::shared_ptr<void>(handle, [](void* h) { ::dlclose(h); });
   }
-  std::shared_ptr<void> library(handle, [](void* h) { ::dlclose(h); });
+  ::dlclose(loaded);
+  std::ifstream in(path, std::ios::binary);
+  const std::string bytes{std::istreambuf_iterator<char>(in), std::istreambuf_iterator<char>()};
+  if (!in.good() && !in.eof()) return cannot("cannot read it");
+  const int fd = ::memfd_create("riccati-plugin", MFD_CLOEXEC);
+  if (fd < 0) return cannot(std::string("memfd_create: ") + std::strerror(errno));
+  for (std::size_t at = 0; at < bytes.size();) {
+    const ssize_t n = ::write(fd, bytes.data() + at, bytes.size() - at);
+    if (n <= 0) {
+      ::close(fd);
+      return cannot(std::string("copying it: ") + std::strerror(errno));
+    }
+    at += static_cast<std::size_t>(n);
+  }
+  void* handle = ::dlopen(("/proc/self/fd/" + std::to_string(fd)).c_str(), kFlags);
+  if (handle == nullptr) {
+    ::close(fd);
+    return cannot(dl_error());
+  }
+  return std::shared_ptr<void>(handle, [fd](void* h) {
+    ::dlclose(h);
+    ::close(fd);
+  });
+}
+
+}  // namespace
+
+Result<ModelPtr> load_model_plugin(const std::string& path) {
+  RICCATI_ASSIGN_OR_RETURN(std::shared_ptr<void> library, open_library(path));
+  void* handle = library.get();
 
   ::dlerror();  // clear, so a NULL symbol can be told from an error
   void* symbol = ::dlsym(handle, RICCATI_MODEL_ENTRY_SYMBOL);
@@ -66,7 +117,7 @@ std::string unsafe_file(const fs::path& path) {
 
 }  // namespace
 
-Result<ModelRegistry> ModelRegistry::load_directory(const std::string& dir) {
+Result<ModelRegistry> ModelRegistry::load_directory(const std::string& dir, const ModelRegistry* previous) {
   struct stat st {};
   if (::stat(dir.c_str(), &st) != 0) return not_found("models directory " + dir + " does not exist");
   if (!S_ISDIR(st.st_mode)) return invalid_argument("models directory " + dir + " is a file, not a directory");
@@ -111,6 +162,22 @@ Result<ModelRegistry> ModelRegistry::load_directory(const std::string& dir) {
       registry.refused_.push_back({file.string(), "plugin " + file.string() + " refused: " + checksum.status().message()});
       continue;
     }
+    if (previous != nullptr) {
+      // The same file as last time: the same model, not loaded and checked again.
+      if (const auto same = previous->index_of_file(file.string(), checksum.value())) {
+        if (const ModelPtr other = registry.find(previous->models_[*same]->name())) {
+          registry.refused_.push_back({file.string(), "plugin " + file.string() + " refused: model name \"" +
+                                                          other->name() + "\" is already provided by " + other->origin()});
+          continue;
+        }
+        registry.models_.push_back(previous->models_[*same]);
+        registry.text_summaries_.push_back(previous->text_summaries_[*same]);
+        registry.sha256_.push_back(previous->sha256_[*same]);
+        registry.paths_.push_back(file.string());
+        registry.jacobian_checks_.push_back(previous->jacobian_checks_[*same]);
+        continue;
+      }
+    }
     const bool is_text = file.extension() != ".so";
     std::optional<TextModelSummary> summary;
     Result<ModelPtr> loaded = is_text ? Result<ModelPtr>(not_found("")) : load_model_plugin(file.string());
@@ -136,10 +203,18 @@ Result<ModelRegistry> ModelRegistry::load_directory(const std::string& dir) {
     registry.models_.push_back(std::move(model));
     registry.text_summaries_.push_back(std::move(summary));
     registry.sha256_.push_back(std::move(checksum).value());
+    registry.paths_.push_back(file.string());
     Result<JacobianCheck> jacobians = check_jacobians(*registry.models_.back(), generic_points(*registry.models_.back()));
     registry.jacobian_checks_.push_back(jacobians.is_ok() ? std::move(jacobians).value() : JacobianCheck{});
   }
   return registry;
+}
+
+std::optional<std::size_t> ModelRegistry::index_of_file(const std::string& path, const std::string& sha256) const {
+  for (std::size_t i = 0; i < models_.size(); ++i) {
+    if (paths_[i] == path && sha256_[i] == sha256) return i;
+  }
+  return std::nullopt;
 }
 
 const std::string& ModelRegistry::sha256(const Model& model) const {

@@ -14,7 +14,8 @@
 
 namespace riccati {
 
-// Loads one plugin file. A file that is not a plugin, has the wrong ABI
+// Loads one plugin file (again, if an older version of it is loaded: from a
+// private copy, so that the new code is what runs). A file that is not a plugin, has the wrong ABI
 // version or an inconsistent table is refused with a message naming it; the
 // host is never brought down by a bad plugin's table.
 Result<ModelPtr> load_model_plugin(const std::string& path);
@@ -38,7 +39,12 @@ class ModelRegistry {
   // symbolic link (it may lead out of the directory) or a bad plugin is
   // recorded in refused() and skipped, as is a second plugin with a name
   // already taken.
-  static Result<ModelRegistry> load_directory(const std::string& dir);
+  //
+  // With `previous` (a reload): a file whose path and SHA-256 are those of a
+  // model `previous` loaded gives that same model (not loaded or checked
+  // again); a changed plugin is loaded anew even while its old version is
+  // held (load_model_plugin).
+  static Result<ModelRegistry> load_directory(const std::string& dir, const ModelRegistry* previous = nullptr);
 
   ModelPtr find(std::string_view name) const;
   // The model of that name; NOT_FOUND ("no model \"x\" is loaded") if none.
@@ -54,8 +60,12 @@ class ModelRegistry {
   const TextModelSummary* text_summary(const Model& model) const;
 
  private:
+  // models_'s index of the model loaded from `path` with that content, if any.
+  std::optional<std::size_t> index_of_file(const std::string& path, const std::string& sha256) const;
+
   std::vector<ModelPtr> models_;
   std::vector<std::string> sha256_;  // of models_[i]'s file
+  std::vector<std::string> paths_;   // models_[i]'s file
   std::vector<JacobianCheck> jacobian_checks_;  // of models_[i]
   std::vector<std::optional<TextModelSummary>> text_summaries_;  // of models_[i], if it is a text model
   std::vector<RefusedPlugin> refused_;

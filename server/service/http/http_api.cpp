@@ -88,11 +88,13 @@ std::vector<std::string> split_list(const std::string& text) {
   return out;
 }
 
-// One event stream held open: counted while it lives.
+// One event stream held open: its place in StreamSlots and in the server's
+// threads, while it lives.
 struct EventStream {
-  explicit EventStream(std::atomic<int>& count) : count_(count) {}
+  EventStream(std::atomic<int>& count, StreamSlot slot) : count_(count), slot_(std::move(slot)) {}
   ~EventStream() { --count_; }
   std::atomic<int>& count_;
+  StreamSlot slot_;
   Clock::time_point last_event{};
   Clock::time_point last_write = Clock::now();
   std::uint64_t version = 0;       // job: JobManager::poll's
@@ -109,15 +111,36 @@ class HttpApi::Routes {
   void install(httplib::Server& server) {
     server.Get("/healthz", [](const Request&, Response& res) { res.set_content("ok\n", "text/plain"); });
 
-    server.Get("/api/v1/models", authed([this](const std::string&, const Request&, Response& res) {
+    server.Get("/api/v1/models", authed([this](const std::string& tenant, const Request&, Response& res) {
+      const auto entries = api_.models_.list(tenant);
+      if (!entries.is_ok()) return fail(res, entries.status());
       v1::ListModelsResponse out;
-      for (const auto& m : api_.models_.models()) *out.add_models() = to_proto(*m, api_.models_.jacobian_check(*m));
+      for (const CatalogEntry& e : entries.value()) *out.add_models() = to_proto(e);
       reply(res, out);
     }));
-    server.Get(R"(/api/v1/models/([^/]+))", authed([this](const std::string&, const Request& req, Response& res) {
-      const Result<ModelPtr> m = api_.models_.get(req.matches[1].str());
-      if (!m.is_ok()) return fail(res, m.status());
-      reply(res, to_proto(*m.value(), api_.models_.jacobian_check(*m.value())));
+    server.Post("/api/v1/models", with_body<v1::CreateModelRequest>(
+        [this](const std::string& tenant, const v1::CreateModelRequest& request, Response& res) {
+          const auto entry = create_model(api_.models_, tenant, request);
+          if (!entry.is_ok()) return fail(res, entry.status());
+          reply(res, to_proto(entry.value()));
+        }));
+    server.Post("/api/v1/models/reload", authed([this](const std::string& tenant, const Request&, Response& res) {
+      const auto report = api_.models_.reload();
+      if (!report.is_ok()) return fail(res, report.status());
+      spdlog::info("models reloaded by tenant={}", tenant);
+      reply(res, to_proto(report.value()));
+    }));
+    server.Get(R"(/api/v1/models/([^/]+))", authed([this](const std::string& tenant, const Request& req,
+                                                          Response& res) {
+      const auto entry = api_.models_.describe(tenant, req.matches[1].str());
+      if (!entry.is_ok()) return fail(res, entry.status());
+      reply(res, to_proto(entry.value()));
+    }));
+    server.Delete(R"(/api/v1/models/([^/]+))", authed([this](const std::string& tenant, const Request& req,
+                                                             Response& res) {
+      const Status removed = api_.models_.remove(tenant, req.matches[1].str());
+      if (!removed.is_ok()) return fail(res, removed);
+      reply(res, v1::DeleteModelResponse());
     }));
 
     server.Get("/api/v1/datasets", authed([this](const std::string& tenant, const Request&, Response& res) {
@@ -383,20 +406,30 @@ class HttpApi::Routes {
     reply(res, to_proto(stored.value()));
   }
 
-  // Takes a place for an event stream, or answers 503.
-  std::shared_ptr<EventStream> open_stream(Response& res) const {
-    if (++api_.streams_ > kMaxEventStreams) {
-      --api_.streams_;
-      fail(res, limit_reached("event streams", kMaxEventStreams, "as many event streams are open; close one"), 503);
+  // Takes a place for an event stream: one of the tenant's (and riccatid's)
+  // long-lived calls, 429 naming the limit past it; and one of this server's
+  // threads, 503 past them.
+  std::shared_ptr<EventStream> open_stream(const std::string& tenant, const std::string& what, Response& res) const {
+    Result<StreamSlot> slot = api_.stream_slots_.acquire(tenant, what);
+    if (!slot.is_ok()) {
+      fail(res, slot.status());
       return nullptr;
     }
-    return std::make_shared<EventStream>(api_.streams_);
+    if (++api_.streams_ > kMaxEventStreams) {
+      --api_.streams_;
+      fail(res, Status(StatusCode::kUnavailable,
+                       "the workbench serves " + std::to_string(kMaxEventStreams) +
+                           " event streams at once (a thread each), and as many are open; try again shortly"),
+           503);
+      return nullptr;
+    }
+    return std::make_shared<EventStream>(api_.streams_, std::move(slot).value());
   }
 
   void job_events(const std::string& tenant, const std::string& id, Response& res) {
     const auto found = api_.jobs_.get(tenant, id);  // 404 before the stream starts
     if (!found.is_ok()) return fail(res, found.status());
-    auto slot = open_stream(res);
+    auto slot = open_stream(tenant, "job event stream", res);
     if (slot == nullptr) return;
     res.set_chunked_content_provider("text/event-stream", [this, tenant, id, slot](std::size_t,
                                                                                    httplib::DataSink& sink) {
@@ -441,7 +474,7 @@ class HttpApi::Routes {
   void session_events(const std::string& tenant, const std::string& id, Response& res) {
     const auto found = api_.sessions_.get(tenant, id);  // 404 before the stream starts
     if (!found.is_ok()) return fail(res, found.status());
-    auto slot = open_stream(res);
+    auto slot = open_stream(tenant, "session event stream", res);
     if (slot == nullptr) return;
     res.set_chunked_content_provider("text/event-stream", [this, tenant, id, slot](std::size_t,
                                                                                    httplib::DataSink& sink) {
@@ -482,9 +515,15 @@ class HttpApi::Routes {
   HttpApi& api_;
 };
 
-HttpApi::HttpApi(const Authenticator& auth, const ModelRegistry& models, DatasetManager& datasets, JobManager& jobs,
-                 SessionManager& sessions, Limits limits)
-    : auth_(auth), models_(models), datasets_(datasets), jobs_(jobs), sessions_(sessions), limits_(limits) {}
+HttpApi::HttpApi(const Authenticator& auth, ModelCatalog& models, DatasetManager& datasets, JobManager& jobs,
+                 SessionManager& sessions, StreamSlots& stream_slots, Limits limits)
+    : auth_(auth),
+      models_(models),
+      datasets_(datasets),
+      jobs_(jobs),
+      sessions_(sessions),
+      stream_slots_(stream_slots),
+      limits_(limits) {}
 
 HttpApi::~HttpApi() { stop(); }
 

@@ -5,8 +5,11 @@
 // and one set of checks.
 //
 //   GET    /healthz                          no token
-//   GET    /api/v1/models                    ListModelsResponse
+//   GET    /api/v1/models                    ListModelsResponse (the directory's and the tenant's)
+//   POST   /api/v1/models                    CreateModelRequest -> ModelInfo (validate_only: a check, nothing stored)
+//   POST   /api/v1/models/reload             ReloadModelsResponse (the models directory read again)
 //   GET    /api/v1/models/{name}             ModelInfo
+//   DELETE /api/v1/models/{name}             {}
 //   GET    /api/v1/datasets                  ListDatasetsResponse
 //   POST   /api/v1/datasets?name=&format=csv|mat&time_column=&input_columns=a,b&output_columns=c
 //                                            the file as the body; DatasetInfo
@@ -51,7 +54,9 @@
 #include "service/datasets/dataset_manager.hpp"
 #include "service/jobs/job_manager.hpp"
 #include "service/limits.hpp"
+#include "service/models/model_catalog.hpp"
 #include "service/sessions/session_manager.hpp"
+#include "service/stream_slots.hpp"
 
 namespace httplib {
 class Server;
@@ -68,8 +73,8 @@ struct HttpOptions {
 
 class HttpApi {
  public:
-  HttpApi(const Authenticator& auth, const ModelRegistry& models, DatasetManager& datasets, JobManager& jobs,
-          SessionManager& sessions, Limits limits);
+  HttpApi(const Authenticator& auth, ModelCatalog& models, DatasetManager& datasets, JobManager& jobs,
+          SessionManager& sessions, StreamSlots& stream_slots, Limits limits);
   ~HttpApi();
   HttpApi(const HttpApi&) = delete;
   HttpApi& operator=(const HttpApi&) = delete;
@@ -80,16 +85,20 @@ class HttpApi {
   // Ends event streams and stops serving.
   void stop();
 
-  // Event streams open at once, at most (each holds one of the server's threads).
-  static constexpr int kMaxEventStreams = 8;
+  // Event streams take a place in StreamSlots, as gRPC's streams do
+  // (max_tenant_streams, max_streams: 429 past them); each also holds one
+  // of this server's threads while it lasts, so there are at most this many
+  // at once (503 past it), leaving threads for the other requests.
+  static constexpr int kMaxEventStreams = 32;
 
  private:
   class Routes;
   const Authenticator& auth_;
-  const ModelRegistry& models_;
+  ModelCatalog& models_;
   DatasetManager& datasets_;
   JobManager& jobs_;
   SessionManager& sessions_;
+  StreamSlots& stream_slots_;
   const Limits limits_;
   std::unique_ptr<Routes> routes_;  // the handlers, which the server calls
   std::unique_ptr<httplib::Server> server_;

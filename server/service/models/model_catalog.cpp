@@ -1,5 +1,7 @@
 #include "service/models/model_catalog.hpp"
 
+#include <spdlog/spdlog.h>
+
 #include <charconv>
 
 #include "engine/sha256.hpp"
@@ -28,7 +30,81 @@ Result<Name> parse_name(std::string_view s) {
 
 Status no_model(std::string_view name) { return not_found("no model \"" + std::string(name) + "\" is loaded"); }
 
+// The revisions of `name` among a tenant's, oldest first.
+std::vector<std::int64_t> revisions_of(const std::vector<ModelRevision>& all, const std::string& name) {
+  std::vector<std::int64_t> out;
+  for (const ModelRevision& r : all) {
+    if (r.name == name) out.push_back(r.revision);
+  }
+  return out;
+}
+
 }  // namespace
+
+void log_models(const ModelRegistry& registry) {
+  for (const auto& m : registry.models()) {
+    spdlog::info("model loaded name={} version={} path={} sha256={}", m->name(), m->version(), m->origin(),
+                 registry.sha256(*m));
+    for (const std::string& d : registry.jacobian_check(*m).disagreements) {
+      spdlog::warn("model Jacobian disagrees with finite differences name={} detail=\"{}\"", m->name(), d);
+    }
+  }
+  for (const auto& r : registry.refused()) spdlog::warn("model refused path={} reason=\"{}\"", r.path, r.reason);
+}
+
+ModelCatalog::ModelCatalog(ModelRegistry builtins, Store& store, Limits limits, std::string models_dir)
+    : store_(store),
+      limits_(limits),
+      models_dir_(std::move(models_dir)),
+      builtins_(std::make_shared<const ModelRegistry>(std::move(builtins))) {}
+
+std::shared_ptr<const ModelRegistry> ModelCatalog::builtins() const {
+  std::lock_guard lock(builtins_mu_);
+  return builtins_;
+}
+
+Result<ReloadReport> ModelCatalog::reload() {
+  if (models_dir_.empty()) return failed_precondition("this riccatid was started without a models directory to reload");
+  std::lock_guard one_at_a_time(reload_mu_);
+  const std::shared_ptr<const ModelRegistry> before = builtins();
+  RICCATI_ASSIGN_OR_RETURN(ModelRegistry loaded, ModelRegistry::load_directory(models_dir_, before.get()));
+  auto after = std::make_shared<const ModelRegistry>(std::move(loaded));
+  ReloadReport report;
+  for (const ModelPtr& m : after->models()) {
+    const ModelPtr old = before->find(m->name());
+    if (old == nullptr) {
+      report.added.push_back(m->name());
+    } else if (old == m) {
+      report.unchanged.push_back(m->name());
+    } else {
+      report.changed.push_back(m->name());
+    }
+  }
+  for (const ModelPtr& m : before->models()) {
+    if (after->find(m->name()) == nullptr) report.removed.push_back(m->name());
+  }
+  report.refused = after->refused();
+  {
+    std::lock_guard lock(builtins_mu_);
+    builtins_ = after;
+  }
+  auto names = [](const std::vector<std::string>& v) {
+    std::string out;
+    for (const auto& n : v) out += (out.empty() ? "" : ",") + n;
+    return out;
+  };
+  for (const ModelPtr& m : after->models()) {
+    if (before->find(m->name()) != m) {
+      spdlog::info("model loaded name={} version={} path={} sha256={}", m->name(), m->version(), m->origin(),
+                   after->sha256(*m));
+    }
+  }
+  for (const auto& r : report.refused) spdlog::warn("model refused path={} reason=\"{}\"", r.path, r.reason);
+  spdlog::info("models reloaded dir={} added=[{}] changed=[{}] removed=[{}] unchanged={} refused={}", models_dir_,
+               names(report.added), names(report.changed), names(report.removed), report.unchanged.size(),
+               report.refused.size());
+  return report;
+}
 
 Result<std::shared_ptr<const ModelCatalog::Compiled>> ModelCatalog::compiled(const ModelRecord& record) const {
   const auto key = std::make_tuple(record.tenant, record.name, record.revision);
@@ -50,7 +126,7 @@ Result<std::shared_ptr<const ModelCatalog::Compiled>> ModelCatalog::compiled(con
 Result<ResolvedModel> ModelCatalog::resolve(const std::string& tenant, std::string_view name) const {
   RICCATI_ASSIGN_OR_RETURN(const Name n, parse_name(name));
   if (n.revision == 0) {
-    if (ModelPtr builtin = builtins_.find(n.name)) return ResolvedModel{std::move(builtin), n.name};
+    if (ModelPtr builtin = builtins()->find(n.name)) return ResolvedModel{std::move(builtin), n.name};
   }
   Result<ModelRecord> record = store_.get_model(tenant, n.name, n.revision);
   if (!record.is_ok()) {
@@ -66,20 +142,22 @@ Result<ModelPtr> ModelCatalog::get(const std::string& tenant, std::string_view n
   return std::move(r.model);
 }
 
-CatalogEntry ModelCatalog::builtin_entry(const ModelPtr& model) const {
+CatalogEntry ModelCatalog::builtin_entry(const std::shared_ptr<const ModelRegistry>& registry, const ModelPtr& model) {
   CatalogEntry e;
   e.model = model;
-  e.jacobian_check = builtins_.jacobian_check(*model);
-  e.text = builtins_.text_summary(*model);
-  e.sha256 = builtins_.sha256(*model);
+  e.jacobian_check = registry->jacobian_check(*model);
+  if (const TextModelSummary* summary = registry->text_summary(*model)) {
+    e.text = std::shared_ptr<const TextModelSummary>(registry, summary);  // lives as long as the registry
+  }
+  e.sha256 = registry->sha256(*model);
   return e;
 }
 
-CatalogEntry ModelCatalog::entry_of(const ModelRecord& record, const Compiled& c) const {
+CatalogEntry ModelCatalog::entry_of(const ModelRecord& record, const std::shared_ptr<const Compiled>& c) const {
   CatalogEntry e;
-  e.model = c.model;
-  e.jacobian_check = c.jacobian_check;
-  e.text = &c.summary;
+  e.model = c->model;
+  e.jacobian_check = c->jacobian_check;
+  e.text = std::shared_ptr<const TextModelSummary>(c, &c->summary);
   e.revision = record.revision;
   e.sha256 = record.sha256;
   e.source = record.source;
@@ -88,13 +166,17 @@ CatalogEntry ModelCatalog::entry_of(const ModelRecord& record, const Compiled& c
 
 Result<std::vector<CatalogEntry>> ModelCatalog::list(const std::string& tenant) const {
   std::vector<CatalogEntry> out;
-  for (const ModelPtr& m : builtins_.models()) out.push_back(builtin_entry(m));
+  const std::shared_ptr<const ModelRegistry> registry = builtins();
+  for (const ModelPtr& m : registry->models()) out.push_back(builtin_entry(registry, m));
   RICCATI_ASSIGN_OR_RETURN(const std::vector<ModelRecord> stored, store_.list_models(tenant));
+  RICCATI_ASSIGN_OR_RETURN(const std::vector<ModelRevision> revisions, store_.list_model_revisions(tenant));
   for (const ModelRecord& r : stored) {
     // A revision that no longer compiles (a newer riccatid with stricter
     // rules) is left out of the list rather than failing it.
     const auto c = compiled(r);
-    if (c.is_ok()) out.push_back(entry_of(r, *c.value()));
+    if (!c.is_ok()) continue;
+    out.push_back(entry_of(r, c.value()));
+    out.back().revisions = revisions_of(revisions, r.name);
   }
   return out;
 }
@@ -102,7 +184,8 @@ Result<std::vector<CatalogEntry>> ModelCatalog::list(const std::string& tenant) 
 Result<CatalogEntry> ModelCatalog::describe(const std::string& tenant, std::string_view name) const {
   RICCATI_ASSIGN_OR_RETURN(const Name n, parse_name(name));
   if (n.revision == 0) {
-    if (ModelPtr builtin = builtins_.find(n.name)) return builtin_entry(builtin);
+    const std::shared_ptr<const ModelRegistry> registry = builtins();
+    if (ModelPtr builtin = registry->find(n.name)) return builtin_entry(registry, builtin);
   }
   Result<ModelRecord> record = store_.get_model(tenant, n.name, n.revision);
   if (!record.is_ok()) {
@@ -110,18 +193,53 @@ Result<CatalogEntry> ModelCatalog::describe(const std::string& tenant, std::stri
     return record.status();
   }
   RICCATI_ASSIGN_OR_RETURN(const auto c, compiled(record.value()));
-  return entry_of(record.value(), *c);
+  RICCATI_ASSIGN_OR_RETURN(const std::vector<ModelRevision> revisions, store_.list_model_revisions(tenant));
+  CatalogEntry e = entry_of(record.value(), c);
+  e.revisions = revisions_of(revisions, n.name);
+  return e;
+}
+
+Status ModelCatalog::check_quota(const std::string& tenant, std::int64_t source_bytes) const {
+  RICCATI_ASSIGN_OR_RETURN(const std::vector<ModelRevision> revisions, store_.list_model_revisions(tenant));
+  std::int64_t bytes = 0;
+  for (const ModelRevision& r : revisions) bytes += r.source_bytes;
+  const auto count = static_cast<std::int64_t>(revisions.size());
+  if (count + 1 > limits_.max_tenant_models) {
+    return limit_reached("max_tenant_models", limits_.max_tenant_models,
+                         "this tenant has " + std::to_string(count) +
+                             " stored model revisions; remove a model (riccati models remove NAME) to make room");
+  }
+  if (bytes + source_bytes > limits_.max_tenant_model_bytes) {
+    return limit_reached("max_tenant_model_bytes", limits_.max_tenant_model_bytes,
+                         "this tenant's stored models are " + std::to_string(bytes) + " bytes and this one is " +
+                             std::to_string(source_bytes) +
+                             "; remove a model (riccati models remove NAME) to make room");
+  }
+  return Status::ok();
 }
 
 Result<CatalogEntry> ModelCatalog::create(const std::string& tenant, const std::string& source,
-                                          const std::string& origin) const {
+                                          const std::string& origin, bool validate_only) const {
   RICCATI_ASSIGN_OR_RETURN(TextModel text, compile_text_model(source, origin));
   const std::string& name = text.model->name();
-  if (builtins_.find(name) != nullptr) {
-    return Status(StatusCode::kAlreadyExists,
-                  "model \"" + name + "\" is built into this riccatid (" + builtins_.find(name)->origin() +
-                      "): give the text model another name");
+  if (const ModelPtr builtin = builtins()->find(name)) {
+    return Status(StatusCode::kAlreadyExists, "model \"" + name + "\" is built into this riccatid (" +
+                                                  builtin->origin() + "): give the text model another name");
   }
+  if (validate_only) {
+    auto c = std::make_shared<Compiled>();
+    c->model = std::move(text.model);
+    c->summary = std::move(text.summary);
+    Result<JacobianCheck> check = check_jacobians(*c->model, generic_points(*c->model));
+    if (check.is_ok()) c->jacobian_check = std::move(check).value();
+    ModelRecord unstored;
+    unstored.name = name;
+    unstored.source = source;
+    unstored.sha256 = sha256_hex(source);
+    return entry_of(unstored, c);
+  }
+  std::lock_guard lock(create_mu_);
+  RICCATI_RETURN_IF_ERROR(check_quota(tenant, static_cast<std::int64_t>(source.size())));
   ModelRecord record;
   record.tenant = tenant;
   record.name = name;
@@ -130,11 +248,14 @@ Result<CatalogEntry> ModelCatalog::create(const std::string& tenant, const std::
   record.created_ms = now_ms();
   RICCATI_ASSIGN_OR_RETURN(const ModelRecord stored, store_.put_model(record));
   RICCATI_ASSIGN_OR_RETURN(const auto c, compiled(stored));
-  return entry_of(stored, *c);
+  CatalogEntry e = entry_of(stored, c);
+  RICCATI_ASSIGN_OR_RETURN(const std::vector<ModelRevision> revisions, store_.list_model_revisions(tenant));
+  e.revisions = revisions_of(revisions, name);
+  return e;
 }
 
 Status ModelCatalog::remove(const std::string& tenant, const std::string& name) const {
-  if (builtins_.find(name) != nullptr) {
+  if (builtins()->find(name) != nullptr) {
     return failed_precondition("model \"" + name + "\" is built into this riccatid: remove its file from the models "
                                "directory instead");
   }

@@ -1,5 +1,7 @@
 #include "service/rpc/model_service.hpp"
 
+#include <spdlog/spdlog.h>
+
 #include "engine/estimation/validation.hpp"
 #include "service/convert.hpp"
 #include "service/run_settings.hpp"
@@ -47,6 +49,10 @@ v1::ModelInfo to_proto(const Model& model, const JacobianCheck& jacobians) {
   for (const auto& n : model.param_names()) info.add_param_names(n);
   for (const auto& n : model.input_names()) info.add_input_names(n);
   for (const auto& n : model.output_names()) info.add_output_names(n);
+  for (const auto& u : model.state_units()) info.add_state_units(u);
+  for (const auto& u : model.param_units()) info.add_param_units(u);
+  for (const auto& u : model.input_units()) info.add_input_units(u);
+  for (const auto& u : model.output_units()) info.add_output_units(u);
   copy_values(model.theta_default(), info.mutable_theta_default());
   copy_values(model.theta_lower(), info.mutable_theta_lower());
   copy_values(model.theta_upper(), info.mutable_theta_upper());
@@ -73,8 +79,33 @@ v1::ModelInfo to_proto(const CatalogEntry& entry) {
     for (const auto& r : entry.text->f_sparsity) text->add_f_sparsity(r);
     for (const auto& r : entry.text->g_sparsity) text->add_g_sparsity(r);
     text->set_tape_length(entry.text->tape_length);
+    for (const std::int64_t r : entry.revisions) text->add_revisions(static_cast<uint64_t>(r));
   }
   return info;
+}
+
+v1::ReloadModelsResponse to_proto(const ReloadReport& report) {
+  v1::ReloadModelsResponse out;
+  for (const auto& n : report.added) out.add_added(n);
+  for (const auto& n : report.changed) out.add_changed(n);
+  for (const auto& n : report.removed) out.add_removed(n);
+  for (const auto& n : report.unchanged) out.add_unchanged(n);
+  for (const auto& r : report.refused) {
+    v1::RefusedModel* refused = out.add_refused();
+    refused->set_path(r.path);
+    refused->set_reason(r.reason);
+  }
+  return out;
+}
+
+Result<CatalogEntry> create_model(ModelCatalog& models, const std::string& tenant,
+                                  const v1::CreateModelRequest& request) {
+  if (request.source().size() > kMaxTextModelBytes) {
+    return invalid_argument("the model is " + std::to_string(request.source().size()) +
+                            " bytes, more than the limit of " + std::to_string(kMaxTextModelBytes));
+  }
+  const std::string origin = request.file_name().empty() ? "model" : request.file_name();
+  return models.create(tenant, request.source(), origin, request.validate_only());
 }
 
 grpc::Status ModelServiceImpl::ListModels(grpc::ServerContext* context, const v1::ListModelsRequest*,
@@ -95,14 +126,21 @@ grpc::Status ModelServiceImpl::GetModel(grpc::ServerContext* context, const v1::
 
 grpc::Status ModelServiceImpl::CreateModel(grpc::ServerContext* context, const v1::CreateModelRequest* request,
                                            v1::ModelInfo* response) {
-  if (request->source().size() > kMaxTextModelBytes) {
-    return to_grpc(invalid_argument("the model is " + std::to_string(request->source().size()) +
-                                    " bytes, more than the limit of " + std::to_string(kMaxTextModelBytes)));
-  }
-  const std::string origin = request->file_name().empty() ? "model" : request->file_name();
-  const Result<CatalogEntry> entry = models_.create(auth_.tenant(*context), request->source(), origin);
+  const Result<CatalogEntry> entry = create_model(models_, auth_.tenant(*context), *request);
   if (!entry.is_ok()) return to_grpc(entry.status());
   *response = to_proto(entry.value());
+  return grpc::Status::OK;
+}
+
+// Any authenticated caller: the directory is the operator's, the caller gives
+// nothing but the call, and reloads run one at a time (an unchanged file is
+// not loaded or checked again).
+grpc::Status ModelServiceImpl::ReloadModels(grpc::ServerContext* context, const v1::ReloadModelsRequest*,
+                                            v1::ReloadModelsResponse* response) {
+  const Result<ReloadReport> report = models_.reload();
+  if (!report.is_ok()) return to_grpc(report.status());
+  spdlog::info("models reloaded by tenant={}", auth_.tenant(*context));
+  *response = to_proto(report.value());
   return grpc::Status::OK;
 }
 

@@ -100,14 +100,20 @@ void SessionManager::shutdown() {
 Result<std::shared_ptr<Session>> SessionManager::build(std::string id, const std::string& tenant,
                                                        const v1::CreateSessionRequest& request,
                                                        std::int64_t created_ms) {
-  RICCATI_ASSIGN_OR_RETURN(const ModelPtr model, models_.get(tenant, request.model()));
+  // A stored text model is pinned to the revision it has now (name@revision):
+  // the session, and its snapshot resumed elsewhere, keep that revision
+  // whatever is uploaded later.
+  RICCATI_ASSIGN_OR_RETURN(const ResolvedModel resolved, models_.resolve(tenant, request.model()));
+  const ModelPtr& model = resolved.model;
+  v1::CreateSessionRequest pinned = request;
+  pinned.set_model(resolved.reference);
   RICCATI_ASSIGN_OR_RETURN(const FilterSettings settings, from_proto(request.filter(), *model));
   RICCATI_ASSIGN_OR_RETURN(InitialEstimate initial,
                            initial_estimate_from_proto(request.initial_state(), request.theta0(), request.p0(),
                                                        request.filter(), *model));
   RICCATI_ASSIGN_OR_RETURN(OnlineRunner runner, OnlineRunner::create(model, settings, std::move(initial)));
   runner.set_max_time_step(static_cast<double>(limits_.max_time_step_s));
-  return std::make_shared<Session>(std::move(id), tenant, request, created_ms, std::move(runner));
+  return std::make_shared<Session>(std::move(id), tenant, pinned, created_ms, std::move(runner));
 }
 
 Status SessionManager::check_limits(const std::string& tenant) const {

@@ -72,15 +72,19 @@ export async function show(main, r, signal) {
   draw();
 }
 
+// "A1 [m^2]": a name with the unit the model declares, if any.
+const label = (name, unit) => (unit ? `${name} [${unit}]` : name);
+
 function settingsFor(m) {
   const states = m.stateNames || [], params = m.paramNames || [], outputs = m.outputNames || [];
+  const paramUnits = m.paramUnits || [], stateUnits = m.stateUnits || [], outputUnits = m.outputUnits || [];
   const theta = (m.thetaDefault || []).map(num), lower = (m.thetaLower || []).map(num), upper = (m.thetaUpper || []).map(num);
   return [
     h('fieldset', {}, h('legend', {}, 'Parameters'),
       h('table', {id: 'parameters'},
         h('thead', {}, h('tr', {}, ['Parameter', 'Start θ0', 'P0 (variance)', 'Q (intensity)', 'Lower bound', 'Upper bound', 'Fixed'].map((c) => h('th', {}, c)))),
-        h('tbody', {}, params.map((p, i) => h('tr', {},
-          h('th', {}, p),
+        h('tbody', {}, params.map((p, i) => h('tr', {'data-param': p},
+          h('th', {}, label(p, paramUnits[i])),
           h('td', {}, numberInput('theta0-' + p, theta[i])),
           h('td', {}, numberInput('p0-' + p, Math.max(1, theta[i] * theta[i] / 4))),
           h('td', {}, numberInput('q-' + p, 0)),
@@ -92,11 +96,11 @@ function settingsFor(m) {
         'Start each state with an output of its name at its first measurement (the toolbox\'s Y(t0))'),
       h('table', {id: 'states'},
         h('thead', {}, h('tr', {}, ['State', 'x0', 'P0 (variance)', 'Q (intensity)'].map((c) => h('th', {}, c)))),
-        h('tbody', {}, states.map((s) => h('tr', {},
-          h('th', {}, s), h('td', {}, numberInput('x0-' + s, 0)), h('td', {}, numberInput('p0-' + s, 0)),
+        h('tbody', {}, states.map((s, i) => h('tr', {'data-state': s},
+          h('th', {}, label(s, stateUnits[i])), h('td', {}, numberInput('x0-' + s, 0)), h('td', {}, numberInput('p0-' + s, 0)),
           h('td', {}, numberInput('q-' + s, 0))))))),
     h('fieldset', {}, h('legend', {}, 'Measurements'),
-      outputs.map((y) => h('label', {}, `R of ${y} (variance)`, numberInput('r-' + y, 1e-3)))),
+      outputs.map((y, i) => h('label', {}, `R of ${label(y, outputUnits[i])} (variance)`, numberInput('r-' + y, 1e-3)))),
     h('fieldset', {}, h('legend', {}, 'Integration'),
       h('label', {}, 'Integrator', select('integrator', kIntegrators, kIntegrators[0][0])),
       h('label', {}, 'Substeps per sample', numberInput('substeps', 10, 1)),

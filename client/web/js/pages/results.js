@@ -14,10 +14,12 @@ export async function showResult(el, job, result, model, signal) {
   if (result.smoothing) return smoothing(el, result.smoothing, model);
 }
 
-function resultTable(names, cols) {
+// The parameters' estimates, a row each, with the unit the model declares.
+function resultTable(names, cols, model) {
+  const unitOf = (n) => ((model && model.paramUnits) || [])[((model && model.paramNames) || []).indexOf(n)] || '';
   return h('table', {id: 'result-table'},
-    h('thead', {}, h('tr', {}, h('th', {}, 'Parameter'), cols.map(([title]) => h('th', {class: 'num'}, title)))),
-    h('tbody', {}, names.map((n, i) => h('tr', {'data-param': n}, h('th', {}, n),
+    h('thead', {}, h('tr', {}, h('th', {}, 'Parameter'), h('th', {}, 'Unit'), cols.map(([title]) => h('th', {class: 'num'}, title)))),
+    h('tbody', {}, names.map((n, i) => h('tr', {'data-param': n}, h('th', {}, n), h('td', {class: 'unit'}, unitOf(n)),
       cols.map(([title, f, value]) => h('td', {class: 'num', 'data-col': title, 'data-value': value ? String(value(i)) : null}, f(i)))))));
 }
 
@@ -65,7 +67,7 @@ async function identification(el, job, r, model, signal) {
       ['Estimate', (i) => fmt(mean[i], 5), (i) => mean[i]],
       ['Std error', (i) => fmt(std[i], 3), (i) => std[i]],
       ['95 % interval', (i) => `${fmt(mean[i] - 1.96 * std[i], 4)} … ${fmt(mean[i] + 1.96 * std[i], 4)}`],
-      ['End of last pass', (i) => fmt(end[i], 5)]]),
+      ['End of last pass', (i) => fmt(end[i], 5)]], model),
     h('p', {class: 'muted'}, 'Estimate: the mean over the last pass (the toolbox\'s); std error: √diag P at its end.'),
     (r.warnings || []).map((w) => h('p', {class: 'warn'}, w)),
     h('p', {}, h('a', {class: 'button', id: 'validate-link', href: `#/validate?job=${encodeURIComponent(job.id)}&model=${encodeURIComponent(spec.model)}&dataset=${encodeURIComponent(spec.datasetId)}`}, 'Validate this estimate')));
@@ -114,7 +116,7 @@ function estimation(el, job, r, model) {
     resultTable(names, [
       ['Estimate', (i) => fmt(theta[i], 5), (i) => theta[i]],
       ['Std error', (i) => (r.fixed || [])[i] ? 'fixed' : fmt(std[i], 3), (i) => std[i]],
-      ['95 % interval', (i) => `${fmt((r.ciLower || [])[i], 4)} … ${fmt((r.ciUpper || [])[i], 4)}`]]),
+      ['95 % interval', (i) => `${fmt((r.ciLower || [])[i], 4)} … ${fmt((r.ciUpper || [])[i], 4)}`]], model),
     h('p', {class: 'muted'}, `${r.converged ? 'Converged' : 'Did not converge'} after ${num(r.iterations)} iterations (${r.termination || ''}); cost ${fmt(r.cost)}; gradient: ${r.gradient || ''}.`),
     (r.warnings || []).map((w) => h('p', {class: 'warn'}, w)),
     h('p', {}, h('a', {class: 'button', id: 'validate-link', href: `#/validate?job=${encodeURIComponent(job.id)}&model=${encodeURIComponent(spec.model)}&dataset=${encodeURIComponent(spec.datasetId)}`}, 'Validate this estimate')));

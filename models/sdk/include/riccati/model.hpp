@@ -15,6 +15,7 @@
 //           .outputs = {"h1", "h2"},
 //           .theta_default = {10.0, 5.0, 0.0791, 0.1342},
 //           .theta_lower = {0.0, 0.0, 0.0, 0.0},
+//           .param_units = {"m^2", "m^2", "m^2.5/s", "m^2.5/s"},  // optional
 //       };
 //
 //       // x' = f(x, theta, u, t): written once, for any scalar type T.
@@ -137,6 +138,11 @@ struct ModelSpec {
   std::array<double, NTHETA> theta_default{};
   std::array<double, NTHETA> theta_lower = detail::filled<NTHETA>(-std::numeric_limits<double>::infinity());
   std::array<double, NTHETA> theta_upper = detail::filled<NTHETA>(std::numeric_limits<double>::infinity());
+  // Units, optional (nullptr: none), free text: .param_units = {"m^2", ...}.
+  std::array<const char*, NX> state_units{};
+  std::array<const char*, NTHETA> param_units{};
+  std::array<const char*, NU> input_units{};
+  std::array<const char*, NY> output_units{};
 };
 
 // The equations of motion M a + h = H u of a mechanical model, at one point,
@@ -459,6 +465,10 @@ struct Plugin {
         nullptr,
         nullptr,
         nullptr,
+        spec.state_units.data(),
+        ntheta > 0 ? spec.param_units.data() : nullptr,
+        nu > 0 ? spec.input_units.data() : nullptr,
+        spec.output_units.data(),
     };
     return &t;
   }

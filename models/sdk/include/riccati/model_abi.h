@@ -128,6 +128,15 @@ typedef struct riccati_model_v1 {
   riccati_jac_ctx_fn f_jac_ctx;
   riccati_jac_ctx_fn g_jac_ctx;
   riccati_mech_ctx_fn mech_ctx;
+
+  /* Appended: units of the names above, free text such as "m^3/s"
+   * (optional): each array NULL, or with an entry per name that is NULL or
+   * "" where the name has no unit. Shown by `riccati models show` and the
+   * workbench; the host computes nothing with them. */
+  const char* const* state_units;  /* [nx] or NULL */
+  const char* const* param_units;  /* [ntheta] or NULL */
+  const char* const* input_units;  /* [nu] or NULL */
+  const char* const* output_units; /* [ny] or NULL */
 } riccati_model_v1;
 
 /* The size of the table before any field was appended: the least a plugin's

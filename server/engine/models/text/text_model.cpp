@@ -149,6 +149,18 @@ Status name_list(const Source& src, const YAML::Node& node, const std::string& w
   return Status::ok();
 }
 
+// The unit a name list's entry declares: `h1: m` or `h1: {unit: m}`; "" if none.
+std::string unit_of(const Entry& e) {
+  if (e.value.IsScalar()) return e.value.Scalar();
+  if (!e.value.IsMap()) return "";
+  for (const auto& attribute : e.value) {
+    if (attribute.first.IsScalar() && attribute.first.Scalar() == "unit" && attribute.second.IsScalar()) {
+      return attribute.second.Scalar();
+    }
+  }
+  return "";
+}
+
 Result<double> number(const Source& src, const YAML::Node& node, const std::string& what) {
   if (!node.IsScalar()) return src.at(node.Mark(), what + " must be a number");
   const std::string& s = node.Scalar();
@@ -225,6 +237,8 @@ class CompiledModel {
   std::string name, version, description;
   std::vector<std::string> states, params, inputs, outputs;
   std::vector<const char*> state_ptrs, param_ptrs, input_ptrs, output_ptrs;
+  std::vector<std::string> state_units, param_units, input_units, output_units;  // "" where none
+  std::vector<const char*> state_unit_ptrs, param_unit_ptrs, input_unit_ptrs, output_unit_ptrs;
   std::vector<double> theta_default, theta_lower, theta_upper;
   Tape f, g, f_jac, g_jac;  // f_jac: f then df/dz column-major; g_jac likewise
   int nx = 0, ntheta = 0, nu = 0, ny = 0;
@@ -249,6 +263,10 @@ class CompiledModel {
     ptrs(params, &param_ptrs);
     ptrs(inputs, &input_ptrs);
     ptrs(outputs, &output_ptrs);
+    ptrs(state_units, &state_unit_ptrs);
+    ptrs(param_units, &param_unit_ptrs);
+    ptrs(input_units, &input_unit_ptrs);
+    ptrs(output_units, &output_unit_ptrs);
     table.abi_version = RICCATI_MODEL_ABI_VERSION;
     table.struct_size = sizeof(riccati_model_v1);
     table.name = name.c_str();
@@ -262,6 +280,10 @@ class CompiledModel {
     table.param_names = param_ptrs.data();
     table.input_names = nu > 0 ? input_ptrs.data() : nullptr;
     table.output_names = output_ptrs.data();
+    table.state_units = state_unit_ptrs.data();
+    table.param_units = param_unit_ptrs.data();
+    table.input_units = nu > 0 ? input_unit_ptrs.data() : nullptr;
+    table.output_units = output_unit_ptrs.data();
     table.theta_default = theta_default.data();
     table.theta_lower = theta_lower.data();
     table.theta_upper = theta_upper.data();
@@ -660,6 +682,19 @@ class Compiler {
     for (const Entry& e : states) m->states.push_back(e.key);
     for (const Entry& e : inputs) m->inputs.push_back(e.key);
     for (const Entry& e : outputs) m->outputs.push_back(e.key);
+    // Units: as declared; an output that is a state or an input as written
+    // has its unit.
+    std::map<std::string, std::string> unit_of_name;
+    for (const auto* list : {&states, &inputs}) {
+      for (const Entry& e : *list) unit_of_name[e.key] = unit_of(e);
+    }
+    for (const Entry& e : states) m->state_units.push_back(unit_of(e));
+    for (const Entry& e : inputs) m->input_units.push_back(unit_of(e));
+    for (const Entry& e : params) m->param_units.push_back(e.value.IsMap() ? unit_of(e) : "");
+    for (const Entry& e : outputs) {
+      const auto it = e.value.IsScalar() ? unit_of_name.find(e.value.Scalar()) : unit_of_name.end();
+      m->output_units.push_back(it != unit_of_name.end() ? it->second : "");
+    }
     m->nx = static_cast<int>(states.size());
     m->nu = static_cast<int>(inputs.size());
     m->ny = static_cast<int>(outputs.size());
