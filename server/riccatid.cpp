@@ -7,6 +7,7 @@
 // let running calls finish (a few seconds), leave running jobs stored to run
 // again at the next start, exit 0.
 #include <CLI/CLI.hpp>
+#include <absl/synchronization/mutex.h>
 #include <csignal>
 #include <cstdio>
 #include <algorithm>
@@ -22,6 +23,11 @@
 
 int main(int argc, char** argv) {
   using riccati::service::DaemonConfig;
+  // Debian's Abseil is built with its debug checks, so every absl::Mutex
+  // (gRPC's, several per message of a stream) would keep a process-wide
+  // lock-order graph under one global lock: a few per cent of a stream's CPU,
+  // and contention between the streams' threads (docs/benchmarks.md).
+  absl::SetMutexDeadlockDetectionMode(absl::OnDeadlockCycle::kIgnore);
   CLI::App app{"riccatid: the riccati estimation daemon"};
   std::string config_file, port_file;
   DaemonConfig flags;
