@@ -29,6 +29,7 @@
 // measurement with a copy of the estimate riccati gives for the workload, so
 // both move the same bytes.
 #include <CLI/CLI.hpp>
+#include <absl/synchronization/mutex.h>
 #include <grpcpp/grpcpp.h>
 #include <unistd.h>
 
@@ -110,6 +111,7 @@ struct Figures {
   double seconds = 0.0;            // the recorded window
   double client_cpu_s = 0.0;       // this process's CPU over the recorded window
   double server_cpu_s = 0.0;       // the server's
+  double pacer_behind_us = 0.0;    // paced runs: the longest the pacer was late sending
   double percentile(double p) const {
     if (round_trips_us.empty()) return 0.0;
     std::vector<double> v = round_trips_us;
@@ -284,16 +286,25 @@ class SessionClient final : public grpc::ClientBidiReactor<v1::StreamRequest, v1
 };
 
 // Sends every session's messages at `rate`, the sessions' schedules spread
-// evenly over one period so that they do not all arrive at once.
-void pace(std::vector<std::unique_ptr<SessionClient>>& clients, const Scenario& sc, Clock::time_point start,
-          Clock::time_point end) {
+// evenly over one period so that they do not all arrive at once. Returns the
+// longest the pacer itself was behind its schedule (us): a stall of the load
+// generator, not of the server, when it is as long as the longest round trip.
+double pace(std::vector<std::unique_ptr<SessionClient>>& clients, const Scenario& sc, Clock::time_point start,
+            Clock::time_point record_from, Clock::time_point end) {
   const auto period = std::chrono::duration<double>(sc.batch / sc.rate);
   const auto slot = std::chrono::duration_cast<Clock::duration>(period / static_cast<double>(clients.size()));
   Clock::time_point due = start;
+  Clock::duration behind{0};
   for (std::size_t i = 0; due < end; ++i, due += slot) {
-    if (Clock::now() < due) std::this_thread::sleep_until(due);
+    const Clock::time_point now = Clock::now();
+    if (now < due) {
+      std::this_thread::sleep_until(due);
+    } else if (due >= record_from) {
+      behind = std::max(behind, now - due);
+    }
     clients[i % clients.size()]->send(due);
   }
+  return std::chrono::duration<double, std::micro>(behind).count();
 }
 
 // Channels to a server: one connection per 32 sessions; gRPC multiplexes streams over each.
@@ -359,7 +370,7 @@ Figures run(const bench::ServerProcess& server, const Workload& workload, const 
     clients.back()->start(connections.stub(s), ids[static_cast<std::size_t>(s)]);
   }
   if (sc.rate > 0) {
-    pace(clients, sc, start, end);
+    figures.pacer_behind_us = pace(clients, sc, start, record_from, end);
   } else {
     std::this_thread::sleep_until(end);
   }
@@ -461,6 +472,7 @@ struct Summary {
   double rate = 0.0, p50 = 0.0, p99 = 0.0, max = 0.0;
   double stalls = 0.0, errors = 0.0;
   double client_cores = 0.0, client_us = 0.0, server_cores = 0.0, server_us = 0.0;
+  double pacer_behind = 0.0;
 };
 
 Summary summarize(const Figures& f) {
@@ -474,7 +486,8 @@ Summary summarize(const Figures& f) {
           cores(f.client_cpu_s),
           f.client_us(),
           cores(f.server_cpu_s),
-          f.server_us()};
+          f.server_us(),
+          f.pacer_behind_us};
 }
 
 // Each figure's median over repeated runs, on its own.
@@ -490,22 +503,22 @@ Summary median_of(const std::vector<Figures>& runs) {
   Summary m;
   for (double Summary::*field : {&Summary::rate, &Summary::p50, &Summary::p99, &Summary::max, &Summary::stalls,
                                  &Summary::errors, &Summary::client_cores, &Summary::client_us, &Summary::server_cores,
-                                 &Summary::server_us}) {
+                                 &Summary::server_us, &Summary::pacer_behind}) {
     m.*field = median(field);
   }
   return m;
 }
 
 void print_header() {
-  std::printf("  %-10s %10s %10s %9s %9s %10s %6s %6s %13s %13s\n", "", "offered/s", "meas/s", "p50 us", "p99 us",
-              "max us", "stalls", "errors", "client cpu", "server cpu");
+  std::printf("  %-10s %10s %10s %9s %9s %10s %6s %6s %13s %13s %9s\n", "", "offered/s", "meas/s", "p50 us", "p99 us",
+              "max us", "stalls", "errors", "client cpu", "server cpu", "pacer us");
 }
 
 void print_row(const std::string& who, const Scenario& sc, const Summary& s) {
   const double offered = sc.rate > 0 ? sc.rate * sc.sessions : 0.0;
-  std::printf("  %-10s %10.0f %10.0f %9.1f %9.1f %10.1f %6.0f %6.0f %4.2f %5.1fus %4.2f %5.1fus\n", who.c_str(),
-              offered, s.rate, s.p50, s.p99, s.max, s.stalls, s.errors, s.client_cores, s.client_us, s.server_cores,
-              s.server_us);
+  std::printf("  %-10s %10.0f %10.0f %9.1f %9.1f %10.1f %6.0f %6.0f %4.2f %5.1fus %4.2f %5.1fus %9.0f\n",
+              who.c_str(), offered, s.rate, s.p50, s.p99, s.max, s.stalls, s.errors, s.client_cores, s.client_us,
+              s.server_cores, s.server_us, s.pacer_behind);
   std::fflush(stdout);
 }
 
@@ -517,7 +530,8 @@ bool sustained(const Scenario& sc, const Summary& s) {
 
 // A riccatid for the bench: its own data directory, the built-in plugins,
 // production's snapshot interval, and limits raised for the bench alone.
-std::unique_ptr<bench::ServerProcess> start_riccatid(const std::string& binary, const std::filesystem::path& dir) {
+std::unique_ptr<bench::ServerProcess> start_riccatid(const std::string& binary, const std::filesystem::path& dir,
+                                                     const std::vector<std::string>& extra_flags) {
   std::vector<std::string> argv = {binary,
                                    "--listen", "127.0.0.1:0",
                                    "--data-dir", dir.string(),
@@ -527,6 +541,7 @@ std::unique_ptr<bench::ServerProcess> start_riccatid(const std::string& binary, 
                                    "--max-tenant-sessions", "100000",
                                    "--max-streams", "100000",
                                    "--max-tenant-streams", "100000"};
+  argv.insert(argv.end(), extra_flags.begin(), extra_flags.end());
   auto process = std::make_unique<bench::ServerProcess>(argv, dir);
   if (!process->running()) std::fprintf(stderr, "stream_bench: %s did not start\n", binary.c_str());
   return process;
@@ -541,6 +556,7 @@ int main(int argc, char** argv) {
   std::string riccatid = RICCATI_DAEMON_BIN, baseline, echo_binary = RICCATI_ECHO_BIN;
   bool find_max = false, no_echo = false;
   int max_sessions = 1000, repeat = 1, idle = 0;
+  std::vector<std::string> daemon_flags;
   const std::vector<CLI::Option*> options = {
       app.add_option("--sessions", custom.sessions, "Concurrent sessions"),
       app.add_option("--rate", custom.rate, "Measurements per second per session (0: closed loop, as fast as answers come)"),
@@ -563,9 +579,13 @@ int main(int argc, char** argv) {
                  "first, for before-and-after figures from one run");
   app.add_option("--echo", echo_binary, "The echo server binary")->capture_default_str();
   app.add_flag("--no-echo", no_echo, "Leave out the echo runs");
+  app.add_option("--daemon-flag", daemon_flags,
+                 "A flag for riccatid (and the baseline), e.g. --daemon-flag=--session-snapshot-seconds=0; repeatable")
+      ->allow_extra_args(false);
   app.add_option("--repeat", repeat, "Runs of each scenario on each server, alternating; the medians are printed")
       ->check(CLI::PositiveNumber);
   CLI11_PARSE(app, argc, argv);
+  absl::SetMutexDeadlockDetectionMode(absl::OnDeadlockCycle::kIgnore);  // as riccatid does: Debian's Abseil has its debug checks on
   const bool custom_given = std::any_of(options.begin(), options.end(), [](CLI::Option* o) { return o->count() > 0; });
   if (find_max && custom.rate <= 0) {
     std::fprintf(stderr, "stream_bench: --find-max needs --rate\n");
@@ -575,8 +595,8 @@ int main(int argc, char** argv) {
   const std::filesystem::path work =
       std::filesystem::temp_directory_path() / ("riccati-bench-" + std::to_string(::getpid()));
   std::vector<std::pair<std::string, std::unique_ptr<bench::ServerProcess>>> servers;  // name, process
-  servers.emplace_back("riccati", start_riccatid(riccatid, work / "riccati"));
-  if (!baseline.empty()) servers.emplace_back("baseline", start_riccatid(baseline, work / "baseline"));
+  servers.emplace_back("riccati", start_riccatid(riccatid, work / "riccati", daemon_flags));
+  if (!baseline.empty()) servers.emplace_back("baseline", start_riccatid(baseline, work / "baseline", daemon_flags));
   std::unique_ptr<bench::ServerProcess> echo;
   if (!no_echo && idle == 0) {
     echo = std::make_unique<bench::ServerProcess>(
@@ -589,7 +609,7 @@ int main(int argc, char** argv) {
   }
   if (echo != nullptr && !echo->running()) return 1;
   const bench::ServerProcess& ricc = *servers.front().second;
-  std::printf("stream_bench: riccatid pid-separate on %s%s; load generator on this process; %u cores\n",
+  std::printf("stream_bench: riccatid on %s%s, each a process of its own; the load generator in this one; %u cores\n",
               ricc.address().c_str(), echo != nullptr ? (", echo on " + echo->address()).c_str() : "",
               std::thread::hardware_concurrency());
 
