@@ -21,7 +21,8 @@
 // time from a message's scheduled send to its answer; the first second
 // (--warmup) is not recorded. A stall is a stretch of time in which answers
 // came more than 10 ms late (overlapping late answers of any session are one
-// stall).
+// stall); those during which the pacer itself kept its schedule are counted
+// apart (on a shared machine the generator is descheduled too).
 //
 // Workloads: `two_tank` (EKF, RK4 with 10 substeps, two_tank.csv) and
 // `manipulator` (the optimal filter with the weights of case C,
@@ -112,6 +113,7 @@ struct Figures {
   double client_cpu_s = 0.0;       // this process's CPU over the recorded window
   double server_cpu_s = 0.0;       // the server's
   double pacer_behind_us = 0.0;    // paced runs: the longest the pacer was late sending
+  std::vector<std::pair<double, double>> pacer_late;  // (due, sent) in us from the start, of sends over 1 ms late
   double percentile(double p) const {
     if (round_trips_us.empty()) return 0.0;
     std::vector<double> v = round_trips_us;
@@ -121,14 +123,29 @@ struct Figures {
   }
   double rate() const { return seconds > 0 ? static_cast<double>(measurements) / seconds : 0.0; }
   // Stretches of time with late answers: overlapping ones are one stall.
-  int stalls() const {
-    std::vector<std::pair<double, double>> spans = late;
+  std::vector<std::pair<double, double>> stall_spans() const {
+    std::vector<std::pair<double, double>> spans = late, merged;
     std::sort(spans.begin(), spans.end());
-    int count = 0;
-    double until = -1.0;
     for (const auto& [from, to] : spans) {
-      if (from > until) ++count;
-      until = std::max(until, to);
+      if (merged.empty() || from > merged.back().second) {
+        merged.emplace_back(from, to);
+      } else {
+        merged.back().second = std::max(merged.back().second, to);
+      }
+    }
+    return merged;
+  }
+  int stalls() const { return static_cast<int>(stall_spans().size()); }
+  // Stalls during which the pacer kept its schedule (never more than
+  // kStallUs / 2 late from a little before the stall to its end): the load
+  // generator was running, so these are more likely the server's.
+  int stalls_pacer_on_time() const {
+    int count = 0;
+    for (const auto& [from, to] : stall_spans()) {
+      const bool generator_late = std::any_of(pacer_late.begin(), pacer_late.end(), [&](const auto& p) {
+        return p.first <= to && p.second >= from - kStallUs && p.second - p.first > kStallUs / 2;
+      });
+      if (!generator_late) ++count;
     }
     return count;
   }
@@ -290,7 +307,7 @@ class SessionClient final : public grpc::ClientBidiReactor<v1::StreamRequest, v1
 // longest the pacer itself was behind its schedule (us): a stall of the load
 // generator, not of the server, when it is as long as the longest round trip.
 double pace(std::vector<std::unique_ptr<SessionClient>>& clients, const Scenario& sc, Clock::time_point start,
-            Clock::time_point record_from, Clock::time_point end) {
+            Clock::time_point record_from, Clock::time_point end, std::vector<std::pair<double, double>>* late) {
   const auto period = std::chrono::duration<double>(sc.batch / sc.rate);
   const auto slot = std::chrono::duration_cast<Clock::duration>(period / static_cast<double>(clients.size()));
   Clock::time_point due = start;
@@ -301,6 +318,10 @@ double pace(std::vector<std::unique_ptr<SessionClient>>& clients, const Scenario
       std::this_thread::sleep_until(due);
     } else if (due >= record_from) {
       behind = std::max(behind, now - due);
+      if (now - due > std::chrono::milliseconds(1)) {
+        late->emplace_back(std::chrono::duration<double, std::micro>(due - start).count(),
+                           std::chrono::duration<double, std::micro>(now - start).count());
+      }
     }
     clients[i % clients.size()]->send(due);
   }
@@ -370,7 +391,7 @@ Figures run(const bench::ServerProcess& server, const Workload& workload, const 
     clients.back()->start(connections.stub(s), ids[static_cast<std::size_t>(s)]);
   }
   if (sc.rate > 0) {
-    figures.pacer_behind_us = pace(clients, sc, start, record_from, end);
+    figures.pacer_behind_us = pace(clients, sc, start, record_from, end, &figures.pacer_late);
   } else {
     std::this_thread::sleep_until(end);
   }
@@ -470,7 +491,7 @@ std::string describe(const Scenario& sc) {
 // What a row prints of a run, or the medians of several.
 struct Summary {
   double rate = 0.0, p50 = 0.0, p99 = 0.0, max = 0.0;
-  double stalls = 0.0, errors = 0.0;
+  double stalls = 0.0, stalls_pacer_on_time = 0.0, errors = 0.0;
   double client_cores = 0.0, client_us = 0.0, server_cores = 0.0, server_us = 0.0;
   double pacer_behind = 0.0;
 };
@@ -482,6 +503,7 @@ Summary summarize(const Figures& f) {
           f.percentile(0.99),
           f.percentile(1.0),
           static_cast<double>(f.stalls()),
+          static_cast<double>(f.stalls_pacer_on_time()),
           static_cast<double>(f.errors),
           cores(f.client_cpu_s),
           f.client_us(),
@@ -501,7 +523,7 @@ Summary median_of(const std::vector<Figures>& runs) {
     return v.empty() ? 0.0 : v[v.size() / 2];
   };
   Summary m;
-  for (double Summary::*field : {&Summary::rate, &Summary::p50, &Summary::p99, &Summary::max, &Summary::stalls,
+  for (double Summary::*field : {&Summary::rate, &Summary::p50, &Summary::p99, &Summary::max, &Summary::stalls, &Summary::stalls_pacer_on_time,
                                  &Summary::errors, &Summary::client_cores, &Summary::client_us, &Summary::server_cores,
                                  &Summary::server_us, &Summary::pacer_behind}) {
     m.*field = median(field);
@@ -510,14 +532,17 @@ Summary median_of(const std::vector<Figures>& runs) {
 }
 
 void print_header() {
-  std::printf("  %-10s %10s %10s %9s %9s %10s %6s %6s %13s %13s %9s\n", "", "offered/s", "meas/s", "p50 us", "p99 us",
+  // stalls: all / those with the pacer on time (see Figures::stalls_pacer_on_time).
+  std::printf("  %-10s %10s %10s %9s %9s %10s %9s %6s %13s %13s %9s\n", "", "offered/s", "meas/s", "p50 us", "p99 us",
               "max us", "stalls", "errors", "client cpu", "server cpu", "pacer us");
 }
 
 void print_row(const std::string& who, const Scenario& sc, const Summary& s) {
   const double offered = sc.rate > 0 ? sc.rate * sc.sessions : 0.0;
-  std::printf("  %-10s %10.0f %10.0f %9.1f %9.1f %10.1f %6.0f %6.0f %4.2f %5.1fus %4.2f %5.1fus %9.0f\n",
-              who.c_str(), offered, s.rate, s.p50, s.p99, s.max, s.stalls, s.errors, s.client_cores, s.client_us,
+  char stalls[32];
+  std::snprintf(stalls, sizeof stalls, "%.0f/%.0f", s.stalls, s.stalls_pacer_on_time);
+  std::printf("  %-10s %10.0f %10.0f %9.1f %9.1f %10.1f %9s %6.0f %4.2f %5.1fus %4.2f %5.1fus %9.0f\n",
+              who.c_str(), offered, s.rate, s.p50, s.p99, s.max, stalls, s.errors, s.client_cores, s.client_us,
               s.server_cores, s.server_us, s.pacer_behind);
   std::fflush(stdout);
 }
