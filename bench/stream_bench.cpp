@@ -520,7 +520,8 @@ Summary median_of(const std::vector<Figures>& runs) {
     std::vector<double> v;
     for (const Summary& s : all) v.push_back(s.*field);
     std::sort(v.begin(), v.end());
-    return v.empty() ? 0.0 : v[v.size() / 2];
+    if (v.empty()) return 0.0;
+    return v.size() % 2 == 1 ? v[v.size() / 2] : (v[v.size() / 2 - 1] + v[v.size() / 2]) / 2;
   };
   Summary m;
   for (double Summary::*field : {&Summary::rate, &Summary::p50, &Summary::p99, &Summary::max, &Summary::stalls, &Summary::stalls_pacer_on_time,
