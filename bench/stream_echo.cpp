@@ -39,13 +39,17 @@ class EchoStream final : public grpc::ServerBidiReactor<v1::StreamRequest, v1::S
       return StartRead(&request_);
     }
     if (estimate_ == nullptr) return Finish({grpc::StatusCode::INVALID_ARGUMENT, "StreamOpen first"});
-    response_.Clear();
+    // The results of the previous response are reused, as riccatid reuses
+    // its own (Clear() would free every estimate and allocate it again).
+    int answered = 0;
     for (const auto& m : request_.batch().measurements()) {
-      auto* r = response_.add_results();
+      auto* r = answered < response_.results_size() ? response_.mutable_results(answered) : response_.add_results();
+      ++answered;
       r->set_sequence(sequence_++);
-      *r->mutable_estimate() = *estimate_;
+      *r->mutable_estimate() = *estimate_;  // copies into the estimate already there
       r->mutable_estimate()->set_t(m.t());
     }
+    while (response_.results_size() > answered) response_.mutable_results()->RemoveLast();
     StartWrite(&response_);
   }
   void OnWriteDone(bool ok) override {
