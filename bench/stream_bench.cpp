@@ -1,19 +1,28 @@
-// stream_bench: a load generator for filter sessions, run side by side with a
-// bare gRPC echo service that answers the same messages without estimating.
+// stream_bench: a load generator for filter sessions, run against riccatid
+// and, side by side, a bare gRPC echo service (stream_echo) that answers the
+// same messages without estimating.
 //
 //   build/bin/stream_bench                                    # the standard scenarios
-//   build/bin/stream_bench --model manipulator --sessions 50 --rate 400 --seconds 10
+//   build/bin/stream_bench --model manipulator --sessions 40 --rate 400 --seconds 60
 //   build/bin/stream_bench --model manipulator --rate 400 --find-max
+//   build/bin/stream_bench --model manipulator --sessions 20 --rate 400 --idle 10000
+//   build/bin/stream_bench --baseline path/to/an/older/riccatid   # before and after, in one run
 //
-// Both servers run in this process on loopback ports: riccatid's Daemon
-// (SQLite in a temporary directory, the built-in plugins) and the echo, both
-// on gRPC's callback API. The client side is the callback API too, so that a
-// few threads drive hundreds of sessions: one reactor per session and, for
-// paced runs, one pacing thread that queues each session's next message at
-// its scheduled time. Paced runs are open loop: a late answer does not delay
-// the next message, so queueing shows in the latency instead of hiding in a
-// slower send rate. A round trip is the time from a message's scheduled send
-// to its answer; the first second (--warmup) is not recorded.
+// riccatid (SQLite in a temporary directory, the built-in plugins, session
+// snapshots every second as in production, limits raised for the bench) and
+// the echo run as processes of their own on loopback ports; this process is
+// only the load generator, and reports its own CPU (getrusage) beside the
+// server's (/proc/<pid>/stat) for the recorded window. The client side is
+// gRPC's callback API, so that a few threads drive hundreds of sessions: one
+// reactor per session and, for paced runs, one pacing thread that queues
+// each session's next message at its scheduled time. Paced runs are open
+// loop: a late answer does not delay the next message, so queueing shows in
+// the latency instead of hiding in a slower send rate. A round trip is the
+// time from a message's scheduled send to its answer; the first second
+// (--warmup) is not recorded. A stall is a stretch of time in which answers
+// came more than 10 ms late (overlapping late answers of any session are one
+// stall); those during which the pacer itself kept its schedule are counted
+// apart (on a shared machine the generator is descheduled too).
 //
 // Workloads: `two_tank` (EKF, RK4 with 10 substeps, two_tank.csv) and
 // `manipulator` (the optimal filter with the weights of case C,
@@ -21,7 +30,8 @@
 // measurement with a copy of the estimate riccati gives for the workload, so
 // both move the same bytes.
 #include <CLI/CLI.hpp>
-#include <spdlog/spdlog.h>
+#include <absl/synchronization/mutex.h>
+#include <grpcpp/grpcpp.h>
 #include <unistd.h>
 
 #include <algorithm>
@@ -31,13 +41,14 @@
 #include <cstdio>
 #include <deque>
 #include <filesystem>
+#include <fstream>
 #include <mutex>
 #include <thread>
 #include <vector>
 
+#include "bench_process.hpp"
 #include "engine/data/dataset.hpp"
 #include "riccati/v1/sessions.grpc.pb.h"
-#include "service/daemon.hpp"
 #include "support/requests.hpp"
 
 namespace {
@@ -76,61 +87,6 @@ Workload make_workload(const std::string& name) {
   return w;
 }
 
-// The echo: reads a batch, answers each measurement with the template
-// estimate (its time set), computing nothing; one message in flight, as
-// riccatid's own stream.
-class EchoStream final : public grpc::ServerBidiReactor<v1::StreamRequest, v1::StreamResponse> {
- public:
-  explicit EchoStream(const v1::Estimate& estimate) : estimate_(estimate) { StartRead(&request_); }
-  void OnReadDone(bool ok) override {
-    if (!ok) return Finish(grpc::Status::OK);
-    if (request_.has_open()) return StartRead(&request_);
-    response_.Clear();
-    for (const auto& m : request_.batch().measurements()) {
-      auto* r = response_.add_results();
-      r->set_sequence(sequence_++);
-      *r->mutable_estimate() = estimate_;
-      r->mutable_estimate()->set_t(m.t());
-    }
-    StartWrite(&response_);
-  }
-  void OnWriteDone(bool ok) override {
-    if (!ok) return Finish(grpc::Status::OK);
-    StartRead(&request_);
-  }
-  void OnDone() override { delete this; }
-
- private:
-  const v1::Estimate& estimate_;
-  v1::StreamRequest request_;
-  v1::StreamResponse response_;
-  std::uint64_t sequence_ = 0;
-};
-
-class EchoSessions final : public v1::SessionService::CallbackService {
- public:
-  void set_estimate(v1::Estimate estimate) { estimate_ = std::move(estimate); }
-  grpc::ServerUnaryReactor* CreateSession(grpc::CallbackServerContext* context, const v1::CreateSessionRequest*,
-                                          v1::SessionInfo* info) override {
-    info->set_id("echo");
-    auto* reactor = context->DefaultReactor();
-    reactor->Finish(grpc::Status::OK);
-    return reactor;
-  }
-  grpc::ServerUnaryReactor* CloseSession(grpc::CallbackServerContext* context, const v1::CloseSessionRequest*,
-                                         v1::CloseSessionResponse*) override {
-    auto* reactor = context->DefaultReactor();
-    reactor->Finish(grpc::Status::OK);
-    return reactor;
-  }
-  grpc::ServerBidiReactor<v1::StreamRequest, v1::StreamResponse>* Stream(grpc::CallbackServerContext*) override {
-    return new EchoStream(estimate_);
-  }
-
- private:
-  v1::Estimate estimate_;
-};
-
 struct Scenario {
   int sessions = 1;
   double rate = 0.0;  // measurements per second per session; 0 = as fast as answers come (closed loop)
@@ -140,11 +96,24 @@ struct Scenario {
   double warmup = 1.0;
 };
 
+// A server under load: its address and, for a child process, its CPU.
+struct Server {
+  std::string name;
+  const bench::ServerProcess* process;
+};
+
+constexpr double kStallUs = 10'000;  // an answer this late is part of a stall
+
 struct Figures {
   std::vector<double> round_trips_us;
+  std::vector<std::pair<double, double>> late;  // (due, answered) in us from the start, of answers later than kStallUs
   std::uint64_t measurements = 0;  // estimates received for messages in the recorded window
   std::uint64_t errors = 0;        // measurement errors and streams that ended badly
   double seconds = 0.0;            // the recorded window
+  double client_cpu_s = 0.0;       // this process's CPU over the recorded window
+  double server_cpu_s = 0.0;       // the server's
+  double pacer_behind_us = 0.0;    // paced runs: the longest the pacer was late sending
+  std::vector<std::pair<double, double>> pacer_late;  // (due, sent) in us from the start, of sends over 1 ms late
   double percentile(double p) const {
     if (round_trips_us.empty()) return 0.0;
     std::vector<double> v = round_trips_us;
@@ -153,6 +122,36 @@ struct Figures {
     return v[k];
   }
   double rate() const { return seconds > 0 ? static_cast<double>(measurements) / seconds : 0.0; }
+  // Stretches of time with late answers: overlapping ones are one stall.
+  std::vector<std::pair<double, double>> stall_spans() const {
+    std::vector<std::pair<double, double>> spans = late, merged;
+    std::sort(spans.begin(), spans.end());
+    for (const auto& [from, to] : spans) {
+      if (merged.empty() || from > merged.back().second) {
+        merged.emplace_back(from, to);
+      } else {
+        merged.back().second = std::max(merged.back().second, to);
+      }
+    }
+    return merged;
+  }
+  int stalls() const { return static_cast<int>(stall_spans().size()); }
+  // Stalls during which the pacer kept its schedule (never more than
+  // kStallUs / 2 late from a little before the stall to its end): the load
+  // generator was running, so these are more likely the server's.
+  int stalls_pacer_on_time() const {
+    int count = 0;
+    for (const auto& [from, to] : stall_spans()) {
+      const bool generator_late = std::any_of(pacer_late.begin(), pacer_late.end(), [&](const auto& p) {
+        return p.first <= to && p.second >= from - kStallUs && p.second - p.first > kStallUs / 2;
+      });
+      if (!generator_late) ++count;
+    }
+    return count;
+  }
+  // CPU microseconds per measurement answered.
+  double client_us() const { return measurements > 0 ? 1e6 * client_cpu_s / static_cast<double>(measurements) : 0.0; }
+  double server_us() const { return measurements > 0 ? 1e6 * server_cpu_s / static_cast<double>(measurements) : 0.0; }
 };
 
 // One session's stream. Messages are queued by send() (the pacer's thread,
@@ -161,9 +160,13 @@ struct Figures {
 // the one an answer belongs to.
 class SessionClient final : public grpc::ClientBidiReactor<v1::StreamRequest, v1::StreamResponse> {
  public:
-  SessionClient(const Workload& workload, const Scenario& scenario, Clock::time_point record_from,
-                Clock::time_point record_until)
-      : workload_(workload), scenario_(scenario), record_from_(record_from), record_until_(record_until) {}
+  SessionClient(const Workload& workload, const Scenario& scenario, Clock::time_point start,
+                Clock::time_point record_from, Clock::time_point record_until)
+      : workload_(workload),
+        scenario_(scenario),
+        start_(start),
+        record_from_(record_from),
+        record_until_(record_until) {}
 
   void start(v1::SessionService::Stub& stub, const std::string& session_id) {
     stub.async()->Stream(&context_, this);
@@ -217,6 +220,7 @@ class SessionClient final : public grpc::ClientBidiReactor<v1::StreamRequest, v1
   // Call after wait().
   void add_to(Figures& figures) const {
     figures.round_trips_us.insert(figures.round_trips_us.end(), trips_us_.begin(), trips_us_.end());
+    figures.late.insert(figures.late.end(), late_.begin(), late_.end());
     figures.measurements += measurements_;
     figures.errors += errors_ + (status_.ok() ? 0 : 1);
   }
@@ -250,7 +254,12 @@ class SessionClient final : public grpc::ClientBidiReactor<v1::StreamRequest, v1
       const Clock::time_point due = scheduled_.front();
       scheduled_.pop_front();
       if (due >= record_from_ && due < record_until_) {
-        trips_us_.push_back(std::chrono::duration<double, std::micro>(now - due).count());
+        const double trip_us = std::chrono::duration<double, std::micro>(now - due).count();
+        trips_us_.push_back(trip_us);
+        if (trip_us > kStallUs) {
+          const double due_us = std::chrono::duration<double, std::micro>(due - start_).count();
+          late_.emplace_back(due_us, due_us + trip_us);
+        }
         for (const auto& r : response_.results()) {
           if (r.has_estimate()) ++measurements_;
           else ++errors_;
@@ -277,7 +286,7 @@ class SessionClient final : public grpc::ClientBidiReactor<v1::StreamRequest, v1
 
   const Workload& workload_;
   const Scenario& scenario_;
-  const Clock::time_point record_from_, record_until_;
+  const Clock::time_point start_, record_from_, record_until_;
   grpc::ClientContext context_;
   std::mutex mu_;
   std::condition_variable done_cv_;
@@ -288,39 +297,82 @@ class SessionClient final : public grpc::ClientBidiReactor<v1::StreamRequest, v1
   std::int64_t next_sample_ = 0;
   bool writing_ = false, closing_ = false, writes_done_ = false, done_ = false;
   std::vector<double> trips_us_;
+  std::vector<std::pair<double, double>> late_;
   std::uint64_t measurements_ = 0, errors_ = 0;
   grpc::Status status_;
 };
 
 // Sends every session's messages at `rate`, the sessions' schedules spread
-// evenly over one period so that they do not all arrive at once.
-void pace(std::vector<std::unique_ptr<SessionClient>>& clients, const Scenario& sc, Clock::time_point start,
-          Clock::time_point end) {
+// evenly over one period so that they do not all arrive at once. Returns the
+// longest the pacer itself was behind its schedule (us): a stall of the load
+// generator, not of the server, when it is as long as the longest round trip.
+double pace(std::vector<std::unique_ptr<SessionClient>>& clients, const Scenario& sc, Clock::time_point start,
+            Clock::time_point record_from, Clock::time_point end, std::vector<std::pair<double, double>>* late) {
   const auto period = std::chrono::duration<double>(sc.batch / sc.rate);
   const auto slot = std::chrono::duration_cast<Clock::duration>(period / static_cast<double>(clients.size()));
   Clock::time_point due = start;
+  Clock::duration behind{0};
   for (std::size_t i = 0; due < end; ++i, due += slot) {
-    if (Clock::now() < due) std::this_thread::sleep_until(due);
+    const Clock::time_point now = Clock::now();
+    if (now < due) {
+      std::this_thread::sleep_until(due);
+    } else if (due >= record_from) {
+      behind = std::max(behind, now - due);
+      if (now - due > std::chrono::milliseconds(1)) {
+        late->emplace_back(std::chrono::duration<double, std::micro>(due - start).count(),
+                           std::chrono::duration<double, std::micro>(now - start).count());
+      }
+    }
     clients[i % clients.size()]->send(due);
   }
+  return std::chrono::duration<double, std::micro>(behind).count();
 }
 
-Figures run(const std::string& address, const Workload& workload, const Scenario& sc) {
-  // One channel (connection) per 32 sessions; gRPC multiplexes streams over each.
+// Channels to a server: one connection per 32 sessions; gRPC multiplexes streams over each.
+struct Connections {
   std::vector<std::shared_ptr<grpc::Channel>> channels;
   std::vector<std::unique_ptr<v1::SessionService::Stub>> stubs;
-  for (int c = 0; c < (sc.sessions + 31) / 32; ++c) {
-    grpc::ChannelArguments args;
-    args.SetInt("grpc.channel_id", c);  // distinct channels, not one shared subchannel
-    channels.push_back(grpc::CreateCustomChannel(address, grpc::InsecureChannelCredentials(), args));
-    stubs.push_back(v1::SessionService::NewStub(channels.back()));
+  Connections(const std::string& address, int sessions) {
+    for (int c = 0; c < (sessions + 31) / 32; ++c) {
+      grpc::ChannelArguments args;
+      args.SetInt("grpc.channel_id", c);  // distinct channels, not one shared subchannel
+      channels.push_back(grpc::CreateCustomChannel(address, grpc::InsecureChannelCredentials(), args));
+      stubs.push_back(v1::SessionService::NewStub(channels.back()));
+    }
   }
+  v1::SessionService::Stub& stub(int session) { return *stubs[static_cast<std::size_t>(session / 32)]; }
+};
+
+// CPU seconds of this process and of the server, read at the two ends of the recorded window.
+class CpuWindow {
+ public:
+  CpuWindow(const bench::ServerProcess& server, Clock::time_point from, Clock::time_point until)
+      : thread_([this, &server, from, until] {
+          std::this_thread::sleep_until(from);
+          const double client0 = bench::own_cpu_seconds(), server0 = server.cpu_seconds();
+          std::this_thread::sleep_until(until);
+          client_ = bench::own_cpu_seconds() - client0;
+          server_ = server.cpu_seconds() - server0;
+        }) {}
+  void into(Figures& figures) {
+    thread_.join();
+    figures.client_cpu_s = client_;
+    figures.server_cpu_s = server_;
+  }
+
+ private:
+  double client_ = 0.0, server_ = 0.0;
+  std::thread thread_;
+};
+
+Figures run(const bench::ServerProcess& server, const Workload& workload, const Scenario& sc) {
+  Connections connections(server.address(), sc.sessions);
   std::vector<std::string> ids;
   Figures figures;
   for (int s = 0; s < sc.sessions; ++s) {
     grpc::ClientContext ctx;
     v1::SessionInfo info;
-    const grpc::Status created = stubs[s / 32]->CreateSession(&ctx, workload.session, &info);
+    const grpc::Status created = connections.stub(s).CreateSession(&ctx, workload.session, &info);
     if (!created.ok()) {
       std::fprintf(stderr, "stream_bench: CreateSession: %s\n", created.error_message().c_str());
       ++figures.errors;
@@ -332,17 +384,19 @@ Figures run(const std::string& address, const Workload& workload, const Scenario
   const auto start = Clock::now() + std::chrono::milliseconds(50);
   const auto record_from = start + std::chrono::duration_cast<Clock::duration>(std::chrono::duration<double>(sc.warmup));
   const auto end = start + std::chrono::duration_cast<Clock::duration>(std::chrono::duration<double>(sc.seconds));
+  CpuWindow cpu(server, record_from, end);
   std::vector<std::unique_ptr<SessionClient>> clients;
   for (int s = 0; s < sc.sessions; ++s) {
-    clients.push_back(std::make_unique<SessionClient>(workload, sc, record_from, end));
-    clients.back()->start(*stubs[s / 32], ids[s]);
+    clients.push_back(std::make_unique<SessionClient>(workload, sc, start, record_from, end));
+    clients.back()->start(connections.stub(s), ids[static_cast<std::size_t>(s)]);
   }
   if (sc.rate > 0) {
-    pace(clients, sc, start, end);
+    figures.pacer_behind_us = pace(clients, sc, start, record_from, end, &figures.pacer_late);
   } else {
     std::this_thread::sleep_until(end);
   }
   for (auto& c : clients) c->finish();
+  cpu.into(figures);
   // What is still queued is answered; a server that cannot is cut off.
   const auto give_up = Clock::now() + std::chrono::seconds(30);
   bool all_done = true;
@@ -366,9 +420,34 @@ Figures run(const std::string& address, const Workload& workload, const Scenario
     v1::CloseSessionRequest close;
     close.set_id(ids[s]);
     v1::CloseSessionResponse closed;
-    (void)stubs[s / 32]->CloseSession(&ctx, close, &closed);
+    (void)connections.stub(static_cast<int>(s)).CloseSession(&ctx, close, &closed);
   }
   return figures;
+}
+
+// Creates `count` sessions of `workload` that nobody streams into, from a few
+// threads at once; returns how many were made.
+int create_idle_sessions(const std::string& address, const Workload& workload, int count) {
+  constexpr int kThreads = 4;
+  std::atomic<int> next{0}, made{0};
+  std::vector<std::thread> threads;
+  for (int t = 0; t < kThreads; ++t) {
+    threads.emplace_back([&] {
+      auto stub = v1::SessionService::NewStub(grpc::CreateChannel(address, grpc::InsecureChannelCredentials()));
+      while (next++ < count) {
+        grpc::ClientContext ctx;
+        v1::SessionInfo info;
+        const grpc::Status created = stub->CreateSession(&ctx, workload.session, &info);
+        if (created.ok()) {
+          ++made;
+        } else if (made == 0) {
+          std::fprintf(stderr, "stream_bench: CreateSession: %s\n", created.error_message().c_str());
+        }
+      }
+    });
+  }
+  for (auto& t : threads) t.join();
+  return made;
 }
 
 // The first estimate riccati gives for the workload: the echo's answer.
@@ -409,21 +488,89 @@ std::string describe(const Scenario& sc) {
   return text;
 }
 
-void print_header() {
-  std::printf("  %-8s %12s %12s %10s %10s %10s %8s\n", "", "offered/s", "meas/s", "p50 us", "p99 us", "max us",
-              "errors");
+// What a row prints of a run, or the medians of several.
+struct Summary {
+  double rate = 0.0, p50 = 0.0, p99 = 0.0, max = 0.0;
+  double stalls = 0.0, stalls_pacer_on_time = 0.0, errors = 0.0;
+  double client_cores = 0.0, client_us = 0.0, server_cores = 0.0, server_us = 0.0;
+  double pacer_behind = 0.0;
+};
+
+Summary summarize(const Figures& f) {
+  const auto cores = [&](double cpu_s) { return f.seconds > 0 ? cpu_s / f.seconds : 0.0; };
+  return {f.rate(),
+          f.percentile(0.5),
+          f.percentile(0.99),
+          f.percentile(1.0),
+          static_cast<double>(f.stalls()),
+          static_cast<double>(f.stalls_pacer_on_time()),
+          static_cast<double>(f.errors),
+          cores(f.client_cpu_s),
+          f.client_us(),
+          cores(f.server_cpu_s),
+          f.server_us(),
+          f.pacer_behind_us};
 }
 
-void print_row(const char* who, const Scenario& sc, const Figures& f) {
+// Each figure's median over repeated runs, on its own.
+Summary median_of(const std::vector<Figures>& runs) {
+  std::vector<Summary> all;
+  for (const Figures& f : runs) all.push_back(summarize(f));
+  const auto median = [&](double Summary::*field) {
+    std::vector<double> v;
+    for (const Summary& s : all) v.push_back(s.*field);
+    std::sort(v.begin(), v.end());
+    if (v.empty()) return 0.0;
+    return v.size() % 2 == 1 ? v[v.size() / 2] : (v[v.size() / 2 - 1] + v[v.size() / 2]) / 2;
+  };
+  Summary m;
+  for (double Summary::*field : {&Summary::rate, &Summary::p50, &Summary::p99, &Summary::max, &Summary::stalls, &Summary::stalls_pacer_on_time,
+                                 &Summary::errors, &Summary::client_cores, &Summary::client_us, &Summary::server_cores,
+                                 &Summary::server_us, &Summary::pacer_behind}) {
+    m.*field = median(field);
+  }
+  return m;
+}
+
+void print_header() {
+  // stalls: all / those with the pacer on time (see Figures::stalls_pacer_on_time).
+  std::printf("  %-10s %10s %10s %9s %9s %10s %9s %6s %13s %13s %9s\n", "", "offered/s", "meas/s", "p50 us", "p99 us",
+              "max us", "stalls", "errors", "client cpu", "server cpu", "pacer us");
+}
+
+void print_row(const std::string& who, const Scenario& sc, const Summary& s) {
   const double offered = sc.rate > 0 ? sc.rate * sc.sessions : 0.0;
-  std::printf("  %-8s %12.0f %12.0f %10.1f %10.1f %10.1f %8llu\n", who, offered, f.rate(), f.percentile(0.5),
-              f.percentile(0.99), f.percentile(1.0), static_cast<unsigned long long>(f.errors));
+  char stalls[32];
+  std::snprintf(stalls, sizeof stalls, "%.0f/%.0f", s.stalls, s.stalls_pacer_on_time);
+  std::printf("  %-10s %10.0f %10.0f %9.1f %9.1f %10.1f %9s %6.0f %4.2f %5.1fus %4.2f %5.1fus %9.0f\n",
+              who.c_str(), offered, s.rate, s.p50, s.p99, s.max, stalls, s.errors, s.client_cores, s.client_us,
+              s.server_cores, s.server_us, s.pacer_behind);
+  std::fflush(stdout);
 }
 
 // Sustained: every measurement offered answered, without error, p99 within one sample period.
-bool sustained(const Scenario& sc, const Figures& f) {
+bool sustained(const Scenario& sc, const Summary& s) {
   const double offered = sc.rate * sc.sessions;
-  return f.errors == 0 && f.rate() >= 0.99 * offered && f.percentile(0.99) < 1e6 / sc.rate;
+  return s.errors == 0 && s.rate >= 0.99 * offered && s.p99 < 1e6 / sc.rate;
+}
+
+// A riccatid for the bench: its own data directory, the built-in plugins,
+// production's snapshot interval, and limits raised for the bench alone.
+std::unique_ptr<bench::ServerProcess> start_riccatid(const std::string& binary, const std::filesystem::path& dir,
+                                                     const std::vector<std::string>& extra_flags) {
+  std::vector<std::string> argv = {binary,
+                                   "--listen", "127.0.0.1:0",
+                                   "--data-dir", dir.string(),
+                                   "--models-dir", RICCATI_TEST_PLUGIN_DIR,
+                                   "--log-level", "warn",
+                                   "--max-sessions", "100000",
+                                   "--max-tenant-sessions", "100000",
+                                   "--max-streams", "100000",
+                                   "--max-tenant-streams", "100000"};
+  argv.insert(argv.end(), extra_flags.begin(), extra_flags.end());
+  auto process = std::make_unique<bench::ServerProcess>(argv, dir);
+  if (!process->running()) std::fprintf(stderr, "stream_bench: %s did not start\n", binary.c_str());
+  return process;
 }
 
 }  // namespace
@@ -432,8 +579,10 @@ int main(int argc, char** argv) {
   CLI::App app{"stream_bench: filter sessions under load, beside a bare gRPC echo"};
   Scenario custom;
   std::string model = "two_tank";
+  std::string riccatid = RICCATI_DAEMON_BIN, baseline, echo_binary = RICCATI_ECHO_BIN;
   bool find_max = false, no_echo = false;
-  int max_sessions = 1000;
+  int max_sessions = 1000, repeat = 1, idle = 0;
+  std::vector<std::string> daemon_flags;
   const std::vector<CLI::Option*> options = {
       app.add_option("--sessions", custom.sessions, "Concurrent sessions"),
       app.add_option("--rate", custom.rate, "Measurements per second per session (0: closed loop, as fast as answers come)"),
@@ -444,39 +593,51 @@ int main(int argc, char** argv) {
       app.add_option("--model", model, "Workload: two_tank (EKF) or manipulator (optimal filter, case C)")
           ->check(CLI::IsMember({"two_tank", "manipulator"})),
       app.add_flag("--find-max", find_max,
-                   "Raise the session count until a paced run is no longer sustained (all answered, no error, "
-                   "p99 under one sample period); needs --rate"),
+                   "On each server, raise the session count until a paced run is no longer sustained (all "
+                   "answered, no error, p99 under one sample period); needs --rate"),
       app.add_option("--max-sessions", max_sessions, "--find-max: stop there"),
-      app.add_flag("--no-echo", no_echo, "Leave out the echo runs")};
+      app.add_option("--idle", idle,
+                     "Run each scenario on riccatid without, then with this many idle sessions (created, never "
+                     "streamed), and report the daemon's memory per idle session")};
+  app.add_option("--riccatid", riccatid, "The riccatid binary under test")->capture_default_str();
+  app.add_option("--baseline", baseline,
+                 "Another riccatid binary (an older build) run through the same scenarios, alternating with the "
+                 "first, for before-and-after figures from one run");
+  app.add_option("--echo", echo_binary, "The echo server binary")->capture_default_str();
+  app.add_flag("--no-echo", no_echo, "Leave out the echo runs");
+  app.add_option("--daemon-flag", daemon_flags,
+                 "A flag for riccatid (and the baseline), e.g. --daemon-flag=--session-snapshot-seconds=0; repeatable")
+      ->allow_extra_args(false);
+  app.add_option("--repeat", repeat, "Runs of each scenario on each server, alternating; the medians are printed")
+      ->check(CLI::PositiveNumber);
   CLI11_PARSE(app, argc, argv);
+  absl::SetMutexDeadlockDetectionMode(absl::OnDeadlockCycle::kIgnore);  // as riccatid does: Debian's Abseil has its debug checks on
   const bool custom_given = std::any_of(options.begin(), options.end(), [](CLI::Option* o) { return o->count() > 0; });
   if (find_max && custom.rate <= 0) {
     std::fprintf(stderr, "stream_bench: --find-max needs --rate\n");
     return 2;
   }
 
-  const std::string data_dir =
-      (std::filesystem::temp_directory_path() / ("riccati-bench-" + std::to_string(::getpid()))).string();
-  service::DaemonConfig config;
-  config.listen = "127.0.0.1:0";
-  config.data_dir = data_dir;
-  config.models_dir = RICCATI_TEST_PLUGIN_DIR;
-  config.log_level = "warn";
-  config.limits.max_sessions = config.limits.max_tenant_sessions = 100'000;
-  spdlog::set_level(spdlog::level::warn);
-  service::Daemon daemon(config);
-  if (auto s = daemon.start(); !s.is_ok()) {
-    std::fprintf(stderr, "stream_bench: %s\n", s.message().c_str());
-    return 1;
+  const std::filesystem::path work =
+      std::filesystem::temp_directory_path() / ("riccati-bench-" + std::to_string(::getpid()));
+  std::vector<std::pair<std::string, std::unique_ptr<bench::ServerProcess>>> servers;  // name, process
+  servers.emplace_back("riccati", start_riccatid(riccatid, work / "riccati", daemon_flags));
+  if (!baseline.empty()) servers.emplace_back("baseline", start_riccatid(baseline, work / "baseline", daemon_flags));
+  std::unique_ptr<bench::ServerProcess> echo;
+  if (!no_echo && idle == 0) {
+    echo = std::make_unique<bench::ServerProcess>(
+        std::vector<std::string>{echo_binary, "--listen", "127.0.0.1:0", "--estimates-dir", work.string()},
+        work / "echo");
+    if (!echo->running()) std::fprintf(stderr, "stream_bench: %s did not start\n", echo_binary.c_str());
   }
-  EchoSessions echo_service;
-  int echo_port = 0;
-  grpc::ServerBuilder builder;
-  builder.AddListeningPort("127.0.0.1:0", grpc::InsecureServerCredentials(), &echo_port);
-  builder.RegisterService(&echo_service);
-  auto echo = builder.BuildAndStart();
-  const std::string riccati_address = "127.0.0.1:" + std::to_string(daemon.port());
-  const std::string echo_address = "127.0.0.1:" + std::to_string(echo_port);
+  for (const auto& [name, process] : servers) {
+    if (!process->running()) return 1;
+  }
+  if (echo != nullptr && !echo->running()) return 1;
+  const bench::ServerProcess& ricc = *servers.front().second;
+  std::printf("stream_bench: riccatid on %s%s, each a process of its own; the load generator in this one; %u cores\n",
+              ricc.address().c_str(), echo != nullptr ? (", echo on " + echo->address()).c_str() : "",
+              std::thread::hardware_concurrency());
 
   std::vector<std::tuple<std::string, std::string, Scenario>> scenarios;  // title, model, scenario
   if (custom_given) {
@@ -489,47 +650,100 @@ int main(int argc, char** argv) {
   }
   for (const auto& [title, model_name, sc] : scenarios) {
     const Workload workload = make_workload(model_name);
-    echo_service.set_estimate(first_estimate(riccati_address, workload));
+    if (echo != nullptr) {
+      std::ofstream out(work / (workload.session.model() + ".estimate"), std::ios::binary);
+      first_estimate(ricc.address(), workload).SerializeToOstream(&out);
+    }
     if (find_max) {
+      // Each server on its own: the most sessions it sustains (at each level
+      // the median of --repeat runs), and the ratio of riccati's to the echo's.
       std::printf("\n%s: find the most %s sessions at %.0f Hz with p99 under %.0f us\n", title.c_str(),
                   model_name.c_str(), sc.rate, 1e6 / sc.rate);
       print_header();
-      int best = 0;
-      for (int n : {10, 20, 40, 60, 80, 100, 120, 140, 160, 200, 240, 280, 320, 400, 500, 600, 800, 1000}) {
-        if (n > max_sessions) break;
-        Scenario level = sc;
-        level.sessions = n;
-        const Figures r = run(riccati_address, workload, level);
-        char who[32];
-        std::snprintf(who, sizeof who, "%d", n);
-        print_row(who, level, r);
-        std::fflush(stdout);
-        if (!sustained(level, r)) break;
-        best = n;
+      std::vector<std::pair<std::string, const bench::ServerProcess*>> searched;
+      for (const auto& [name, process] : servers) searched.emplace_back(name, process.get());
+      if (echo != nullptr) searched.emplace_back("echo", echo.get());
+      std::vector<int> best(searched.size(), 0);
+      for (std::size_t s = 0; s < searched.size(); ++s) {
+        for (int n : {10, 20, 30, 40, 50, 60, 70, 80, 90, 100, 120, 140, 160, 200, 240, 280, 320, 400, 500, 600, 800, 1000}) {
+          if (n > max_sessions) break;
+          Scenario level = sc;
+          level.sessions = n;
+          std::vector<Figures> runs;
+          for (int rep = 0; rep < repeat; ++rep) runs.push_back(run(*searched[s].second, workload, level));
+          const Summary r = median_of(runs);
+          print_row(searched[s].first + " " + std::to_string(n), level, r);
+          if (!sustained(level, r)) break;
+          best[s] = n;
+        }
+        std::printf("  %s sustains %d sessions (%.0f measurements/s)\n", searched[s].first.c_str(), best[s],
+                    best[s] * sc.rate);
       }
-      std::printf("  sustained: %d sessions (%.0f measurements/s)\n", best, best * sc.rate);
-      if (!no_echo && best > 0) {
-        Scenario level = sc;
-        level.sessions = best;
-        std::printf("  the echo at %d sessions:\n", best);
-        print_row("echo", level, run(echo_address, workload, level));
+      if (echo != nullptr && best.back() > 0) {
+        std::printf("  ratio riccati/echo: %.2f of the sessions\n", static_cast<double>(best.front()) / best.back());
       }
       continue;
     }
     std::printf("\n%s (%s): %s\n", title.c_str(), model_name.c_str(), describe(sc).c_str());
     print_header();
-    const Figures r = run(riccati_address, workload, sc);
-    print_row("riccati", sc, r);
-    if (!no_echo) {
-      const Figures e = run(echo_address, workload, sc);
-      print_row("echo", sc, e);
-      std::printf("  ratio riccati/echo: throughput %.2f, p50 %.2f, p99 %.2f\n", r.rate() / e.rate(),
-                  r.percentile(0.5) / e.percentile(0.5), r.percentile(0.99) / e.percentile(0.99));
+    if (idle > 0) {
+      // The same live load without, then with `idle` sessions nobody streams into.
+      const std::vector<std::string> phases = {"no idle", std::to_string(idle) + " idle"};
+      std::vector<std::vector<Figures>> runs(2);
+      const long long rss_before = ricc.rss_bytes();
+      for (int rep = 0; rep < repeat; ++rep) {
+        runs[0].push_back(run(ricc, workload, sc));
+        print_row(phases[0], sc, summarize(runs[0].back()));
+      }
+      const int made = create_idle_sessions(ricc.address(), workload, idle);
+      std::this_thread::sleep_for(std::chrono::seconds(2));  // the snapshot writer done with them
+      const long long rss_after = ricc.rss_bytes();
+      std::printf("  riccatid RSS %.1f MiB -> %.1f MiB with %d idle sessions: %.1f KiB per idle session\n",
+                  static_cast<double>(rss_before) / (1 << 20), static_cast<double>(rss_after) / (1 << 20), made,
+                  made > 0 ? static_cast<double>(rss_after - rss_before) / 1024.0 / made : 0.0);
+      for (int rep = 0; rep < repeat; ++rep) {
+        runs[1].push_back(run(ricc, workload, sc));
+        print_row(phases[1], sc, summarize(runs[1].back()));
+      }
+      if (repeat > 1) {
+        std::printf("  medians of %d runs:\n", repeat);
+        for (int p = 0; p < 2; ++p) print_row(phases[static_cast<std::size_t>(p)], sc, median_of(runs[static_cast<std::size_t>(p)]));
+      }
+      continue;
+    }
+    std::vector<std::vector<Figures>> runs(servers.size() + 1);  // per server, the echo last
+    for (int rep = 0; rep < repeat; ++rep) {
+      for (std::size_t s = 0; s < servers.size(); ++s) {
+        runs[s].push_back(run(*servers[s].second, workload, sc));
+        print_row(servers[s].first, sc, summarize(runs[s].back()));
+      }
+      if (echo != nullptr) {
+        runs.back().push_back(run(*echo, workload, sc));
+        print_row("echo", sc, summarize(runs.back().back()));
+      }
+    }
+    std::vector<Summary> medians;
+    for (const auto& r : runs) medians.push_back(median_of(r));
+    if (repeat > 1) {
+      std::printf("  medians of %d runs:\n", repeat);
+      for (std::size_t s = 0; s < servers.size(); ++s) print_row(servers[s].first, sc, medians[s]);
+      if (echo != nullptr) print_row("echo", sc, medians.back());
+    }
+    const Summary& r = medians.front();
+    for (std::size_t s = 1; s < servers.size(); ++s) {
+      const Summary& b = medians[s];
+      std::printf("  ratio riccati/%s: throughput %.2f, p50 %.2f, p99 %.2f\n", servers[s].first.c_str(), r.rate / b.rate,
+                  r.p50 / b.p50, r.p99 / b.p99);
+    }
+    if (echo != nullptr) {
+      const Summary& e = medians.back();
+      std::printf("  ratio riccati/echo: throughput %.2f, p50 %.2f, p99 %.2f\n", r.rate / e.rate, r.p50 / e.p50,
+                  r.p99 / e.p99);
     }
     if (sc.rate > 0) std::printf("  sustained (p99 < %.0f us, all answered): %s\n", 1e6 / sc.rate, sustained(sc, r) ? "yes" : "no");
   }
-  echo->Shutdown();
-  daemon.shutdown(std::chrono::milliseconds(100));
-  std::filesystem::remove_all(data_dir);
+  servers.clear();
+  echo.reset();
+  std::filesystem::remove_all(work);
   return 0;
 }

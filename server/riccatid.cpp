@@ -8,6 +8,7 @@
 // again at the next start, exit 0. SIGHUP: read the models directory again
 // (as ReloadModels); sessions and jobs keep the models they started with.
 #include <CLI/CLI.hpp>
+#include <absl/synchronization/mutex.h>
 #include <csignal>
 #include <cstdio>
 #include <algorithm>
@@ -23,6 +24,11 @@
 
 int main(int argc, char** argv) {
   using riccati::service::DaemonConfig;
+  // Debian's Abseil is built with its debug checks, so every absl::Mutex
+  // (gRPC's, several per message of a stream) would keep a process-wide
+  // lock-order graph under one global lock: a few per cent of a stream's CPU,
+  // and contention between the streams' threads (docs/benchmarks.md).
+  absl::SetMutexDeadlockDetectionMode(absl::OnDeadlockCycle::kIgnore);
   CLI::App app{"riccatid: the riccati estimation daemon"};
   std::string config_file, port_file;
   DaemonConfig flags;

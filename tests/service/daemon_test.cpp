@@ -1059,6 +1059,39 @@ TEST_F(DaemonTest, StreamRefusesBadMeasurementsOneByOneAndGoesOn) {
       << response.results(6).error().message();
   EXPECT_TRUE(response.results(7).has_estimate()) << response.results(7).ShortDebugString();
 
+  // The stream reuses its response's results from batch to batch: a result
+  // that held an estimate now holds an error and the other way round, a
+  // shorter batch gets only its own results, and an estimate's arrays are
+  // refilled, not appended to.
+  const int nz = response.results(0).estimate().state_size();
+  ASSERT_GT(nz, 0);
+  request.Clear();
+  add(4.0, {0.1, 0.03}, {std::nan(""), 0.15});  // an error where an estimate was
+  add(5.0, {0.1, 0.03}, {0.42, 0.15});          // an estimate where an error was
+  add(6.0, {0.1, 0.03}, {0.42, 0.15});
+  ASSERT_TRUE(stream->Write(request));
+  ASSERT_TRUE(stream->Read(&response));
+  ASSERT_EQ(response.results_size(), 3);
+  EXPECT_TRUE(response.results(0).has_error());
+  EXPECT_FALSE(response.results(0).has_estimate());
+  EXPECT_EQ(response.results(0).sequence(), 8u);
+  for (int i : {1, 2}) {
+    const v1::MeasurementResult& r = response.results(i);
+    ASSERT_TRUE(r.has_estimate()) << r.ShortDebugString();
+    EXPECT_EQ(r.estimate().t(), 4.0 + i);
+    EXPECT_EQ(r.estimate().state_size(), nz);
+    EXPECT_EQ(r.estimate().std_size(), nz);
+    EXPECT_EQ(r.estimate().y_predicted_size(), 2);
+    EXPECT_EQ(r.estimate().innovation_size(), 2);
+  }
+  request.Clear();
+  add(7.0, {0.1, 0.03}, {0.42, 0.15});
+  ASSERT_TRUE(stream->Write(request));
+  ASSERT_TRUE(stream->Read(&response));
+  ASSERT_EQ(response.results_size(), 1);
+  EXPECT_EQ(response.results(0).sequence(), 11u);
+  EXPECT_EQ(response.results(0).estimate().state_size(), nz);
+
   // A second stream on the same session is refused while this one is open.
   {
     grpc::ClientContext ctx2;
@@ -1077,10 +1110,10 @@ TEST_F(DaemonTest, StreamRefusesBadMeasurementsOneByOneAndGoesOn) {
   auto resumed = sessions_->Stream(&ctx3);
   ASSERT_TRUE(resumed->Write(open));
   v1::StreamRequest next;
-  testing::add_measurement(next, 2.5, {0.1, 0.03}, {0.4, 0.15});  // not after t = 3: refused, so the session kept its time
+  testing::add_measurement(next, 6.5, {0.1, 0.03}, {0.4, 0.15});  // not after t = 7: refused, so the session kept its time
   ASSERT_TRUE(resumed->Write(next));
   ASSERT_TRUE(resumed->Read(&response));
-  EXPECT_NE(response.results(0).error().message().find("after t = 3"), std::string::npos)
+  EXPECT_NE(response.results(0).error().message().find("after t = 7"), std::string::npos)
       << response.results(0).error().message();
   resumed->WritesDone();
   EXPECT_TRUE(resumed->Finish().ok());

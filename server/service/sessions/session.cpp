@@ -43,8 +43,9 @@ bool Session::idle_since(std::chrono::steady_clock::time_point t) const {
 
 Status Session::process(const v1::Measurement& m, bool full_covariance, v1::MeasurementResult* out) {
   std::lock_guard lock(mu_);
+  // last_active_ is not read while a stream is attached (detach() sets it):
+  // no clock read per measurement.
   out->set_sequence(received_++);
-  last_active_ = std::chrono::steady_clock::now();
   if (!lost_.is_ok()) {
     *out->mutable_error() = to_error(lost_);
     return lost_;
