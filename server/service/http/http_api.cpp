@@ -1,4 +1,5 @@
 #include "service/http/http_api.hpp"
+#include "service/http/json_writer.hpp"
 
 #include <google/protobuf/util/json_util.h>
 #include <httplib.h>
@@ -50,14 +51,9 @@ int http_status(StatusCode code) {
   return 500;
 }
 
-std::string to_json(const google::protobuf::Message& message) {
-  google::protobuf::util::JsonPrintOptions options;
-  options.always_print_primitive_fields = true;  // zeros and empty lists too: the page need not guess
-  std::string out;
-  const auto status = google::protobuf::util::MessageToJsonString(message, &out, options);
-  if (!status.ok()) spdlog::error("cannot write {} as JSON: {}", message.GetTypeName(), status.ToString());
-  return out;
-}
+// Zeros and empty lists printed too (the page need not guess), as
+// protobuf's printer with always_print_primitive_fields writes them.
+std::string to_json(const google::protobuf::Message& message) { return message_to_json(message); }
 
 void reply(Response& res, const google::protobuf::Message& message) {
   res.status = 200;
