@@ -9,14 +9,55 @@
 
 namespace riccati::cli {
 
-std::string to_json(const google::protobuf::Message& m) {
-  std::string out;
-  google::protobuf::util::JsonPrintOptions options;
-  options.add_whitespace = true;
-  options.preserve_proto_field_names = true;
-  (void)google::protobuf::util::MessageToJsonString(m, &out, options);
-  return out;
+namespace {
+
+using google::protobuf::Descriptor;
+using google::protobuf::FieldDescriptor;
+
+// proto3's JSON writes 64-bit integers as strings (for JavaScript, whose
+// numbers end at 2^53); riccati's counts and sizes never come near that,
+// and scripts compare them as numbers. Walks `j` beside the message's
+// descriptor and turns those strings back into numbers. The well-known
+// types (Timestamp, Duration) keep their JSON strings.
+void int64_as_numbers(nlohmann::json& j, const Descriptor& d) {
+  if (!j.is_object() || d.file()->package() == "google.protobuf") return;
+  for (int f = 0; f < d.field_count(); ++f) {
+    const FieldDescriptor& field = *d.field(f);
+    const auto found = j.find(field.name());
+    if (found == j.end() || field.is_map()) continue;
+    const auto convert = [&](nlohmann::json& v) {
+      if (field.cpp_type() == FieldDescriptor::CPPTYPE_MESSAGE) {
+        int64_as_numbers(v, *field.message_type());
+      } else if (v.is_string() && field.cpp_type() == FieldDescriptor::CPPTYPE_INT64) {
+        v = std::stoll(v.get<std::string>());
+      } else if (v.is_string() && field.cpp_type() == FieldDescriptor::CPPTYPE_UINT64) {
+        v = std::stoull(v.get<std::string>());
+      }
+    };
+    if (found->is_array()) {
+      for (auto& v : *found) convert(v);
+    } else {
+      convert(*found);
+    }
+  }
 }
+
+}  // namespace
+
+nlohmann::json json_of(const google::protobuf::Message& m) {
+  std::string text;
+  google::protobuf::util::JsonPrintOptions options;
+  options.preserve_proto_field_names = true;
+  options.always_print_primitive_fields = true;  // a zero is printed, not left out
+  (void)google::protobuf::util::MessageToJsonString(m, &text, options);
+  nlohmann::json j = nlohmann::json::parse(text);
+  int64_as_numbers(j, *m.GetDescriptor());
+  return j;
+}
+
+std::string to_json(const nlohmann::json& j) { return j.dump(2); }
+
+std::string to_json(const google::protobuf::Message& m) { return to_json(json_of(m)); }
 
 std::string format(const char* fmt, double v) {
   char buf[64];

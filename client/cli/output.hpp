@@ -5,6 +5,8 @@
 
 #include <google/protobuf/message.h>
 
+#include <nlohmann/json.hpp>
+
 #include <cstdint>
 #include <string>
 #include <vector>
@@ -14,7 +16,13 @@
 
 namespace riccati::cli {
 
+// What --json prints: the API's JSON mapping (field names as in the .proto,
+// enums by name, Timestamps as RFC 3339) with every field present, zeros and
+// empty lists included, and 64-bit integers as numbers (not strings).
+nlohmann::json json_of(const google::protobuf::Message& m);
 std::string to_json(const google::protobuf::Message& m);
+// Indented, as every command prints it.
+std::string to_json(const nlohmann::json& j);
 // One number with a printf format ("%.3g").
 std::string format(const char* fmt, double v);
 // "a, b, c"

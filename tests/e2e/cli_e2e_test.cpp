@@ -520,7 +520,7 @@ TEST_F(CliTest, SessionsAreListedShownAndClosed) {
   r = riccati("sessions show " + id + " --json");
   ASSERT_EQ(r.exit_code, 0) << last_stderr();
   const auto info = nlohmann::json::parse(r.out);
-  EXPECT_EQ(info["measurements"], "2000") << r.out;  // uint64 as protobuf's JSON writes it
+  EXPECT_EQ(info["measurements"], 2000) << r.out;  // a number, not protobuf's string for a uint64
   EXPECT_FALSE(info["instance"].get<std::string>().empty()) << r.out;
   r = riccati("sessions show " + id);
   EXPECT_NE(r.out.find("2000 measurements"), std::string::npos) << r.out;
@@ -628,6 +628,66 @@ TEST_F(CliTest, StreamsTheManipulatorIntoAnOptimalFilterSessionWithALiveView) {
   ASSERT_EQ(v.size(), 32u);  // t, 10 states, 10 std, 2 innovations, nis, 3 estimated, 5 residuals
   // After 2 s, k (truth 5.8, start 6.5) is within 5 %.
   EXPECT_NEAR(v[7], 5.8, 0.29);
+}
+
+// --json on every command: stdout is JSON alone (stream: one object per
+// line, a result per measurement), counts are numbers rather than protobuf's
+// strings for 64-bit integers, and zeros are printed rather than left out.
+TEST_F(CliTest, JsonOnEveryCommandWithNumbersAsNumbersAndZerosPresent) {
+  CliRun r = riccati("--json data upload " + kData + "/two_tank.csv --inputs F1,F2 --outputs h1,h2");
+  ASSERT_EQ(r.exit_code, 0) << last_stderr();
+  const auto dataset = nlohmann::json::parse(r.out);
+  EXPECT_TRUE(dataset["samples"].is_number_unsigned()) << r.out;
+  EXPECT_EQ(dataset["samples"], 2000) << r.out;
+  EXPECT_EQ(dataset["t_start"], 0.0) << r.out;  // the record starts at t = 0: present all the same
+  const std::string id = dataset["id"];
+
+  // simulate: the outputs by name, one value per row of the inputs file.
+  r = riccati("simulate --json --model two_tank --params 10,5,0.0791,0.1342 --x0 0.4,0.15 --inputs " + kData +
+              "/two_tank.csv");
+  ASSERT_EQ(r.exit_code, 0) << last_stderr();
+  const auto simulated = nlohmann::json::parse(r.out);
+  ASSERT_EQ(simulated["t"].size(), 2000u);
+  ASSERT_EQ(simulated["outputs"]["h1"].size(), 2000u);
+  ASSERT_EQ(simulated["inputs"]["F2"].size(), 2000u);
+  // At t = 0 the output is x0 (g = x): the first value is 0.4 exactly.
+  EXPECT_EQ(simulated["outputs"]["h1"][0].get<double>(), 0.4) << r.out.substr(0, 400);
+
+  // identify and result: the same JSON, numbers as numbers.
+  r = riccati("identify --json --model two_tank --data " + id + " --passes 1 --theta0 20,20,1,1 --p0 0,0,10,10,10,10 --r 1e-3");
+  ASSERT_EQ(r.exit_code, 0) << last_stderr();
+  const auto identified = nlohmann::json::parse(r.out);
+  EXPECT_EQ(identified["identification"]["theta_mean"].size(), 4u);
+  const std::string job = job_id_in(last_stderr());
+  ASSERT_FALSE(job.empty()) << last_stderr();
+  r = riccati("result " + job + " --json");
+  ASSERT_EQ(r.exit_code, 0) << last_stderr();
+  EXPECT_EQ(nlohmann::json::parse(r.out), identified);
+  r = riccati("--json jobs");
+  ASSERT_EQ(r.exit_code, 0) << last_stderr();
+  const auto jobs = nlohmann::json::parse(r.out);
+  ASSERT_EQ(jobs["jobs"].size(), 1u) << r.out;
+  EXPECT_EQ(jobs["jobs"][0]["attempts"], 1) << r.out;
+  EXPECT_EQ(jobs["jobs"][0]["progress"]["samples"], 2000) << r.out;
+  EXPECT_EQ(jobs["jobs"][0]["progress"]["iteration"], 0) << r.out;  // the filter has no iterations: 0, not absent
+
+  // stream: a JSON object per line, each with its sequence number and estimate.
+  r = riccati("stream --json --model two_tank --data " + kData +
+              "/two_tank.csv --r 1e-3 --p0 0,0,10,10,10,10 --theta0 20,20,1,1 --batch 50");
+  ASSERT_EQ(r.exit_code, 0) << last_stderr();
+  std::istringstream lines(r.out);
+  std::size_t count = 0;
+  for (std::string line; std::getline(lines, line); ++count) {
+    const auto result = nlohmann::json::parse(line);
+    ASSERT_TRUE(result["sequence"].is_number_unsigned()) << line;
+    ASSERT_EQ(result["estimate"]["state"].size(), 6u) << line;  // [h1 h2 A1 A2 k1 k2]
+  }
+  EXPECT_EQ(count, 2000u);
+
+  // What used to print nothing prints what it did.
+  r = riccati("data delete " + id + " --json");
+  ASSERT_EQ(r.exit_code, 0) << last_stderr();
+  EXPECT_EQ(nlohmann::json::parse(r.out), (nlohmann::json{{"id", id}, {"deleted", true}}));
 }
 
 // `riccati health`: grpc.health.v1 Check, what container health checks and

@@ -104,6 +104,7 @@ int data_delete(Client& c, const std::string& id) {
   v1::DeleteDatasetResponse response;
   const grpc::Status s = c.datasets->DeleteDataset(ctx.get(), request, &response);
   if (!s.ok()) return c.fail("deleting dataset " + id, s);
+  if (c.json) std::printf("%s\n", to_json(nlohmann::json{{"id", id}, {"deleted", true}}).c_str());
   return kExitOk;
 }
 

@@ -65,6 +65,7 @@ int job_delete(Client& c, const std::string& id) {
   v1::DeleteJobResponse response;
   const grpc::Status s = c.jobs->DeleteJob(ctx.get(), request, &response);
   if (!s.ok()) return c.fail("deleting job " + id, s);
+  if (c.json) std::printf("%s\n", to_json(nlohmann::json{{"id", id}, {"deleted", true}}).c_str());
   return kExitOk;
 }
 

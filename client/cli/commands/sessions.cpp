@@ -71,6 +71,7 @@ int session_close(Client& c, const std::string& id) {
   v1::CloseSessionResponse response;
   const grpc::Status s = c.sessions->CloseSession(ctx.get(), request, &response);
   if (!s.ok()) return c.fail("closing session " + id, s);
+  if (c.json) std::printf("%s\n", to_json(nlohmann::json{{"id", id}, {"closed", true}}).c_str());
   return kExitOk;
 }
 

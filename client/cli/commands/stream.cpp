@@ -13,6 +13,7 @@
 #include "commands/commands.hpp"
 #include "csv/csv.hpp"
 #include "live_view.hpp"
+#include "output.hpp"
 
 namespace riccati::cli {
 
@@ -156,14 +157,16 @@ struct Tally {
   std::size_t estimates = 0, refused = 0;
 };
 
-// The reader: each result as it arrives, estimates to the CSV and the live
-// view, refusals to stderr.
-Tally print_results(StreamRpc* rpc, EstimateCsv* csv, LiveView* view, RoundTrips* trips) {
+// The reader: each result as it arrives, estimates to the CSV (or, with
+// --json, every result as one line of JSON) and the live view, refusals to
+// stderr.
+Tally print_results(StreamRpc* rpc, EstimateCsv* csv, std::FILE* json_lines, LiveView* view, RoundTrips* trips) {
   Tally tally;
   v1::StreamResponse response;
   while (rpc->Read(&response)) {
     const double trip_us = trips->answered();
     for (const auto& r : response.results()) {
+      if (json_lines != nullptr) std::fprintf(json_lines, "%s\n", json_of(r).dump().c_str());
       if (r.has_error()) {
         ++tally.refused;
         std::fprintf(stderr, "measurement %llu refused: %s\n", static_cast<unsigned long long>(r.sequence()),
@@ -171,7 +174,7 @@ Tally print_results(StreamRpc* rpc, EstimateCsv* csv, LiveView* view, RoundTrips
         continue;
       }
       ++tally.estimates;
-      csv->write(r.estimate());
+      if (json_lines == nullptr) csv->write(r.estimate());
       if (view != nullptr) view->add(r.estimate(), trip_us);
     }
   }
@@ -262,11 +265,11 @@ int stream(Client& c, const StreamOptions& o) {
   const auto start = Clock::now();
   RoundTrips trips;
   Tally tally;
-  std::thread reader([&] { tally = print_results(rpc.get(), &csv, view.get(), &trips); });
+  std::thread reader([&] { tally = print_results(rpc.get(), &csv, c.json ? out : nullptr, view.get(), &trips); });
   send_rows(rpc.get(), recording, o.rate, o.batch, &trips);
   rpc->WritesDone();
   reader.join();
-  csv.finish();
+  if (!c.json) csv.finish();
   if (view) view->finish();
   const grpc::Status finished = rpc->Finish();
   const double seconds = std::chrono::duration<double>(Clock::now() - start).count();
