@@ -119,7 +119,10 @@ int main(int argc, char** argv) {
   upload_cmd->add_option("file", upload.file, "CSV (header row) or MAT file (level 5, as MATLAB saves with -v7; variables T, U, Y)")->required();
   upload_cmd->add_option("--inputs", upload.inputs, "Input columns")->delimiter(',');
   upload_cmd->add_option("--outputs", upload.outputs, "Output columns")->delimiter(',')->required();
-  upload_cmd->add_option("--time", upload.time, "Time column")->capture_default_str();
+  auto* upload_time = upload_cmd->add_option("--time", upload.time, "Time column")->capture_default_str();
+  upload_cmd->add_option("--ts", upload.sample_time, "Sample time in seconds, for a CSV file without a time column (t = k * ts)")
+      ->check(CLI::PositiveNumber)
+      ->excludes(upload_time);
   upload_cmd->add_option("--name", upload.name, "Name (default: the file name)");
   auto* data_list_cmd = data->add_subcommand("list", "List datasets");
   std::string data_id;

@@ -189,6 +189,44 @@ TEST_F(CliTest, ExitCodesAndMessagesForBadInput) {
   EXPECT_EQ(WEXITSTATUS(std::system(command.c_str())), 3);
 }
 
+// A file without a time column, uploaded with its sample time (--ts), and a
+// header with blanks around its names and a trailing comma: the same
+// dataset as the file it was cut from.
+TEST_F(CliTest, UploadWithoutATimeColumnGivenTheSampleTime) {
+  const auto cut = dir_.path() / "no_time.csv";
+  {
+    std::ifstream in(kData + "/two_tank.csv");
+    std::ofstream out(cut);
+    std::string line;
+    std::getline(in, line);
+    out << " F1, F2 , h1,h2,\n";
+    while (std::getline(in, line)) out << line.substr(line.find(',') + 1) << ",\n";  // t dropped
+  }
+  CliRun r = riccati("--json data upload " + cut.string() + " --ts 1 --inputs F1,F2 --outputs h1,h2");
+  ASSERT_EQ(r.exit_code, 0) << last_stderr();
+  const auto sampled = nlohmann::json::parse(r.out);
+  EXPECT_EQ(sampled["samples"], 2000);
+  EXPECT_EQ(sampled["t_start"], 0.0);
+  EXPECT_EQ(sampled["t_end"], 1999.0);  // two_tank.csv's t is 0, 1, ..., 1999
+  // The same identification as on the original file.
+  const std::string settings = " --passes 1 --theta0 20,20,1,1 --p0 0,0,10,10,10,10 --r 1e-3";
+  r = riccati("--json identify --model two_tank --data " + sampled["id"].get<std::string>() + settings);
+  ASSERT_EQ(r.exit_code, 0) << last_stderr();
+  const CliRun original = riccati("--json identify --model two_tank --data " + kData + "/two_tank.csv" + settings);
+  ASSERT_EQ(original.exit_code, 0) << last_stderr();
+  EXPECT_EQ(nlohmann::json::parse(r.out)["identification"]["theta_mean"],
+            nlohmann::json::parse(original.out)["identification"]["theta_mean"]);
+
+  // A missing column lists the file's names, trimmed, and no empty one.
+  r = riccati("data upload " + cut.string() + " --ts 1 --inputs F1,F3 --outputs h1,h2");
+  EXPECT_EQ(r.exit_code, 1);
+  EXPECT_NE(last_stderr().find("missing column \"F3\" (columns are: F1, F2, h1, h2)"), std::string::npos)
+      << last_stderr();
+  // --ts and --time together: a usage error.
+  r = riccati("data upload " + cut.string() + " --ts 1 --time t --outputs h1,h2");
+  EXPECT_EQ(r.exit_code, 2);
+}
+
 // ------------------------------------------------------------ output error, likelihood, smoothing
 
 // The dataset's truth, in the model's order (two_tank.json).

@@ -30,6 +30,7 @@ void print_text_model(const v1::ModelInfo& info);
 struct UploadOptions {
   std::string file, name, time = "t";
   std::vector<std::string> inputs, outputs;
+  double sample_time = 0.0;  // --ts: no time column, t = k * sample_time
 };
 int data_upload(Client& c, const UploadOptions& o, std::string* dataset_id = nullptr);
 int data_list(Client& c);

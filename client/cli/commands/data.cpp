@@ -30,7 +30,11 @@ int data_upload(Client& c, const UploadOptions& o, std::string* dataset_id) {
   v1::UploadDatasetRequest header;
   auto* h = header.mutable_header();
   h->set_name(o.name.empty() ? std::filesystem::path(o.file).filename().string() : o.name);
-  h->set_time_column(o.time);
+  if (o.sample_time != 0.0) {
+    h->set_sample_time(o.sample_time);  // and no time column
+  } else {
+    h->set_time_column(o.time);
+  }
   for (const auto& i : o.inputs) h->add_input_columns(i);
   for (const auto& n : o.outputs) h->add_output_columns(n);
   // Declared, so that the daemon reserves the quota for the whole file at once.
