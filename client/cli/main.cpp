@@ -73,7 +73,8 @@ int main(int argc, char** argv) {
   CLI::App app{"riccati: identification and filtering of continuous-time models with riccatid"};
   app.footer(
       "Exit status: 0 success; 1 the operation failed (job failed or cancelled, input refused); 2 usage error;\n"
-      "3 riccatid unreachable; 4 not found.\n"
+      "3 riccatid unreachable; 4 not found; 130 interrupted (Ctrl-C while identify, validate or smooth waits:\n"
+      "the job is cancelled).\n"
       "Connection settings come from the flags, else the environment (RICCATI_SERVER, RICCATI_TOKEN_FILE,\n"
       "RICCATI_TOKEN, RICCATI_CA, RICCATI_CERT, RICCATI_KEY, RICCATI_TLS, RICCATI_TLS_SERVER_NAME), else the\n"
       "config file (RICCATI_CONFIG, else ~/.config/riccati/client.yaml: server, token_file, ca, cert, key, tls,\n"

@@ -8,6 +8,12 @@
 #include <fstream>
 #include <random>
 #include <sstream>
+#include <thread>
+
+#include <fcntl.h>
+#include <signal.h>
+#include <sys/wait.h>
+#include <unistd.h>
 #include <nlohmann/json.hpp>
 
 #include "service/daemon_fixture.hpp"
@@ -238,10 +244,10 @@ std::vector<double> truth_of(const std::string& json_file) {
   return truth;
 }
 
-// The job id a waiting command prints on stderr ("job job-...").
+// The job id a waiting command prints on stderr ("job job-... (Ctrl-C cancels it)").
 std::string job_id_in(const std::string& err) {
   const auto at = err.find("job job-");
-  return at == std::string::npos ? "" : err.substr(at + 4, err.find('\n', at) - at - 4);
+  return at == std::string::npos ? "" : err.substr(at + 4, err.find_first_of(" \n", at + 4) - at - 4);
 }
 
 // The words of the line of `text` that starts with `start`.
@@ -726,6 +732,55 @@ TEST_F(CliTest, JsonOnEveryCommandWithNumbersAsNumbersAndZerosPresent) {
   r = riccati("data delete " + id + " --json");
   ASSERT_EQ(r.exit_code, 0) << last_stderr();
   EXPECT_EQ(nlohmann::json::parse(r.out), (nlohmann::json{{"id", id}, {"deleted", true}}));
+}
+
+// Ctrl-C while `identify` waits cancels the job, says so, and exits 130:
+// no job is left running unseen. The CLI runs as a process of its own here
+// (not through a shell), so that SIGINT reaches it alone.
+TEST_F(CliTest, CtrlCDuringIdentifyCancelsTheJob) {
+  const auto err_file = dir_.path() / "identify.stderr";
+  const std::vector<std::string> args = {RICCATI_CLI_BIN, "--server", daemon_->address(), "identify", "--model",
+                                         "two_tank", "--data", kData + "/two_tank.csv", "--filter", "ukf",
+                                         "--passes", "3000", "--theta0", "20,20,1,1", "--p0", "0,0,10,10,10,10",
+                                         "--r", "1e-3"};
+  const pid_t pid = fork();
+  ASSERT_GE(pid, 0);
+  if (pid == 0) {
+    const int err = ::open(err_file.c_str(), O_WRONLY | O_CREAT | O_TRUNC, 0600);
+    const int null = ::open("/dev/null", O_WRONLY);
+    dup2(err, STDERR_FILENO);
+    dup2(null, STDOUT_FILENO);
+    setenv("HOME", dir_.path().c_str(), 1);
+    std::vector<char*> argv;
+    for (const auto& a : args) argv.push_back(const_cast<char*>(a.c_str()));
+    argv.push_back(nullptr);
+    execv(argv[0], argv.data());
+    _exit(127);
+  }
+  const auto read_err = [&] {
+    std::ifstream in(err_file);
+    return std::string(std::istreambuf_iterator<char>(in), {});
+  };
+  // Interrupted once it watches (it says "job ... (Ctrl-C cancels it)" then).
+  std::string job;
+  int status = 0;
+  for (int i = 0; i < 600 && job.empty(); ++i) {
+    std::this_thread::sleep_for(std::chrono::milliseconds(50));
+    if (read_err().find("(Ctrl-C cancels it)") != std::string::npos) job = job_id_in(read_err());
+    ASSERT_EQ(waitpid(pid, &status, WNOHANG), 0) << "riccati ended before it was interrupted: " << read_err();
+  }
+  ASSERT_FALSE(job.empty()) << read_err();
+  ASSERT_EQ(kill(pid, SIGINT), 0);
+  ASSERT_EQ(waitpid(pid, &status, 0), pid);
+  ASSERT_TRUE(WIFEXITED(status)) << "ended by signal " << (WIFSIGNALED(status) ? WTERMSIG(status) : 0);
+  EXPECT_EQ(WEXITSTATUS(status), 130) << read_err();
+  EXPECT_NE(read_err().find("cancelling " + job + "; cancelled"), std::string::npos) << read_err();
+  // And riccatid has it cancelled, short of its 3000 passes.
+  const CliRun shown = riccati("--json job show " + job);
+  ASSERT_EQ(shown.exit_code, 0) << last_stderr();
+  const auto cancelled = nlohmann::json::parse(shown.out);
+  EXPECT_EQ(cancelled["state"], "JOB_STATE_CANCELLED") << shown.out;
+  EXPECT_LT(cancelled["progress"]["pass_number"].get<int>(), 3000) << shown.out;
 }
 
 // `riccati health`: grpc.health.v1 Check, what container health checks and

@@ -53,9 +53,16 @@ int job_show(Client& c, const std::string& id);
 int job_watch(Client& c, const std::string& id);
 int job_cancel(Client& c, const std::string& id);
 int job_delete(Client& c, const std::string& id);
+// What Ctrl-C (SIGINT) does to a watch.
+enum class OnInterrupt {
+  kStopWatching,  // the default action: the command ends, the job runs on (`job watch`)
+  kCancelJob,     // the job is cancelled, and stderr says so ("cancelling job-...; cancelled"); exit 130.
+                  // For the commands that submit a job and wait for it: no job is left running unseen.
+};
 // Follows a job to its end (a progress bar on a terminal); `last` is the job
 // as it ended.
-int watch_until_done(Client& c, const std::string& id, v1::Job* last);
+int watch_until_done(Client& c, const std::string& id, v1::Job* last,
+                     OnInterrupt on_interrupt = OnInterrupt::kStopWatching);
 int result(Client& c, const std::string& id, const std::string& format, const std::string& output,
            const std::vector<double>& truth);
 

@@ -1,7 +1,12 @@
+#include <semaphore.h>
+#include <signal.h>
 #include <unistd.h>
 
+#include <atomic>
+#include <optional>
 #include <cstdio>
 #include <fstream>
+#include <thread>
 
 #include "commands/commands.hpp"
 #include "output.hpp"
@@ -69,8 +74,89 @@ int job_delete(Client& c, const std::string& id) {
   return kExitOk;
 }
 
-int watch_until_done(Client& c, const std::string& id, v1::Job* last) {
+namespace {
+
+// SIGINT while a watch runs: the handler only posts a semaphore (all a
+// signal handler may safely do); a thread waiting on it cancels the watch's
+// call, which ends the watch. The default action is back after the first
+// SIGINT (SA_RESETHAND), so a second Ctrl-C ends the command at once.
+sem_t interrupt_semaphore;
+std::atomic<bool> interrupt_signalled{false};
+
+extern "C" void on_sigint(int) {
+  interrupt_signalled.store(true);
+  sem_post(&interrupt_semaphore);
+}
+
+class CancelWatchOnInterrupt {
+ public:
+  explicit CancelWatchOnInterrupt(grpc::ClientContext* watch) {
+    interrupt_signalled.store(false);
+    sem_init(&interrupt_semaphore, 0, 0);
+    struct sigaction action {};
+    action.sa_handler = on_sigint;
+    sigemptyset(&action.sa_mask);
+    action.sa_flags = SA_RESETHAND;
+    sigaction(SIGINT, &action, &previous_);
+    waiter_ = std::thread([watch] {
+      while (sem_wait(&interrupt_semaphore) != 0) {
+      }  // (EINTR: again)
+      if (interrupt_signalled.load()) watch->TryCancel();
+    });
+  }
+  ~CancelWatchOnInterrupt() {
+    sigaction(SIGINT, &previous_, nullptr);
+    sem_post(&interrupt_semaphore);  // ends the waiter if no SIGINT came
+    waiter_.join();
+    sem_destroy(&interrupt_semaphore);
+  }
+  CancelWatchOnInterrupt(const CancelWatchOnInterrupt&) = delete;
+  CancelWatchOnInterrupt& operator=(const CancelWatchOnInterrupt&) = delete;
+
+  bool interrupted() const { return interrupt_signalled.load(); }
+
+ private:
+  struct sigaction previous_ {};
+  std::thread waiter_;
+};
+
+// After Ctrl-C: cancels job `id`, saying so on stderr ("cancelling job-...;
+// cancelled"), and waits (one --timeout at most) for a running job to stop.
+int cancel_interrupted(Client& c, const std::string& id) {
+  std::fprintf(stderr, "\ncancelling %s; ", id.c_str());
+  std::fflush(stderr);
+  v1::Job job;
+  {
+    auto ctx = c.context();
+    v1::CancelJobRequest request;
+    request.set_id(id);
+    if (const grpc::Status s = c.jobs->CancelJob(ctx.get(), request, &job); !s.ok()) {
+      std::fprintf(stderr, "failed\n");
+      c.fail("cancelling job " + id, s);
+      return kExitInterrupted;
+    }
+  }
+  if (job.state() == v1::JOB_STATE_CANCELLING) {
+    auto ctx = c.context();
+    v1::WatchJobRequest request;
+    request.set_id(id);
+    auto reader = c.jobs->WatchJob(ctx.get(), request);
+    for (v1::Job update; reader->Read(&update);) job = update;
+    (void)reader->Finish();
+  }
+  std::fprintf(stderr, "%s\n", state_name(job.state()).c_str());
+  return kExitInterrupted;
+}
+
+}  // namespace
+
+int watch_until_done(Client& c, const std::string& id, v1::Job* last, OnInterrupt on_interrupt) {
   auto ctx = c.stream_context();
+  std::optional<CancelWatchOnInterrupt> interrupt;
+  if (on_interrupt == OnInterrupt::kCancelJob) {
+    interrupt.emplace(ctx.get());
+    std::fprintf(stderr, "job %s (Ctrl-C cancels it)\n", id.c_str());
+  }
   v1::WatchJobRequest request;
   request.set_id(id);
   auto reader = c.jobs->WatchJob(ctx.get(), request);
@@ -101,6 +187,10 @@ int watch_until_done(Client& c, const std::string& id, v1::Job* last) {
   }
   if (tty) std::fprintf(stderr, "\n");
   const grpc::Status s = reader->Finish();
+  if (interrupt && interrupt->interrupted()) {
+    interrupt.reset();  // a second Ctrl-C now ends the command
+    return cancel_interrupted(c, id);
+  }
   if (!s.ok()) return c.fail("watching job " + id, s);
   if (last->state() != v1::JOB_STATE_SUCCEEDED) {
     std::fprintf(stderr, "riccati: job %s %s: %s\n", id.c_str(), state_name(last->state()).c_str(),
