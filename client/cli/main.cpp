@@ -154,13 +154,17 @@ int main(int argc, char** argv) {
   auto* job_delete_cmd = job->add_subcommand("delete", "Delete an ended job and its result");
   job_delete_cmd->add_option("id", job_id)->required();
 
-  auto* sessions_cmd = app.add_subcommand("sessions", "Filter sessions: list (the default), show, close");
+  auto* sessions_cmd = app.add_subcommand("sessions", "Filter sessions: list (the default), show, close, retune");
   std::string session_id;
   auto* sessions_list_cmd = sessions_cmd->add_subcommand("list", "List the sessions, on every instance");
   auto* session_show_cmd = sessions_cmd->add_subcommand("show", "Show a session: state, measurements, estimate");
   session_show_cmd->add_option("id", session_id)->required();
   auto* session_close_cmd = sessions_cmd->add_subcommand("close", "Close a session (its stream, if any, ends)");
   session_close_cmd->add_option("id", session_id)->required();
+  auto* session_retune_cmd = sessions_cmd->add_subcommand(
+      "retune", "Change a running session's noise settings between two measurements (the estimate is kept)");
+  session_retune_cmd->add_option("id", session_id)->required();
+  const RunFlags retune_flags(session_retune_cmd, Command::kRetune);
 
   std::string format = "table", output, truth_text;
   auto* result_cmd = app.add_subcommand("result", "A finished job's result");
@@ -261,6 +265,11 @@ int main(int argc, char** argv) {
   if (*sessions_cmd) {
     if (*session_show_cmd) return session_show(client, session_id);
     if (*session_close_cmd) return session_close(client, session_id);
+    if (*session_retune_cmd) {
+      RunSettings s;
+      if (!settings_from("", retune_flags, &s)) return kExitUsage;
+      return session_retune(client, session_id, s);
+    }
     (void)sessions_list_cmd;
     return sessions_list(client);
   }

@@ -547,8 +547,8 @@ TEST_F(SecureCliTest, AWrongOrMissingTokenFailsWithTheReason) {
   EXPECT_EQ(r.exit_code, 3) << last_stderr();
 }
 
-// A session kept after its stream (--keep): listed, shown and closed by id.
-TEST_F(CliTest, SessionsAreListedShownAndClosed) {
+// A session kept after its stream (--keep): listed, shown, retuned and closed by id.
+TEST_F(CliTest, SessionsAreListedShownRetunedAndClosed) {
   const auto out = dir_.path() / "kept.csv";
   CliRun r = riccati("stream --model two_tank --data " + kData +
                      "/two_tank.csv --r 1e-3 --p0 0,0,10,10,10,10 --theta0 20,20,1,1 --batch 100 --keep -o " +
@@ -568,6 +568,26 @@ TEST_F(CliTest, SessionsAreListedShownAndClosed) {
   EXPECT_FALSE(info["instance"].get<std::string>().empty()) << r.out;
   r = riccati("sessions show " + id);
   EXPECT_NE(r.out.find("2000 measurements"), std::string::npos) << r.out;
+  // Retuned while kept: R (the measurement noise) raised, Q unchanged; the
+  // session records it, at the time and count where it stands.
+  r = riccati("sessions retune " + id + " --r 1e-2 --json");
+  ASSERT_EQ(r.exit_code, 0) << last_stderr();
+  const auto retuned = nlohmann::json::parse(r.out);
+  ASSERT_EQ(retuned["retunings"].size(), 1u) << r.out;
+  EXPECT_EQ(retuned["retunings"][0]["r"]["scalar"], 1e-2) << r.out;
+  EXPECT_EQ(retuned["retunings"][0]["measurements"], 2000) << r.out;
+  EXPECT_EQ(retuned["retunings"][0]["t"], 1999.0) << r.out;
+  EXPECT_FALSE(retuned["retunings"][0].contains("q")) << r.out;
+  // What a new session would refuse, riccatid refuses, naming it; nothing changes.
+  r = riccati("sessions retune " + id + " --r 1,2,3");
+  EXPECT_EQ(r.exit_code, 1);
+  EXPECT_NE(last_stderr().find("retuning session " + id + ": "), std::string::npos) << last_stderr();
+  EXPECT_NE(last_stderr().find("r.diagonal needs 2 values, got 3"), std::string::npos) << last_stderr();
+  r = riccati("sessions retune " + id);
+  EXPECT_EQ(r.exit_code, 2) << last_stderr();
+  r = riccati("--json sessions show " + id);
+  EXPECT_EQ(nlohmann::json::parse(r.out)["retunings"].size(), 1u) << r.out;
+
   r = riccati("sessions close " + id);
   ASSERT_EQ(r.exit_code, 0) << last_stderr();
   r = riccati("sessions show " + id);

@@ -48,6 +48,9 @@ int identify(Client& c, const RunSettings& s, bool wait);
 int sessions_list(Client& c);
 int session_show(Client& c, const std::string& id);
 int session_close(Client& c, const std::string& id);
+// RetuneSession: the running session's Q and R (EKF, UKF) or V and W (the
+// optimal filter) from `s`, the others unchanged; riccatid checks them.
+int session_retune(Client& c, const std::string& id, const RunSettings& s);
 int jobs_list(Client& c);
 int job_show(Client& c, const std::string& id);
 int job_watch(Client& c, const std::string& id);
