@@ -233,6 +233,40 @@ TEST_F(CliTest, UploadWithoutATimeColumnGivenTheSampleTime) {
   EXPECT_EQ(r.exit_code, 2);
 }
 
+// --data FILE uploads a file once: the next command given the same bytes,
+// with the same columns, uses that dataset (riccatid keeps each upload's
+// SHA-256) and says so; other columns, or the dataset deleted, upload anew.
+TEST_F(CliTest, DataFileUploadedOnceIsReused) {
+  const std::string settings = " --passes 1 --theta0 20,20,1,1 --p0 0,0,10,10,10,10 --r 1e-3";
+  const std::string data = " --data " + kData + "/two_tank.csv";
+  CliRun r = riccati("identify --model two_tank" + data + settings);
+  ASSERT_EQ(r.exit_code, 0) << last_stderr();
+  const std::string err = last_stderr();
+  const auto at = err.find("as dataset ds-");
+  ASSERT_NE(at, std::string::npos) << err;
+  const std::string first = err.substr(at + 11, err.find('\n', at) - at - 11);
+
+  r = riccati("validate --model two_tank --params 10,5,0.0791,0.1342" + data);
+  ASSERT_EQ(r.exit_code, 0) << last_stderr();
+  EXPECT_NE(last_stderr().find("reusing dataset " + first + " (two_tank.csv): the same bytes as"), std::string::npos)
+      << last_stderr();
+  r = riccati("--json data list");
+  const auto listed = nlohmann::json::parse(r.out);
+  ASSERT_EQ(listed["datasets"].size(), 1u) << r.out;
+  EXPECT_EQ(listed["datasets"][0]["sha256"].get<std::string>().size(), 64u) << r.out;
+
+  // The same file with its columns mapped otherwise is another dataset.
+  r = riccati("identify --model two_tank --inputs F2,F1 --outputs h1,h2" + data + settings);
+  ASSERT_EQ(r.exit_code, 0) << last_stderr();
+  EXPECT_NE(last_stderr().find("uploaded"), std::string::npos) << last_stderr();
+  // Deleted: uploaded again.
+  ASSERT_EQ(riccati("data delete " + first).exit_code, 0);
+  r = riccati("identify --model two_tank" + data + settings);
+  ASSERT_EQ(r.exit_code, 0) << last_stderr();
+  EXPECT_EQ(last_stderr().find("reusing"), std::string::npos) << last_stderr();
+  EXPECT_NE(last_stderr().find("uploaded"), std::string::npos) << last_stderr();
+}
+
 // ------------------------------------------------------------ output error, likelihood, smoothing
 
 // The dataset's truth, in the model's order (two_tank.json).

@@ -40,7 +40,9 @@ int data_delete(Client& c, const std::string& id);
 bool is_local_file(const std::string& path);
 // The dataset `data` names: uploaded first when it is a local file, its
 // columns named by `inputs` and `outputs`, or, when neither is given, by the
-// names of `model`'s inputs and outputs.
+// names of `model`'s inputs and outputs. A file the tenant uploaded before
+// (a dataset with the file's SHA-256 and the same input and output names)
+// is not uploaded again: that dataset is used, and stderr says so.
 int dataset_for(Client& c, const std::string& data, const std::vector<std::string>& inputs,
                 const std::vector<std::string>& outputs, std::string* id, const std::string& model = "");
 

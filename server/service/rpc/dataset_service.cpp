@@ -45,6 +45,7 @@ v1::DatasetInfo to_proto(const DatasetRecord& r) {
   info.set_t_end(r.t_end);
   info.set_size_bytes(static_cast<uint64_t>(r.size_bytes));
   set_timestamp(r.created_ms, info.mutable_created());
+  info.set_sha256(r.sha256);
   return info;
 }
 
