@@ -7,6 +7,7 @@
 #include <vector>
 
 #include "commands/commands.hpp"
+#include "riccati/enum_names.hpp"
 
 namespace {
 
@@ -141,7 +142,15 @@ int main(int argc, char** argv) {
   identify_cmd->add_flag("--no-wait", no_wait, "Print the job id and return at once");
   const RunFlags id_flags(identify_cmd, Command::kIdentify);
 
-  auto* jobs = app.add_subcommand("jobs", "List jobs");
+  JobsOptions jobs_options;
+  auto* jobs = app.add_subcommand("jobs", "List jobs, oldest first: created (UTC), model, dataset, state, progress");
+  jobs->add_option("--state", jobs_options.states,
+                   "Only jobs in these states (repeat, or a comma-separated list): " +
+                       riccati::api::enum_choice_list(*riccati::v1::JobState_descriptor()))
+      ->delimiter(',');
+  jobs->add_option("--model", jobs_options.model, "Only jobs of this model (name: any revision; name@3: that one)");
+  jobs->add_option("--limit", jobs_options.limit, "At most this many jobs (then: the token of the next page)");
+  jobs->add_option("--page-token", jobs_options.page_token, "The next page, from the token a --limit listing printed");
   auto* job = app.add_subcommand("job", "One job: show, watch, cancel, delete");
   job->require_subcommand(1);
   std::string job_id;
@@ -261,7 +270,7 @@ int main(int argc, char** argv) {
     if (!settings_from(config, id_flags, &s)) return kExitUsage;
     return identify(client, s, !no_wait);
   }
-  if (*jobs) return jobs_list(client);
+  if (*jobs) return jobs_list(client, jobs_options);
   if (*sessions_cmd) {
     if (*session_show_cmd) return session_show(client, session_id);
     if (*session_close_cmd) return session_close(client, session_id);

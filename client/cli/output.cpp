@@ -3,6 +3,7 @@
 #include <google/protobuf/util/json_util.h>
 
 #include <cstdio>
+#include <ctime>
 #include <sstream>
 
 #include "riccati/enum_names.hpp"
@@ -96,13 +97,34 @@ std::string progress_text(const v1::JobProgress& p) {
   return "";
 }
 
+std::string utc_time(const google::protobuf::Timestamp& t) {
+  if (t.seconds() == 0 && t.nanos() == 0) return "-";
+  const std::time_t seconds = static_cast<std::time_t>(t.seconds());
+  std::tm utc{};
+  gmtime_r(&seconds, &utc);
+  char text[32];
+  std::strftime(text, sizeof text, "%Y-%m-%dT%H:%M:%SZ", &utc);
+  return text;
+}
+
+std::string job_header() {
+  char line[256];
+  std::snprintf(line, sizeof line, "%-22s %-15s %-10s %-20s %-20s %-22s %s", "id", "kind", "state", "created", "model",
+                "dataset", "progress");
+  return line;
+}
+
 std::string job_line(const v1::Job& j) {
   const std::string& model = j.has_smoothing()    ? j.smoothing().model()
                              : j.has_validation() ? j.validation().model()
                                                   : j.identification().model();
-  char line[256];
-  std::snprintf(line, sizeof line, "%-22s %-15s %-10s %-20s %s", j.id().c_str(), job_kind(j).c_str(),
-                state_name(j.state()).c_str(), model.c_str(), progress_text(j.progress()).c_str());
+  const std::string& dataset = j.has_smoothing()    ? j.smoothing().dataset_id()
+                               : j.has_validation() ? j.validation().dataset_id()
+                                                    : j.identification().dataset_id();
+  char line[512];
+  std::snprintf(line, sizeof line, "%-22s %-15s %-10s %-20s %-20s %-22s %s", j.id().c_str(), job_kind(j).c_str(),
+                state_name(j.state()).c_str(), utc_time(j.created()).c_str(), model.c_str(),
+                dataset.empty() ? "-" : dataset.c_str(), progress_text(j.progress()).c_str());
   return line;
 }
 

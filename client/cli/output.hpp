@@ -38,7 +38,11 @@ std::string job_kind(const v1::Job& job);
 // How far a job is: "pass 3/10", or the optimiser's "iteration 12, cost
 // 0.0153" (OE and ML); empty before it starts.
 std::string progress_text(const v1::JobProgress& p);
-// id, kind, state, model and progress on one line of `riccati jobs`.
+// "2026-11-24T13:20:08Z"; "-" when unset.
+std::string utc_time(const google::protobuf::Timestamp& t);
+// id, kind, state, created (UTC), model, dataset and progress on one line
+// of `riccati jobs`, under job_header().
+std::string job_header();
 std::string job_line(const v1::Job& job);
 
 // The identified parameters with their initial values and std (and the

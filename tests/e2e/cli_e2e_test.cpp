@@ -310,6 +310,70 @@ std::vector<std::vector<double>> csv_rows(const std::filesystem::path& file, std
   return rows;
 }
 
+// `riccati jobs`: created time, model, dataset and state on each line;
+// filtered by state and model in riccatid (ListJobsRequest); paged.
+TEST_F(CliTest, JobsShowCreatedModelDatasetAndFilterAndPage) {
+  CliRun r = riccati("data upload " + kData + "/two_tank.csv --inputs F1,F2 --outputs h1,h2");
+  ASSERT_EQ(r.exit_code, 0) << last_stderr();
+  const std::string dataset = r.out.substr(0, r.out.find('\n'));
+  const std::string settings = " --theta0 20,20,1,1 --p0 0,0,10,10,10,10 --r 1e-3";
+  ASSERT_EQ(riccati("identify --model two_tank --passes 1 --data " + dataset + settings).exit_code, 0) << last_stderr();
+  ASSERT_EQ(riccati("validate --model two_tank --params 10,5,0.0791,0.1342 --data " + dataset).exit_code, 0)
+      << last_stderr();
+  r = riccati("identify --no-wait --model two_tank --passes 3000 --data " + dataset + settings);
+  ASSERT_EQ(r.exit_code, 0) << last_stderr();
+  const std::string long_job = r.out.substr(0, r.out.find('\n'));
+  ASSERT_EQ(riccati("job cancel " + long_job).exit_code, 0) << last_stderr();
+  ASSERT_EQ(riccati("job watch " + long_job).exit_code, 1);  // ends cancelled
+
+  r = riccati("jobs");
+  ASSERT_EQ(r.exit_code, 0) << last_stderr();
+  const std::vector<std::string> header = words_of_line(r.out, "id ");
+  EXPECT_EQ(header, (std::vector<std::string>{"id", "kind", "state", "created", "model", "dataset", "progress"}));
+  const std::vector<std::string> line = words_of_line(r.out, long_job);
+  ASSERT_GE(line.size(), 6u) << r.out;
+  EXPECT_EQ(line[1], "identification");
+  EXPECT_EQ(line[2], "cancelled");
+  EXPECT_EQ(line[3].size(), 20u) << line[3];  // 2026-11-24T13:20:08Z
+  EXPECT_EQ(line[3].back(), 'Z') << line[3];
+  EXPECT_EQ(line[4], "two_tank");
+  EXPECT_EQ(line[5], dataset);
+
+  const auto ids = [&](const std::string& args, std::string* next = nullptr) {
+    const CliRun listed = riccati("--json jobs " + args);
+    EXPECT_EQ(listed.exit_code, 0) << last_stderr();
+    const auto j = nlohmann::json::parse(listed.out);
+    std::vector<std::string> out;
+    for (const auto& job : j["jobs"]) out.push_back(job["id"]);
+    if (next != nullptr) *next = j["next_page_token"];
+    return out;
+  };
+  EXPECT_EQ(ids("--state cancelled"), std::vector<std::string>{long_job});
+  EXPECT_EQ(ids("--state cancelled,succeeded").size(), 3u);
+  EXPECT_EQ(ids("--state succeeded --state queued").size(), 2u);
+  EXPECT_EQ(ids("--model two_tank").size(), 3u);
+  EXPECT_TRUE(ids("--model two_tank_text").empty());  // a prefix of another name is not that model
+  std::string next;
+  const std::vector<std::string> page1 = ids("--limit 2", &next);
+  ASSERT_EQ(page1.size(), 2u);
+  EXPECT_EQ(next, page1.back());
+  const std::vector<std::string> page2 = ids("--limit 2 --page-token " + next, &next);
+  EXPECT_EQ(page2, std::vector<std::string>{long_job});  // oldest first: the last one made
+  EXPECT_EQ(next, "");
+  // Without --json the next page's command is on stderr.
+  r = riccati("jobs --limit 1");
+  EXPECT_NE(last_stderr().find("more: riccati jobs --page-token " + page1.front()), std::string::npos) << last_stderr();
+
+  r = riccati("jobs --state finished");
+  EXPECT_EQ(r.exit_code, 2);
+  EXPECT_NE(last_stderr().find("\"finished\" is not a job state (queued, running, succeeded, failed, cancelled"),
+            std::string::npos)
+      << last_stderr();
+  r = riccati("jobs --page-token job-none");
+  EXPECT_EQ(r.exit_code, 1);
+  EXPECT_NE(last_stderr().find("page_token \"job-none\" is not a page token"), std::string::npos) << last_stderr();
+}
+
 // Output error from Hensen's start (2 to 13 times the truth) on the
 // noise-free record finds the truth; the job's estimate then validates, and
 // the iterated filter's choice of estimate is refused for it.

@@ -53,7 +53,13 @@ int session_close(Client& c, const std::string& id);
 // RetuneSession: the running session's Q and R (EKF, UKF) or V and W (the
 // optimal filter) from `s`, the others unchanged; riccatid checks them.
 int session_retune(Client& c, const std::string& id, const RunSettings& s);
-int jobs_list(Client& c);
+// `riccati jobs`: the filters and the page (ListJobsRequest).
+struct JobsOptions {
+  std::vector<std::string> states;  // the API's names: queued, running, ...
+  std::string model, page_token;
+  uint32_t limit = 0;  // 0: all
+};
+int jobs_list(Client& c, const JobsOptions& o);
 int job_show(Client& c, const std::string& id);
 int job_watch(Client& c, const std::string& id);
 int job_cancel(Client& c, const std::string& id);

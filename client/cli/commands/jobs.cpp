@@ -10,20 +10,37 @@
 
 #include "commands/commands.hpp"
 #include "output.hpp"
+#include "riccati/enum_names.hpp"
 
 namespace riccati::cli {
 
-int jobs_list(Client& c) {
+int jobs_list(Client& c, const JobsOptions& o) {
+  v1::ListJobsRequest request;
+  for (const std::string& state : o.states) {
+    const auto* value = api::find_enum_value(*v1::JobState_descriptor(), state);
+    if (value == nullptr || value->number() == 0) {
+      std::fprintf(stderr, "riccati: --state: \"%s\" is not a job state (%s)\n", state.c_str(),
+                   api::enum_choice_list(*v1::JobState_descriptor()).c_str());
+      return kExitUsage;
+    }
+    request.add_states(static_cast<v1::JobState>(value->number()));
+  }
+  request.set_model(o.model);
+  request.set_page_size(o.limit);
+  request.set_page_token(o.page_token);
   auto ctx = c.context();
   v1::ListJobsResponse list;
-  const grpc::Status s = c.jobs->ListJobs(ctx.get(), {}, &list);
+  const grpc::Status s = c.jobs->ListJobs(ctx.get(), request, &list);
   if (!s.ok()) return c.fail("listing jobs", s);
   if (c.json) {
     std::printf("%s\n", to_json(list).c_str());
     return kExitOk;
   }
-  std::printf("%-22s %-15s %-10s %-20s %s\n", "id", "kind", "state", "model", "progress");
+  std::printf("%s\n", job_header().c_str());
   for (const auto& j : list.jobs()) std::printf("%s\n", job_line(j).c_str());
+  if (!list.next_page_token().empty()) {
+    std::fprintf(stderr, "more: riccati jobs --page-token %s (with the same filters)\n", list.next_page_token().c_str());
+  }
   return kExitOk;
 }
 
