@@ -181,6 +181,11 @@ int main(int argc, char** argv) {
   result_cmd->add_option("--format", format, "table, json or csv (traces and model outputs)")->capture_default_str();
   result_cmd->add_option("--output,-o", output, "Write to this file");
   result_cmd->add_option("--truth", truth_text, "True parameters, to print the error");
+  std::string export_path;
+  result_cmd->add_option("--export", export_path,
+                         "Write the result to FILE.csv, FILE.json or FILE.mat (the 1999 toolbox's layout: T, Theta, "
+                         "Trace, X, Ymod, ...; validations T, Y, Ymod)")
+      ->excludes("--output");
 
   ValidateOptions val;
   auto* validate_cmd = app.add_subcommand("validate", "Simulate a model against measured data: the fit table");
@@ -293,6 +298,7 @@ int main(int argc, char** argv) {
       std::fprintf(stderr, "riccati: --truth: %s\n", error.c_str());
       return kExitUsage;
     }
+    if (!export_path.empty()) return result_export(client, job_id, export_path);
     return result(client, job_id, json && format == "table" ? "json" : format, output, truth);
   }
   if (*validate_cmd) {

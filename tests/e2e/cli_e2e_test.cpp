@@ -15,6 +15,7 @@
 #include <sys/wait.h>
 #include <unistd.h>
 #include <nlohmann/json.hpp>
+#include <matio.h>
 
 #include "service/daemon_fixture.hpp"
 #include "support/two_tank_hensen.hpp"
@@ -372,6 +373,95 @@ TEST_F(CliTest, JobsShowCreatedModelDatasetAndFilterAndPage) {
   r = riccati("jobs --page-token job-none");
   EXPECT_EQ(r.exit_code, 1);
   EXPECT_NE(last_stderr().find("page_token \"job-none\" is not a page token"), std::string::npos) << last_stderr();
+}
+
+// A MAT file's double variable, column-major, with its dimensions.
+struct MatVariable {
+  std::size_t rows = 0, cols = 0;
+  std::vector<double> values;
+};
+MatVariable read_mat_variable(const std::string& path, const char* name) {
+  MatVariable out;
+  mat_t* mat = Mat_Open(path.c_str(), MAT_ACC_RDONLY);
+  if (mat == nullptr) return out;
+  if (matvar_t* var = Mat_VarRead(mat, name); var != nullptr) {
+    if (var->class_type == MAT_C_DOUBLE && var->rank == 2) {
+      out.rows = var->dims[0];
+      out.cols = var->dims[1];
+      const auto* data = static_cast<const double*>(var->data);
+      out.values.assign(data, data + out.rows * out.cols);
+    }
+    Mat_VarFree(var);
+  }
+  Mat_Close(mat);
+  return out;
+}
+
+// `result --export`: CSV and JSON as --format gives them, MAT in the 1999
+// toolbox's layout (a row per signal, a column per sample), read back with
+// matio and compared with the JSON of the same result.
+TEST_F(CliTest, ResultsExportAsCsvJsonAndMat) {
+  CliRun r = riccati("identify --model two_tank --passes 2 --data " + kData +
+                     "/two_tank.csv --theta0 20,20,1,1 --p0 0,0,10,10,10,10 --r 1e-3");
+  ASSERT_EQ(r.exit_code, 0) << last_stderr();
+  const std::string job = job_id_in(last_stderr());
+  const auto json_file = dir_.path() / "result.json", csv_file = dir_.path() / "result.csv",
+             mat_file = dir_.path() / "result.mat";
+  for (const auto& file : {json_file, csv_file, mat_file}) {
+    r = riccati("result " + job + " --export " + file.string());
+    ASSERT_EQ(r.exit_code, 0) << last_stderr();
+    EXPECT_NE(last_stderr().find("wrote " + file.string()), std::string::npos) << last_stderr();
+  }
+  std::ifstream json_in(json_file);
+  const auto result = nlohmann::json::parse(json_in)["identification"];
+  EXPECT_EQ(result, nlohmann::json::parse(riccati("result " + job + " --json").out)["identification"]);
+  std::string header;
+  EXPECT_EQ(csv_rows(csv_file, &header).size(), 2000u);
+  EXPECT_EQ(header.rfind("t,x1,x2,A1,A2,k1,k2,", 0), 0u) << header;
+
+  const MatVariable t = read_mat_variable(mat_file.string(), "T");
+  EXPECT_EQ(t.rows, 1u);
+  ASSERT_EQ(t.cols, 2000u);
+  EXPECT_EQ(t.values[1999], 1999.0);
+  const MatVariable theta = read_mat_variable(mat_file.string(), "Theta");
+  ASSERT_EQ(theta.rows, 4u);
+  EXPECT_EQ(theta.cols, 1u);
+  for (std::size_t i = 0; i < 4; ++i) EXPECT_EQ(theta.values[i], result["theta_mean"][i].get<double>()) << i;
+  const MatVariable trace = read_mat_variable(mat_file.string(), "Trace");
+  ASSERT_EQ(trace.rows, 4u);
+  ASSERT_EQ(trace.cols, 2000u);
+  const auto& last_pass = result["passes"][1]["theta_trace"]["values"];
+  for (std::size_t k : {0u, 999u, 1999u}) {
+    for (std::size_t i = 0; i < 4; ++i) EXPECT_EQ(trace.values[i + 4 * k], last_pass[i + 4 * k].get<double>());
+  }
+  const MatVariable ymod = read_mat_variable(mat_file.string(), "Ymod");
+  EXPECT_EQ(ymod.rows, 2u);
+  EXPECT_EQ(ymod.cols, 2000u);
+  EXPECT_EQ(read_mat_variable(mat_file.string(), "P").rows, 6u);
+  // The names, as a cell array of strings.
+  mat_t* mat = Mat_Open(mat_file.c_str(), MAT_ACC_RDONLY);
+  ASSERT_NE(mat, nullptr);
+  matvar_t* names = Mat_VarRead(mat, "ParamNames");
+  ASSERT_NE(names, nullptr);
+  ASSERT_EQ(names->class_type, MAT_C_CELL);
+  matvar_t* k2 = Mat_VarGetCell(names, 3);
+  ASSERT_NE(k2, nullptr);
+  EXPECT_EQ(std::string(static_cast<const char*>(k2->data), k2->dims[1]), "k2");
+  Mat_VarFree(names);
+  Mat_Close(mat);
+
+  // A validation: measured and simulated outputs.
+  r = riccati("validate --model two_tank --params 10,5,0.0791,0.1342 --data " + kData + "/two_tank.csv");
+  ASSERT_EQ(r.exit_code, 0) << last_stderr();
+  const std::string validation = job_id_in(last_stderr());
+  const auto val_file = dir_.path() / "validation.mat";
+  ASSERT_EQ(riccati("result " + validation + " --export " + val_file.string()).exit_code, 0) << last_stderr();
+  EXPECT_EQ(read_mat_variable(val_file.string(), "Y").cols, 2000u);
+  EXPECT_EQ(read_mat_variable(val_file.string(), "Ymod").rows, 2u);
+  // An extension that says no format: refused.
+  r = riccati("result " + job + " --export " + (dir_.path() / "result.xlsx").string());
+  EXPECT_EQ(r.exit_code, 2);
+  EXPECT_NE(last_stderr().find(".csv, .json or .mat"), std::string::npos) << last_stderr();
 }
 
 // Output error from Hensen's start (2 to 13 times the truth) on the

@@ -76,6 +76,9 @@ int watch_until_done(Client& c, const std::string& id, v1::Job* last,
                      OnInterrupt on_interrupt = OnInterrupt::kStopWatching);
 int result(Client& c, const std::string& id, const std::string& format, const std::string& output,
            const std::vector<double>& truth);
+// `riccati result JOB --export FILE`: by the file's extension, .csv (as
+// --format csv), .json (as --format json) or .mat (mat_export.hpp).
+int result_export(Client& c, const std::string& id, const std::string& path);
 
 // `riccati validate`: model, data, x0, hold and integrator in `settings`.
 struct ValidateOptions {

@@ -5,10 +5,12 @@
 #include <atomic>
 #include <optional>
 #include <cstdio>
+#include <filesystem>
 #include <fstream>
 #include <thread>
 
 #include "commands/commands.hpp"
+#include "mat_export.hpp"
 #include "output.hpp"
 #include "riccati/enum_names.hpp"
 
@@ -282,6 +284,31 @@ int result(Client& c, const std::string& id, const std::string& format_name, con
       return kExitUsage;
     }
   }
+  return kExitOk;
+}
+
+int result_export(Client& c, const std::string& id, const std::string& path) {
+  const std::string extension = std::filesystem::path(path).extension().string();
+  if (extension != ".csv" && extension != ".json" && extension != ".mat") {
+    std::fprintf(stderr, "riccati: --export %s: the file's extension says the format: .csv, .json or .mat\n",
+                 path.c_str());
+    return kExitUsage;
+  }
+  if (extension != ".mat") {
+    const int rc = result(c, id, extension.substr(1), path, {});
+    if (rc == kExitOk) std::fprintf(stderr, "wrote %s\n", path.c_str());
+    return rc;
+  }
+  v1::JobResult r;
+  auto ctx = c.context();
+  v1::GetResultRequest request;
+  request.set_job_id(id);
+  if (const grpc::Status s = c.jobs->GetResult(ctx.get(), request, &r); !s.ok()) return c.fail("result of job " + id, s);
+  if (const auto problem = write_result_mat(r, path)) {
+    std::fprintf(stderr, "riccati: --export %s: %s\n", path.c_str(), problem->c_str());
+    return kExitFailed;
+  }
+  std::fprintf(stderr, "wrote %s\n", path.c_str());
   return kExitOk;
 }
 
