@@ -239,7 +239,8 @@ int main(int argc, char** argv) {
   simulate_cmd->add_option("--input-columns", sim.input_columns, "Input columns (default: the model's names)")
       ->delimiter(',');
   simulate_cmd->add_option("--time", sim.time, "Time column")->capture_default_str();
-  simulate_cmd->add_option("--x0", sim.x0, "Initial state (default: zeros)");
+  simulate_cmd->add_option("--x0", sim.x0,
+                           "Initial state (default: zeros, as validate starts a state that no output measures)");
   simulate_cmd->add_option("--output,-o", sim.output, "Write to this file");
 
   if (const std::string unknown = unknown_command(app, argc, argv); !unknown.empty()) {

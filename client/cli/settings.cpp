@@ -72,7 +72,9 @@ const std::vector<Setting>& settings() {
       {.key = "theta0", .flag = "--theta0", .commands = kFilter, .help = "Initial parameters (default: the model's)",
        .target = &RunSettings::theta0},
       {.key = "P0", .aliases = {"p0"}, .flag = "--p0", .commands = kKalman,
-       .help = "Initial variances of [x; theta] (one value: all)", .target = &RunSettings::p0},
+       .help = "Initial variances of [x; theta] (one value: all; default: 0 for a state that starts at its "
+               "measurement, 1 for another, theta0_i^2 for parameter i)",
+       .target = &RunSettings::p0},
       {.key = "Q", .aliases = {"q"}, .flag = "--q", .commands = kKalman | kRetune,
        .help = "Process noise intensities of [x; theta] (one value: all)", .target = &RunSettings::q},
       {.key = "R", .aliases = {"r"}, .flag = "--r", .commands = kKalman | kRetune,

@@ -464,6 +464,25 @@ TEST_F(CliTest, ResultsExportAsCsvJsonAndMat) {
   EXPECT_NE(last_stderr().find(".csv, .json or .mat"), std::string::npos) << last_stderr();
 }
 
+// P0 left out: riccatid's documented default (the protos' p0), here
+// diag(0, 0, 20^2, 20^2, 1, 1): h1 and h2 start at their first
+// measurement, each parameter with a standard deviation of its start.
+TEST_F(CliTest, WithoutP0TheDefaultIsFromTheParametersScale) {
+  const std::string common = "--json identify --model two_tank --passes 10 --theta0 20,20,1,1 --r 1e-3 --data " +
+                             kData + "/two_tank.csv";
+  const CliRun without = riccati(common);
+  ASSERT_EQ(without.exit_code, 0) << last_stderr();
+  const CliRun explicit_p0 = riccati(common + " --p0 0,0,400,400,1,1");
+  ASSERT_EQ(explicit_p0.exit_code, 0) << last_stderr();
+  const auto a = nlohmann::json::parse(without.out)["identification"];
+  const auto b = nlohmann::json::parse(explicit_p0.out)["identification"];
+  EXPECT_EQ(a["theta_mean"], b["theta_mean"]);
+  EXPECT_EQ(a["theta_std"], b["theta_std"]);
+  // And it identifies: within 2 % of the truth after ten passes, as Hensen's P0 does.
+  const std::vector<double> truth = truth_of(kData + "/two_tank.json");
+  for (int i = 0; i < 4; ++i) EXPECT_NEAR(a["theta_mean"][i].get<double>(), truth[i], 0.02 * truth[i]) << i;
+}
+
 // Output error from Hensen's start (2 to 13 times the truth) on the
 // noise-free record finds the truth; the job's estimate then validates, and
 // the iterated filter's choice of estimate is refused for it.
@@ -652,7 +671,6 @@ TEST_F(CliTest, RiccatidRefusesFilterSettingsNamingTheSetting) {
   const std::vector<std::pair<std::string, std::string>> refusals = {
       {"--p0 1", "filter.r is required"},
       {"--p0 1 --r 1e-3,1e-3,1e-3", "filter.r.diagonal needs 2 values, got 3"},
-      {"--r 1e-3", "p0 is required"},
       {"--p0 1 --r 1e-3 --v 1e6", "filter.optimal applies to the optimal filter only"},
       {"--filter optimal --r 1e-3 --v 1 --w 1 --p0 1", "filter.q and filter.r do not apply to the optimal filter"},
       {"--filter optimal --v 1 --w 1 --p0 1", "model two_tank has no mechanical form"},
