@@ -206,6 +206,9 @@ int main(int argc, char** argv) {
   stream_cmd->add_option("--time", st.time, "Time column")->capture_default_str();
   stream_cmd->add_flag("--full-covariance", st.full_covariance, "Ask for the full covariance");
   stream_cmd->add_flag("--keep", st.keep, "Keep the session open at the end");
+  stream_cmd->add_option("--session", st.session,
+                         "Resume this session (kept with --keep, or whose stream broke): the file's rows after the "
+                         "session's t are sent; its model and settings are the session's");
   stream_cmd->add_option("--live", st.live,
                          "Live view of the estimates on stderr: auto (when it is a terminal and the estimates go "
                          "elsewhere), always, never")

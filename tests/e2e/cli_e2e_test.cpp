@@ -800,6 +800,41 @@ TEST_F(CliTest, SessionsAreListedShownRetunedAndClosed) {
   EXPECT_EQ(r.exit_code, 4) << r.out;
 }
 
+// A kept session resumed with the whole file (--session): the rows after
+// its t are sent, and the estimates end where an unbroken stream's end.
+TEST_F(CliTest, StreamResumesAKeptSession) {
+  const std::string settings = " --r 2.5e-5 --p0 0,0,10,10,10,10 --theta0 20,20,1,1 --batch 20";
+  const auto half = dir_.path() / "first_half.csv";
+  {
+    std::ifstream in(kData + "/two_tank_noisy.csv");
+    std::ofstream out(half);
+    std::string line;
+    for (int i = 0; i < 1001 && std::getline(in, line); ++i) out << line << "\n";  // the header and 1000 rows
+  }
+  CliRun r = riccati("stream --model two_tank --data " + half.string() + settings + " --keep -o " +
+                     (dir_.path() / "a.csv").string());
+  ASSERT_EQ(r.exit_code, 0) << last_stderr();
+  const std::string err = last_stderr();
+  const auto at = err.find("session ses-");
+  ASSERT_NE(at, std::string::npos) << err;
+  const std::string id = err.substr(at + 8, err.find('\n', at) - at - 8);
+  const auto resumed = dir_.path() / "resumed.csv", whole = dir_.path() / "whole.csv";
+  r = riccati("stream --session " + id + " --data " + kData + "/two_tank_noisy.csv --batch 20 -o " + resumed.string());
+  ASSERT_EQ(r.exit_code, 0) << last_stderr();
+  EXPECT_NE(last_stderr().find("resuming session " + id + " after t = 999 s (1000 rows skipped)"), std::string::npos)
+      << last_stderr();
+  EXPECT_NE(last_stderr().find("1000 estimates, 0 refused"), std::string::npos) << last_stderr();
+  r = riccati("stream --model two_tank --data " + kData + "/two_tank_noisy.csv" + settings + " -o " + whole.string());
+  ASSERT_EQ(r.exit_code, 0) << last_stderr();
+  std::string header;
+  const auto resumed_rows = csv_rows(resumed, &header);
+  const auto whole_rows = csv_rows(whole, &header);
+  ASSERT_EQ(resumed_rows.size(), 1000u);
+  ASSERT_EQ(whole_rows.size(), 2000u);
+  EXPECT_EQ(resumed_rows.front(), whole_rows[1000]);  // t = 1000: the first row it had not seen
+  EXPECT_EQ(resumed_rows.back(), whole_rows.back());
+}
+
 // The noisy two-tank record through an EKF session, from Hensen's start
 // theta0 = [20 20 1 1] (A1, A2, k1, k2: 2, 4, 13 and 7 times the truth
 // [10 5 0.0791 0.1342], which is also the model's default theta0) with his

@@ -111,6 +111,9 @@ struct StreamOptions {
   int batch = 1;
   bool full_covariance = false;
   bool keep = false;
+  // Resume this session (kept with --keep, or whose stream broke): the rows
+  // after its time t are sent, the session's settings stay as they are.
+  std::string session;
   std::string live = "auto";  // the live view on stderr: auto (on a terminal), always, never
 };
 int stream(Client& c, const StreamOptions& o);
