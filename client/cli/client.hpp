@@ -22,6 +22,7 @@ enum ExitCode : int {
   kExitUsage = 2,        // bad flags, an unreadable local file
   kExitUnreachable = 3,  // riccatid could not be reached (UNAVAILABLE, DEADLINE_EXCEEDED)
   kExitNotFound = 4,     // no such model, dataset, job or session
+  kExitInterrupted = 130,  // Ctrl-C (SIGINT) while waiting for a job, which was then cancelled: 128 + SIGINT
 };
 
 int exit_code_for(grpc::StatusCode code);

@@ -7,6 +7,7 @@
 #include <vector>
 
 #include "commands/commands.hpp"
+#include "riccati/enum_names.hpp"
 
 namespace {
 
@@ -73,7 +74,8 @@ int main(int argc, char** argv) {
   CLI::App app{"riccati: identification and filtering of continuous-time models with riccatid"};
   app.footer(
       "Exit status: 0 success; 1 the operation failed (job failed or cancelled, input refused); 2 usage error;\n"
-      "3 riccatid unreachable; 4 not found.\n"
+      "3 riccatid unreachable; 4 not found; 130 interrupted (Ctrl-C while identify, validate or smooth waits:\n"
+      "the job is cancelled).\n"
       "Connection settings come from the flags, else the environment (RICCATI_SERVER, RICCATI_TOKEN_FILE,\n"
       "RICCATI_TOKEN, RICCATI_CA, RICCATI_CERT, RICCATI_KEY, RICCATI_TLS, RICCATI_TLS_SERVER_NAME), else the\n"
       "config file (RICCATI_CONFIG, else ~/.config/riccati/client.yaml: server, token_file, ca, cert, key, tls,\n"
@@ -121,7 +123,10 @@ int main(int argc, char** argv) {
   upload_cmd->add_option("file", upload.file, "CSV (header row) or MAT file (level 5, as MATLAB saves with -v7; variables T, U, Y)")->required();
   upload_cmd->add_option("--inputs", upload.inputs, "Input columns")->delimiter(',');
   upload_cmd->add_option("--outputs", upload.outputs, "Output columns")->delimiter(',')->required();
-  upload_cmd->add_option("--time", upload.time, "Time column")->capture_default_str();
+  auto* upload_time = upload_cmd->add_option("--time", upload.time, "Time column")->capture_default_str();
+  upload_cmd->add_option("--ts", upload.sample_time, "Sample time in seconds, for a CSV file without a time column (t = k * ts)")
+      ->check(CLI::PositiveNumber)
+      ->excludes(upload_time);
   upload_cmd->add_option("--name", upload.name, "Name (default: the file name)");
   auto* data_list_cmd = data->add_subcommand("list", "List datasets");
   std::string data_id;
@@ -139,7 +144,15 @@ int main(int argc, char** argv) {
   identify_cmd->add_flag("--no-wait", no_wait, "Print the job id and return at once");
   const RunFlags id_flags(identify_cmd, Command::kIdentify);
 
-  auto* jobs = app.add_subcommand("jobs", "List jobs");
+  JobsOptions jobs_options;
+  auto* jobs = app.add_subcommand("jobs", "List jobs, oldest first: created (UTC), model, dataset, state, progress");
+  jobs->add_option("--state", jobs_options.states,
+                   "Only jobs in these states (repeat, or a comma-separated list): " +
+                       riccati::api::enum_choice_list(*riccati::v1::JobState_descriptor()))
+      ->delimiter(',');
+  jobs->add_option("--model", jobs_options.model, "Only jobs of this model (name: any revision; name@3: that one)");
+  jobs->add_option("--limit", jobs_options.limit, "At most this many jobs (then: the token of the next page)");
+  jobs->add_option("--page-token", jobs_options.page_token, "The next page, from the token a --limit listing printed");
   auto* job = app.add_subcommand("job", "One job: show, watch, cancel, delete");
   job->require_subcommand(1);
   std::string job_id;
@@ -152,13 +165,17 @@ int main(int argc, char** argv) {
   auto* job_delete_cmd = job->add_subcommand("delete", "Delete an ended job and its result");
   job_delete_cmd->add_option("id", job_id)->required();
 
-  auto* sessions_cmd = app.add_subcommand("sessions", "Filter sessions: list (the default), show, close");
+  auto* sessions_cmd = app.add_subcommand("sessions", "Filter sessions: list (the default), show, close, retune");
   std::string session_id;
   auto* sessions_list_cmd = sessions_cmd->add_subcommand("list", "List the sessions, on every instance");
   auto* session_show_cmd = sessions_cmd->add_subcommand("show", "Show a session: state, measurements, estimate");
   session_show_cmd->add_option("id", session_id)->required();
   auto* session_close_cmd = sessions_cmd->add_subcommand("close", "Close a session (its stream, if any, ends)");
   session_close_cmd->add_option("id", session_id)->required();
+  auto* session_retune_cmd = sessions_cmd->add_subcommand(
+      "retune", "Change a running session's noise settings between two measurements (the estimate is kept)");
+  session_retune_cmd->add_option("id", session_id)->required();
+  const RunFlags retune_flags(session_retune_cmd, Command::kRetune);
 
   std::string format = "table", output, truth_text;
   auto* result_cmd = app.add_subcommand("result", "A finished job's result");
@@ -166,6 +183,11 @@ int main(int argc, char** argv) {
   result_cmd->add_option("--format", format, "table, json or csv (traces and model outputs)")->capture_default_str();
   result_cmd->add_option("--output,-o", output, "Write to this file");
   result_cmd->add_option("--truth", truth_text, "True parameters, to print the error");
+  std::string export_path;
+  result_cmd->add_option("--export", export_path,
+                         "Write the result to FILE.csv, FILE.json or FILE.mat (the 1999 toolbox's layout: T, Theta, "
+                         "Trace, X, Ymod, ...; validations T, Y, Ymod)")
+      ->excludes("--output");
 
   ValidateOptions val;
   auto* validate_cmd = app.add_subcommand("validate", "Simulate a model against measured data: the fit table");
@@ -186,6 +208,9 @@ int main(int argc, char** argv) {
   stream_cmd->add_option("--time", st.time, "Time column")->capture_default_str();
   stream_cmd->add_flag("--full-covariance", st.full_covariance, "Ask for the full covariance");
   stream_cmd->add_flag("--keep", st.keep, "Keep the session open at the end");
+  stream_cmd->add_option("--session", st.session,
+                         "Resume this session (kept with --keep, or whose stream broke): the file's rows after the "
+                         "session's t are sent; its model and settings are the session's");
   stream_cmd->add_option("--live", st.live,
                          "Live view of the estimates on stderr: auto (when it is a terminal and the estimates go "
                          "elsewhere), always, never")
@@ -219,7 +244,8 @@ int main(int argc, char** argv) {
   simulate_cmd->add_option("--input-columns", sim.input_columns, "Input columns (default: the model's names)")
       ->delimiter(',');
   simulate_cmd->add_option("--time", sim.time, "Time column")->capture_default_str();
-  simulate_cmd->add_option("--x0", sim.x0, "Initial state (default: zeros)");
+  simulate_cmd->add_option("--x0", sim.x0,
+                           "Initial state (default: zeros, as validate starts a state that no output measures)");
   simulate_cmd->add_option("--output,-o", sim.output, "Write to this file");
 
   if (const std::string unknown = unknown_command(app, argc, argv); !unknown.empty()) {
@@ -256,10 +282,15 @@ int main(int argc, char** argv) {
     if (!settings_from(config, id_flags, &s)) return kExitUsage;
     return identify(client, s, !no_wait);
   }
-  if (*jobs) return jobs_list(client);
+  if (*jobs) return jobs_list(client, jobs_options);
   if (*sessions_cmd) {
     if (*session_show_cmd) return session_show(client, session_id);
     if (*session_close_cmd) return session_close(client, session_id);
+    if (*session_retune_cmd) {
+      RunSettings s;
+      if (!settings_from("", retune_flags, &s)) return kExitUsage;
+      return session_retune(client, session_id, s);
+    }
     (void)sessions_list_cmd;
     return sessions_list(client);
   }
@@ -274,6 +305,7 @@ int main(int argc, char** argv) {
       std::fprintf(stderr, "riccati: --truth: %s\n", error.c_str());
       return kExitUsage;
     }
+    if (!export_path.empty()) return result_export(client, job_id, export_path);
     return result(client, job_id, json && format == "table" ? "json" : format, output, truth);
   }
   if (*validate_cmd) {

@@ -3,20 +3,62 @@
 #include <google/protobuf/util/json_util.h>
 
 #include <cstdio>
+#include <ctime>
 #include <sstream>
 
 #include "riccati/enum_names.hpp"
 
 namespace riccati::cli {
 
-std::string to_json(const google::protobuf::Message& m) {
-  std::string out;
-  google::protobuf::util::JsonPrintOptions options;
-  options.add_whitespace = true;
-  options.preserve_proto_field_names = true;
-  (void)google::protobuf::util::MessageToJsonString(m, &out, options);
-  return out;
+namespace {
+
+using google::protobuf::Descriptor;
+using google::protobuf::FieldDescriptor;
+
+// proto3's JSON writes 64-bit integers as strings (for JavaScript, whose
+// numbers end at 2^53); riccati's counts and sizes never come near that,
+// and scripts compare them as numbers. Walks `j` beside the message's
+// descriptor and turns those strings back into numbers. The well-known
+// types (Timestamp, Duration) keep their JSON strings.
+void int64_as_numbers(nlohmann::json& j, const Descriptor& d) {
+  if (!j.is_object() || d.file()->package() == "google.protobuf") return;
+  for (int f = 0; f < d.field_count(); ++f) {
+    const FieldDescriptor& field = *d.field(f);
+    const auto found = j.find(field.name());
+    if (found == j.end() || field.is_map()) continue;
+    const auto convert = [&](nlohmann::json& v) {
+      if (field.cpp_type() == FieldDescriptor::CPPTYPE_MESSAGE) {
+        int64_as_numbers(v, *field.message_type());
+      } else if (v.is_string() && field.cpp_type() == FieldDescriptor::CPPTYPE_INT64) {
+        v = std::stoll(v.get<std::string>());
+      } else if (v.is_string() && field.cpp_type() == FieldDescriptor::CPPTYPE_UINT64) {
+        v = std::stoull(v.get<std::string>());
+      }
+    };
+    if (found->is_array()) {
+      for (auto& v : *found) convert(v);
+    } else {
+      convert(*found);
+    }
+  }
 }
+
+}  // namespace
+
+nlohmann::json json_of(const google::protobuf::Message& m) {
+  std::string text;
+  google::protobuf::util::JsonPrintOptions options;
+  options.preserve_proto_field_names = true;
+  options.always_print_primitive_fields = true;  // a zero is printed, not left out
+  (void)google::protobuf::util::MessageToJsonString(m, &text, options);
+  nlohmann::json j = nlohmann::json::parse(text);
+  int64_as_numbers(j, *m.GetDescriptor());
+  return j;
+}
+
+std::string to_json(const nlohmann::json& j) { return j.dump(2); }
+
+std::string to_json(const google::protobuf::Message& m) { return to_json(json_of(m)); }
 
 std::string format(const char* fmt, double v) {
   char buf[64];
@@ -55,13 +97,34 @@ std::string progress_text(const v1::JobProgress& p) {
   return "";
 }
 
+std::string utc_time(const google::protobuf::Timestamp& t) {
+  if (t.seconds() == 0 && t.nanos() == 0) return "-";
+  const std::time_t seconds = static_cast<std::time_t>(t.seconds());
+  std::tm utc{};
+  gmtime_r(&seconds, &utc);
+  char text[32];
+  std::strftime(text, sizeof text, "%Y-%m-%dT%H:%M:%SZ", &utc);
+  return text;
+}
+
+std::string job_header() {
+  char line[256];
+  std::snprintf(line, sizeof line, "%-22s %-15s %-10s %-20s %-20s %-22s %s", "id", "kind", "state", "created", "model",
+                "dataset", "progress");
+  return line;
+}
+
 std::string job_line(const v1::Job& j) {
   const std::string& model = j.has_smoothing()    ? j.smoothing().model()
                              : j.has_validation() ? j.validation().model()
                                                   : j.identification().model();
-  char line[256];
-  std::snprintf(line, sizeof line, "%-22s %-15s %-10s %-20s %s", j.id().c_str(), job_kind(j).c_str(),
-                state_name(j.state()).c_str(), model.c_str(), progress_text(j.progress()).c_str());
+  const std::string& dataset = j.has_smoothing()    ? j.smoothing().dataset_id()
+                               : j.has_validation() ? j.validation().dataset_id()
+                                                    : j.identification().dataset_id();
+  char line[512];
+  std::snprintf(line, sizeof line, "%-22s %-15s %-10s %-20s %-20s %-22s %s", j.id().c_str(), job_kind(j).c_str(),
+                state_name(j.state()).c_str(), utc_time(j.created()).c_str(), model.c_str(),
+                dataset.empty() ? "-" : dataset.c_str(), progress_text(j.progress()).c_str());
   return line;
 }
 

@@ -5,6 +5,8 @@
 
 #include <google/protobuf/message.h>
 
+#include <nlohmann/json.hpp>
+
 #include <cstdint>
 #include <string>
 #include <vector>
@@ -14,7 +16,13 @@
 
 namespace riccati::cli {
 
+// What --json prints: the API's JSON mapping (field names as in the .proto,
+// enums by name, Timestamps as RFC 3339) with every field present, zeros and
+// empty lists included, and 64-bit integers as numbers (not strings).
+nlohmann::json json_of(const google::protobuf::Message& m);
 std::string to_json(const google::protobuf::Message& m);
+// Indented, as every command prints it.
+std::string to_json(const nlohmann::json& j);
 // One number with a printf format ("%.3g").
 std::string format(const char* fmt, double v);
 // "a, b, c"
@@ -30,7 +38,11 @@ std::string job_kind(const v1::Job& job);
 // How far a job is: "pass 3/10", or the optimiser's "iteration 12, cost
 // 0.0153" (OE and ML); empty before it starts.
 std::string progress_text(const v1::JobProgress& p);
-// id, kind, state, model and progress on one line of `riccati jobs`.
+// "2026-11-24T13:20:08Z"; "-" when unset.
+std::string utc_time(const google::protobuf::Timestamp& t);
+// id, kind, state, created (UTC), model, dataset and progress on one line
+// of `riccati jobs`, under job_header().
+std::string job_header();
 std::string job_line(const v1::Job& job);
 
 // The identified parameters with their initial values and std (and the

@@ -50,6 +50,7 @@ constexpr unsigned kKalman = kFilter | kSmooth;                    // runs of a 
 constexpr unsigned kColumns = kKalman | kValidate;                 // runs on measured data
 constexpr unsigned kSimulation = kColumns | bit(Command::kSimulate);  // runs that integrate the model
 constexpr unsigned kParams = kValidate | bit(Command::kSimulate) | kSmooth;  // commands with --params
+constexpr unsigned kRetune = bit(Command::kRetune);  // what RetuneSession changes: Q, R, V, W
 
 // Every setting, once. The job-file reader and the flags are made from it.
 const std::vector<Setting>& settings() {
@@ -71,10 +72,12 @@ const std::vector<Setting>& settings() {
       {.key = "theta0", .flag = "--theta0", .commands = kFilter, .help = "Initial parameters (default: the model's)",
        .target = &RunSettings::theta0},
       {.key = "P0", .aliases = {"p0"}, .flag = "--p0", .commands = kKalman,
-       .help = "Initial variances of [x; theta] (one value: all)", .target = &RunSettings::p0},
-      {.key = "Q", .aliases = {"q"}, .flag = "--q", .commands = kKalman,
+       .help = "Initial variances of [x; theta] (one value: all; default: 0 for a state that starts at its "
+               "measurement, 1 for another, theta0_i^2 for parameter i)",
+       .target = &RunSettings::p0},
+      {.key = "Q", .aliases = {"q"}, .flag = "--q", .commands = kKalman | kRetune,
        .help = "Process noise intensities of [x; theta] (one value: all)", .target = &RunSettings::q},
-      {.key = "R", .aliases = {"r"}, .flag = "--r", .commands = kKalman,
+      {.key = "R", .aliases = {"r"}, .flag = "--r", .commands = kKalman | kRetune,
        .help = "Measurement noise variances (one value: all)", .target = &RunSettings::r},
       {.key = "hold", .flag = "--hold", .commands = kSimulation, .help = "Input hold", .target = &RunSettings::hold,
        .choices = v1::HoldOrder_descriptor()},
@@ -97,9 +100,9 @@ const std::vector<Setting>& settings() {
       {.key = "ukf.beta", .flag = "--beta", .commands = kKalman, .help = "UKF scaled weights: beta",
        .target = &RunSettings::beta},
       {.key = "ukf.kappa", .flag = "--kappa", .commands = kKalman, .help = "UKF kappa", .target = &RunSettings::kappa},
-      {.key = "optimal.V", .aliases = {"optimal.v"}, .flag = "--v", .commands = kFilter,
+      {.key = "optimal.V", .aliases = {"optimal.v"}, .flag = "--v", .commands = kFilter | kRetune,
        .help = "Optimal filter: weights of the equations of motion, inputs, outputs", .target = &RunSettings::v},
-      {.key = "optimal.W", .aliases = {"optimal.w"}, .flag = "--w", .commands = kFilter,
+      {.key = "optimal.W", .aliases = {"optimal.w"}, .flag = "--w", .commands = kFilter | kRetune,
        .help = "Optimal filter: weights of the states and parameters", .target = &RunSettings::w},
       {.key = "optimal.R0", .aliases = {"optimal.r0"}, .flag = "--r0", .commands = kFilter,
        .help = "Optimal filter: confidence in x0 and theta0 (instead of --p0)", .target = &RunSettings::r0},

@@ -132,7 +132,8 @@ struct RunSettings {
 bool load_job_file(const std::string& path, RunSettings* out, std::string* error);
 
 // The commands whose flags the settings table makes.
-enum class Command : unsigned { kIdentify = 1, kStream = 2, kValidate = 4, kSimulate = 8, kSmooth = 16 };
+// kRetune: `sessions retune` (the noise settings a running session can change).
+enum class Command : unsigned { kIdentify = 1, kStream = 2, kValidate = 4, kSimulate = 8, kSmooth = 16, kRetune = 32 };
 
 // The flags of the settings that `command` takes, on `cmd`.
 class RunFlags {

@@ -102,11 +102,13 @@ std::string describe(CellProblem problem, std::string_view cell) {
   return "no problem";
 }
 
+// The named columns (unnamed ones cannot be asked for, so are not offered).
 std::string list_names(const std::vector<std::string_view>& names) {
   std::string list;
-  for (std::size_t i = 0; i < names.size(); ++i) {
-    if (i > 0) list += ", ";
-    list += names[i];
+  for (const std::string_view name : names) {
+    if (name.empty()) continue;
+    if (!list.empty()) list += ", ";
+    list += name;
   }
   return list;
 }
@@ -122,6 +124,10 @@ std::optional<std::string> parse(std::string_view text, std::span<const std::str
   std::vector<std::string_view> header;
   split_cells(line, header);
   for (std::string_view& name : header) name = unquote(name);
+  // A header ending in commas ("t,u,y,", as some spreadsheets write it):
+  // rows may leave those unnamed columns out.
+  std::size_t named_width = header.size();
+  while (named_width > 0 && header[named_width - 1].empty()) --named_width;
   for (std::size_t a = 0; a < header.size(); ++a) {
     // Unnamed columns (a spreadsheet's index column) are allowed; they cannot be selected.
     if (header[a].empty()) continue;
@@ -160,8 +166,11 @@ std::optional<std::string> parse(std::string_view text, std::span<const std::str
     const auto at_line = [&] { return source + " line " + std::to_string(lines.number()); };
     if (is_blank(line)) return at_line() + ": blank line inside the data (only trailing blank lines are allowed)";
     split_cells(line, cells);
-    if (cells.size() != header.size()) {
-      return at_line() + ": expected " + plural(header.size(), "value") + ", found " + std::to_string(cells.size());
+    if (cells.size() < named_width || cells.size() > header.size()) {
+      const std::string expected = named_width == header.size()
+                                       ? plural(header.size(), "value")
+                                       : std::to_string(named_width) + " to " + plural(header.size(), "value");
+      return at_line() + ": expected " + expected + ", found " + std::to_string(cells.size());
     }
     for (const std::size_t s : order) {
       const std::string_view cell = cells[column[s]];

@@ -5,9 +5,10 @@
 // files that `riccati stream` replays and `riccati simulate` takes.
 //
 // What it accepts: a UTF-8 byte order mark, "\r\n" line ends, header names
-// in double quotes (not containing commas), blanks around cells, blank lines
-// at the end, unnamed columns (which cannot be asked for) and any text in
-// the columns not asked for. Every cell asked for must be a finite number
+// in double quotes (not containing commas), blanks around cells and header
+// names (" F2" is F2), blank lines at the end, unnamed columns (which cannot
+// be asked for), a header ending in a comma (rows may then leave that empty
+// column out) and any text in the columns not asked for. Every cell asked for must be a finite number
 // (a leading '+' is allowed). Errors name the source and the line, the
 // column and the cell as written: `rig.csv line 5, column "h1": "abc" is not
 // a number`.

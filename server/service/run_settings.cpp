@@ -100,6 +100,29 @@ void initial_state_from_proto(const v1::InitialState& s, InitialState* mode, Eig
   *x0 = Eigen::Map<const Eigen::VectorXd>(s.x0().data(), s.x0_size());
 }
 
+namespace {
+
+// P0 when a request gives none (documented with the p0 fields in the protos):
+// a state that starts at its first measurement (a state named as an output,
+// with x0 "first") variance 0, any other state 1; each parameter the square
+// of its start (a standard deviation of 100 % of theta0), 1 for a start of 0.
+Eigen::MatrixXd default_p0(const InitialEstimate& initial, const Model& model) {
+  Eigen::VectorXd variances(model.nx() + model.ntheta());
+  const auto& outputs = model.output_names();
+  for (int i = 0; i < model.nx(); ++i) {
+    const bool measured = std::find(outputs.begin(), outputs.end(), model.state_names()[static_cast<std::size_t>(i)]) !=
+                          outputs.end();
+    variances(i) = initial.mode == InitialState::kFirstMeasurement && measured ? 0.0 : 1.0;
+  }
+  for (int j = 0; j < model.ntheta(); ++j) {
+    const double start = initial.theta0(j);
+    variances(model.nx() + j) = start != 0.0 ? start * start : 1.0;
+  }
+  return variances.asDiagonal();
+}
+
+}  // namespace
+
 Result<InitialEstimate> initial_estimate_from_proto(const v1::InitialState& initial_state,
                                                     const google::protobuf::RepeatedField<double>& theta0,
                                                     const v1::Covariance& p0, const v1::FilterSettings& filter,
@@ -117,7 +140,9 @@ Result<InitialEstimate> initial_estimate_from_proto(const v1::InitialState& init
   if (!theta0.empty()) {
     RICCATI_ASSIGN_OR_RETURN(out.theta0, from_values(theta0, model.ntheta(), "theta0"));
   }
-  if (!filter.optimal().has_r0()) {
+  if (!filter.optimal().has_r0() && p0.form_case() == v1::Covariance::FORM_NOT_SET) {
+    out.P0 = default_p0(out, model);
+  } else if (!filter.optimal().has_r0()) {
     RICCATI_ASSIGN_OR_RETURN(out.P0, from_covariance(p0, model.nz(), true, "p0"));
   } else {
     if (p0.form_case() != v1::Covariance::FORM_NOT_SET) {

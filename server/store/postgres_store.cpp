@@ -132,6 +132,11 @@ const std::vector<const char*> kMigrations = {
       deleted BOOLEAN NOT NULL DEFAULT false,
       PRIMARY KEY (tenant, name, revision));
     )sql",
+    // 8: each dataset's SHA-256 of its file as uploaded, so that a client
+    // can reuse an identical upload ('' for datasets stored before).
+    R"sql(
+    ALTER TABLE datasets ADD COLUMN sha256 TEXT NOT NULL DEFAULT '';
+    )sql",
 };
 
 // Leases are read against the database's clock, so that instances on hosts
@@ -264,7 +269,7 @@ JobRecord read_job(const pqxx::row& r) {
 }
 
 constexpr const char* kDatasetColumns =
-    "id, tenant, name, format, input_names, output_names, samples, t_start, t_end, size_bytes, created_ms";
+    "id, tenant, name, format, input_names, output_names, samples, t_start, t_end, size_bytes, created_ms, sha256";
 
 DatasetRecord read_dataset(const pqxx::row& r) {
   DatasetRecord d;
@@ -279,6 +284,7 @@ DatasetRecord read_dataset(const pqxx::row& r) {
   d.t_end = r[8].as<double>();
   d.size_bytes = r[9].as<std::int64_t>();
   d.created_ms = r[10].as<std::int64_t>();
+  d.sha256 = r[11].as<std::string>();
   return d;
 }
 
@@ -426,9 +432,9 @@ class PostgresStore final : public Store {
     return run<pqxx::work>("storing dataset " + r.id, false, [&](pqxx::work& tx) -> Status {
       tx.exec_params(
           "INSERT INTO datasets (id, tenant, name, format, input_names, output_names, samples, t_start, t_end, "
-          "size_bytes, created_ms) VALUES ($1, $2, $3, $4, $5::text[], $6::text[], $7, $8, $9, $10, $11)",
+          "size_bytes, created_ms, sha256) VALUES ($1, $2, $3, $4, $5::text[], $6::text[], $7, $8, $9, $10, $11, $12)",
           r.id, r.tenant, r.name, r.format, text_array(r.input_names), text_array(r.output_names), r.samples,
-          r.t_start, r.t_end, r.size_bytes, r.created_ms);
+          r.t_start, r.t_end, r.size_bytes, r.created_ms, r.sha256);
       tx.exec_params("INSERT INTO dataset_samples (dataset_id, t, u, y) VALUES ($1, $2::bytea, $3::bytea, $4::bytea)",
                      r.id, to_bytea(data.t.data(), static_cast<std::size_t>(data.t.size())),
                      to_bytea(data.u.data(), static_cast<std::size_t>(data.u.size())),

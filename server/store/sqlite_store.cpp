@@ -126,6 +126,11 @@ const std::vector<const char*> kMigrations = {
       deleted INTEGER NOT NULL DEFAULT 0,
       PRIMARY KEY (tenant, name, revision));
     )sql",
+    // 9: each dataset's SHA-256 of its file as uploaded, so that a client
+    // can reuse an identical upload ('' for datasets stored before).
+    R"sql(
+    ALTER TABLE datasets ADD COLUMN sha256 TEXT NOT NULL DEFAULT '';
+    )sql",
 };
 
 // Names never contain the ASCII unit separator, so it can join them.
@@ -277,7 +282,7 @@ JobRecord read_job(const Statement& s) {
 }
 
 constexpr const char* kDatasetColumns =
-    "id, tenant, name, format, input_names, output_names, samples, t_start, t_end, size_bytes, created_ms";
+    "id, tenant, name, format, input_names, output_names, samples, t_start, t_end, size_bytes, created_ms, sha256";
 
 DatasetRecord read_dataset(const Statement& s) {
   DatasetRecord d;
@@ -292,6 +297,7 @@ DatasetRecord read_dataset(const Statement& s) {
   d.t_end = s.column_real(8);
   d.size_bytes = s.column_int(9);
   d.created_ms = s.column_int(10);
+  d.sha256 = s.column_text(11);
   return d;
 }
 
@@ -364,10 +370,10 @@ class SqliteStore final : public Store {
     return in_transaction("storing dataset " + r.id, [&]() -> Status {
       Statement insert(db_.get(),
                        "INSERT INTO datasets (id, tenant, name, format, input_names, output_names, samples, t_start, "
-                       "t_end, size_bytes, created_ms) VALUES (?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?)");
+                       "t_end, size_bytes, created_ms, sha256) VALUES (?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?)");
       insert.text(r.id).text(r.tenant).text(r.name).text(r.format).text(join_names(r.input_names))
           .text(join_names(r.output_names)).integer(r.samples).real(r.t_start).real(r.t_end).integer(r.size_bytes)
-          .integer(r.created_ms);
+          .integer(r.created_ms).text(r.sha256);
       RICCATI_RETURN_IF_ERROR(done(insert, "storing dataset " + r.id));
       Statement samples(db_.get(), "INSERT INTO dataset_samples (dataset_id, t, u, y) VALUES (?, ?, ?, ?)");
       samples.text(r.id)

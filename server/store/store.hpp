@@ -39,6 +39,7 @@ struct DatasetRecord {
   double t_end = 0.0;
   std::int64_t size_bytes = 0;  // of the uploaded file
   std::int64_t created_ms = 0;
+  std::string sha256;  // of the uploaded file, 64 hex digits ('' if stored before riccatid kept it)
 };
 
 enum class JobState { kQueued, kRunning, kSucceeded, kFailed, kCancelled };

@@ -794,13 +794,17 @@ TEST(ResultTables, EachKindOfResultHasItsTableAndJobsTheirProgress) {
     id: "job-1" state: JOB_STATE_RUNNING identification { model: "two_tank" method: IDENTIFICATION_METHOD_ML }
     progress { pass_number: 2 passes: 2 sample: 2000 samples: 2000 iteration: 7 cost: -4779.23 }
   )pb");
-  EXPECT_NE(job_line(job).find("identification  running    two_tank             iteration 7, cost -4779.23"),
+  EXPECT_NE(job_line(job).find("identification  running    -                    two_tank             -                      "
+                               "iteration 7, cost -4779.23"),
             std::string::npos)
       << job_line(job);
   job = parse_text<v1::Job>(R"pb(
-    id: "job-2" state: JOB_STATE_QUEUED smoothing { model: "rotating_arm" } progress { pass_number: 1 passes: 2 }
+    id: "job-2" state: JOB_STATE_QUEUED smoothing { model: "rotating_arm" dataset_id: "ds-7" }
+    progress { pass_number: 1 passes: 2 } created { seconds: 1795000000 }
   )pb");
-  EXPECT_NE(job_line(job).find("smoothing       queued     rotating_arm         pass 1/2"), std::string::npos)
+  EXPECT_NE(job_line(job).find("smoothing       queued     2026-11-18T11:06:40Z rotating_arm         ds-7                   "
+                               "pass 1/2"),
+            std::string::npos)
       << job_line(job);
 
   // A validation says where its parameters and initial states came from.

@@ -56,7 +56,7 @@ TEST(Csv, ErrorsNameTheSourceTheLineTheColumnAndTheCell) {
   const std::vector<std::string> ty{"t", "y"};
   EXPECT_EQ(error_of("", ty), "x.csv: no header row (the first line must name the columns)");
   EXPECT_EQ(error_of("t,z\n0,1\n", ty), "x.csv: missing column \"y\" (columns are: t, z)");
-  EXPECT_EQ(error_of(",t,y\n0,1,2\n", {""}), "x.csv: missing column \"\" (columns are: , t, y)");
+  EXPECT_EQ(error_of(",t,y\n0,1,2\n", {""}), "x.csv: missing column \"\" (columns are: t, y)");
   EXPECT_EQ(error_of("t,y,t\n0,1,2\n", ty), "x.csv line 1: column name \"t\" appears twice (columns 1 and 3)");
   EXPECT_EQ(error_of("t,y\n0,1\n\n1,2\n", ty),
             "x.csv line 3: blank line inside the data (only trailing blank lines are allowed)");
@@ -71,6 +71,19 @@ TEST(Csv, ErrorsNameTheSourceTheLineTheColumnAndTheCell) {
   const std::string message = error_of("t,y\n0,x" + std::string(500, '7') + "\n", ty);
   EXPECT_NE(message.find("column \"y\": \"x777"), std::string::npos) << message;
   EXPECT_LT(message.size(), 120u);
+}
+
+// " F2" is F2; a header ending in a comma has no column named "" in
+// messages, and its rows may have the trailing empty cell or not.
+TEST(Csv, HeaderNamesAreTrimmedAndATrailingCommaIsNoColumnName) {
+  Table table;
+  const std::vector<std::string> select{"t", "F2", "h1"};
+  ASSERT_EQ(parse("t, F1, F2 ,h1,\n0,1,2,3,\n1,1.5,2.5,3.5\n", select, "rig.csv", &table), std::nullopt);
+  ASSERT_EQ(table.rows(), 2u);
+  EXPECT_EQ(std::vector<double>(table.row(1).begin(), table.row(1).end()), (std::vector<double>{1, 2.5, 3.5}));
+  EXPECT_EQ(error_of("t, F1, F2 ,h1,\n0,1,2,3\n", {"h2"}), "x.csv: missing column \"h2\" (columns are: t, F1, F2, h1)");
+  EXPECT_EQ(error_of("t,y,\n0,1,,\n", {"y"}), "x.csv line 2: expected 2 to 3 values, found 4");
+  EXPECT_EQ(error_of("t,y,\n0\n", {"y"}), "x.csv line 2: expected 2 to 3 values, found 1");
 }
 
 TEST(Csv, UnselectedColumnsAreNotRead) {

@@ -8,7 +8,14 @@
 #include <fstream>
 #include <random>
 #include <sstream>
+#include <thread>
+
+#include <fcntl.h>
+#include <signal.h>
+#include <sys/wait.h>
+#include <unistd.h>
 #include <nlohmann/json.hpp>
+#include <matio.h>
 
 #include "service/daemon_fixture.hpp"
 #include "support/two_tank_hensen.hpp"
@@ -194,6 +201,78 @@ TEST_F(CliTest, ExitCodesAndMessagesForBadInput) {
   EXPECT_EQ(WEXITSTATUS(std::system(command.c_str())), 3);
 }
 
+// A file without a time column, uploaded with its sample time (--ts), and a
+// header with blanks around its names and a trailing comma: the same
+// dataset as the file it was cut from.
+TEST_F(CliTest, UploadWithoutATimeColumnGivenTheSampleTime) {
+  const auto cut = dir_.path() / "no_time.csv";
+  {
+    std::ifstream in(kData + "/two_tank.csv");
+    std::ofstream out(cut);
+    std::string line;
+    std::getline(in, line);
+    out << " F1, F2 , h1,h2,\n";
+    while (std::getline(in, line)) out << line.substr(line.find(',') + 1) << ",\n";  // t dropped
+  }
+  CliRun r = riccati("--json data upload " + cut.string() + " --ts 1 --inputs F1,F2 --outputs h1,h2");
+  ASSERT_EQ(r.exit_code, 0) << last_stderr();
+  const auto sampled = nlohmann::json::parse(r.out);
+  EXPECT_EQ(sampled["samples"], 2000);
+  EXPECT_EQ(sampled["t_start"], 0.0);
+  EXPECT_EQ(sampled["t_end"], 1999.0);  // two_tank.csv's t is 0, 1, ..., 1999
+  // The same identification as on the original file.
+  const std::string settings = " --passes 1 --theta0 20,20,1,1 --p0 0,0,10,10,10,10 --r 1e-3";
+  r = riccati("--json identify --model two_tank --data " + sampled["id"].get<std::string>() + settings);
+  ASSERT_EQ(r.exit_code, 0) << last_stderr();
+  const CliRun original = riccati("--json identify --model two_tank --data " + kData + "/two_tank.csv" + settings);
+  ASSERT_EQ(original.exit_code, 0) << last_stderr();
+  EXPECT_EQ(nlohmann::json::parse(r.out)["identification"]["theta_mean"],
+            nlohmann::json::parse(original.out)["identification"]["theta_mean"]);
+
+  // A missing column lists the file's names, trimmed, and no empty one.
+  r = riccati("data upload " + cut.string() + " --ts 1 --inputs F1,F3 --outputs h1,h2");
+  EXPECT_EQ(r.exit_code, 1);
+  EXPECT_NE(last_stderr().find("missing column \"F3\" (columns are: F1, F2, h1, h2)"), std::string::npos)
+      << last_stderr();
+  // --ts and --time together: a usage error.
+  r = riccati("data upload " + cut.string() + " --ts 1 --time t --outputs h1,h2");
+  EXPECT_EQ(r.exit_code, 2);
+}
+
+// --data FILE uploads a file once: the next command given the same bytes,
+// with the same columns, uses that dataset (riccatid keeps each upload's
+// SHA-256) and says so; other columns, or the dataset deleted, upload anew.
+TEST_F(CliTest, DataFileUploadedOnceIsReused) {
+  const std::string settings = " --passes 1 --theta0 20,20,1,1 --p0 0,0,10,10,10,10 --r 1e-3";
+  const std::string data = " --data " + kData + "/two_tank.csv";
+  CliRun r = riccati("identify --model two_tank" + data + settings);
+  ASSERT_EQ(r.exit_code, 0) << last_stderr();
+  const std::string err = last_stderr();
+  const auto at = err.find("as dataset ds-");
+  ASSERT_NE(at, std::string::npos) << err;
+  const std::string first = err.substr(at + 11, err.find('\n', at) - at - 11);
+
+  r = riccati("validate --model two_tank --params 10,5,0.0791,0.1342" + data);
+  ASSERT_EQ(r.exit_code, 0) << last_stderr();
+  EXPECT_NE(last_stderr().find("reusing dataset " + first + " (two_tank.csv): the same bytes as"), std::string::npos)
+      << last_stderr();
+  r = riccati("--json data list");
+  const auto listed = nlohmann::json::parse(r.out);
+  ASSERT_EQ(listed["datasets"].size(), 1u) << r.out;
+  EXPECT_EQ(listed["datasets"][0]["sha256"].get<std::string>().size(), 64u) << r.out;
+
+  // The same file with its columns mapped otherwise is another dataset.
+  r = riccati("identify --model two_tank --inputs F2,F1 --outputs h1,h2" + data + settings);
+  ASSERT_EQ(r.exit_code, 0) << last_stderr();
+  EXPECT_NE(last_stderr().find("uploaded"), std::string::npos) << last_stderr();
+  // Deleted: uploaded again.
+  ASSERT_EQ(riccati("data delete " + first).exit_code, 0);
+  r = riccati("identify --model two_tank" + data + settings);
+  ASSERT_EQ(r.exit_code, 0) << last_stderr();
+  EXPECT_EQ(last_stderr().find("reusing"), std::string::npos) << last_stderr();
+  EXPECT_NE(last_stderr().find("uploaded"), std::string::npos) << last_stderr();
+}
+
 // ------------------------------------------------------------ output error, likelihood, smoothing
 
 // The dataset's truth, in the model's order (two_tank.json).
@@ -205,10 +284,10 @@ std::vector<double> truth_of(const std::string& json_file) {
   return truth;
 }
 
-// The job id a waiting command prints on stderr ("job job-...").
+// The job id a waiting command prints on stderr ("job job-... (Ctrl-C cancels it)").
 std::string job_id_in(const std::string& err) {
   const auto at = err.find("job job-");
-  return at == std::string::npos ? "" : err.substr(at + 4, err.find('\n', at) - at - 4);
+  return at == std::string::npos ? "" : err.substr(at + 4, err.find_first_of(" \n", at + 4) - at - 4);
 }
 
 // The words of the line of `text` that starts with `start`.
@@ -235,6 +314,178 @@ std::vector<std::vector<double>> csv_rows(const std::filesystem::path& file, std
     rows.push_back(v);
   }
   return rows;
+}
+
+// `riccati jobs`: created time, model, dataset and state on each line;
+// filtered by state and model in riccatid (ListJobsRequest); paged.
+TEST_F(CliTest, JobsShowCreatedModelDatasetAndFilterAndPage) {
+  CliRun r = riccati("data upload " + kData + "/two_tank.csv --inputs F1,F2 --outputs h1,h2");
+  ASSERT_EQ(r.exit_code, 0) << last_stderr();
+  const std::string dataset = r.out.substr(0, r.out.find('\n'));
+  const std::string settings = " --theta0 20,20,1,1 --p0 0,0,10,10,10,10 --r 1e-3";
+  ASSERT_EQ(riccati("identify --model two_tank --passes 1 --data " + dataset + settings).exit_code, 0) << last_stderr();
+  ASSERT_EQ(riccati("validate --model two_tank --params 10,5,0.0791,0.1342 --data " + dataset).exit_code, 0)
+      << last_stderr();
+  r = riccati("identify --no-wait --model two_tank --passes 3000 --data " + dataset + settings);
+  ASSERT_EQ(r.exit_code, 0) << last_stderr();
+  const std::string long_job = r.out.substr(0, r.out.find('\n'));
+  ASSERT_EQ(riccati("job cancel " + long_job).exit_code, 0) << last_stderr();
+  ASSERT_EQ(riccati("job watch " + long_job).exit_code, 1);  // ends cancelled
+
+  r = riccati("jobs");
+  ASSERT_EQ(r.exit_code, 0) << last_stderr();
+  const std::vector<std::string> header = words_of_line(r.out, "id ");
+  EXPECT_EQ(header, (std::vector<std::string>{"id", "kind", "state", "created", "model", "dataset", "progress"}));
+  const std::vector<std::string> line = words_of_line(r.out, long_job);
+  ASSERT_GE(line.size(), 6u) << r.out;
+  EXPECT_EQ(line[1], "identification");
+  EXPECT_EQ(line[2], "cancelled");
+  EXPECT_EQ(line[3].size(), 20u) << line[3];  // 2026-11-24T13:20:08Z
+  EXPECT_EQ(line[3].back(), 'Z') << line[3];
+  EXPECT_EQ(line[4], "two_tank");
+  EXPECT_EQ(line[5], dataset);
+
+  const auto ids = [&](const std::string& args, std::string* next = nullptr) {
+    const CliRun listed = riccati("--json jobs " + args);
+    EXPECT_EQ(listed.exit_code, 0) << last_stderr();
+    const auto j = nlohmann::json::parse(listed.out);
+    std::vector<std::string> out;
+    for (const auto& job : j["jobs"]) out.push_back(job["id"]);
+    if (next != nullptr) *next = j["next_page_token"];
+    return out;
+  };
+  EXPECT_EQ(ids("--state cancelled"), std::vector<std::string>{long_job});
+  EXPECT_EQ(ids("--state cancelled,succeeded").size(), 3u);
+  EXPECT_EQ(ids("--state succeeded --state queued").size(), 2u);
+  EXPECT_EQ(ids("--model two_tank").size(), 3u);
+  EXPECT_TRUE(ids("--model two_tank_text").empty());  // a prefix of another name is not that model
+  std::string next;
+  const std::vector<std::string> page1 = ids("--limit 2", &next);
+  ASSERT_EQ(page1.size(), 2u);
+  EXPECT_EQ(next, page1.back());
+  const std::vector<std::string> page2 = ids("--limit 2 --page-token " + next, &next);
+  EXPECT_EQ(page2, std::vector<std::string>{long_job});  // oldest first: the last one made
+  EXPECT_EQ(next, "");
+  // Without --json the next page's command is on stderr.
+  r = riccati("jobs --limit 1");
+  EXPECT_NE(last_stderr().find("more: riccati jobs --page-token " + page1.front()), std::string::npos) << last_stderr();
+
+  r = riccati("jobs --state finished");
+  EXPECT_EQ(r.exit_code, 2);
+  EXPECT_NE(last_stderr().find("\"finished\" is not a job state (queued, running, succeeded, failed, cancelled"),
+            std::string::npos)
+      << last_stderr();
+  r = riccati("jobs --page-token job-none");
+  EXPECT_EQ(r.exit_code, 1);
+  EXPECT_NE(last_stderr().find("page_token \"job-none\" is not a page token"), std::string::npos) << last_stderr();
+}
+
+// A MAT file's double variable, column-major, with its dimensions.
+struct MatVariable {
+  std::size_t rows = 0, cols = 0;
+  std::vector<double> values;
+};
+MatVariable read_mat_variable(const std::string& path, const char* name) {
+  MatVariable out;
+  mat_t* mat = Mat_Open(path.c_str(), MAT_ACC_RDONLY);
+  if (mat == nullptr) return out;
+  if (matvar_t* var = Mat_VarRead(mat, name); var != nullptr) {
+    if (var->class_type == MAT_C_DOUBLE && var->rank == 2) {
+      out.rows = var->dims[0];
+      out.cols = var->dims[1];
+      const auto* data = static_cast<const double*>(var->data);
+      out.values.assign(data, data + out.rows * out.cols);
+    }
+    Mat_VarFree(var);
+  }
+  Mat_Close(mat);
+  return out;
+}
+
+// `result --export`: CSV and JSON as --format gives them, MAT in the 1999
+// toolbox's layout (a row per signal, a column per sample), read back with
+// matio and compared with the JSON of the same result.
+TEST_F(CliTest, ResultsExportAsCsvJsonAndMat) {
+  CliRun r = riccati("identify --model two_tank --passes 2 --data " + kData +
+                     "/two_tank.csv --theta0 20,20,1,1 --p0 0,0,10,10,10,10 --r 1e-3");
+  ASSERT_EQ(r.exit_code, 0) << last_stderr();
+  const std::string job = job_id_in(last_stderr());
+  const auto json_file = dir_.path() / "result.json", csv_file = dir_.path() / "result.csv",
+             mat_file = dir_.path() / "result.mat";
+  for (const auto& file : {json_file, csv_file, mat_file}) {
+    r = riccati("result " + job + " --export " + file.string());
+    ASSERT_EQ(r.exit_code, 0) << last_stderr();
+    EXPECT_NE(last_stderr().find("wrote " + file.string()), std::string::npos) << last_stderr();
+  }
+  std::ifstream json_in(json_file);
+  const auto result = nlohmann::json::parse(json_in)["identification"];
+  EXPECT_EQ(result, nlohmann::json::parse(riccati("result " + job + " --json").out)["identification"]);
+  std::string header;
+  EXPECT_EQ(csv_rows(csv_file, &header).size(), 2000u);
+  EXPECT_EQ(header.rfind("t,x1,x2,A1,A2,k1,k2,", 0), 0u) << header;
+
+  const MatVariable t = read_mat_variable(mat_file.string(), "T");
+  EXPECT_EQ(t.rows, 1u);
+  ASSERT_EQ(t.cols, 2000u);
+  EXPECT_EQ(t.values[1999], 1999.0);
+  const MatVariable theta = read_mat_variable(mat_file.string(), "Theta");
+  ASSERT_EQ(theta.rows, 4u);
+  EXPECT_EQ(theta.cols, 1u);
+  for (std::size_t i = 0; i < 4; ++i) EXPECT_EQ(theta.values[i], result["theta_mean"][i].get<double>()) << i;
+  const MatVariable trace = read_mat_variable(mat_file.string(), "Trace");
+  ASSERT_EQ(trace.rows, 4u);
+  ASSERT_EQ(trace.cols, 2000u);
+  const auto& last_pass = result["passes"][1]["theta_trace"]["values"];
+  for (std::size_t k : {0u, 999u, 1999u}) {
+    for (std::size_t i = 0; i < 4; ++i) EXPECT_EQ(trace.values[i + 4 * k], last_pass[i + 4 * k].get<double>());
+  }
+  const MatVariable ymod = read_mat_variable(mat_file.string(), "Ymod");
+  EXPECT_EQ(ymod.rows, 2u);
+  EXPECT_EQ(ymod.cols, 2000u);
+  EXPECT_EQ(read_mat_variable(mat_file.string(), "P").rows, 6u);
+  // The names, as a cell array of strings.
+  mat_t* mat = Mat_Open(mat_file.c_str(), MAT_ACC_RDONLY);
+  ASSERT_NE(mat, nullptr);
+  matvar_t* names = Mat_VarRead(mat, "ParamNames");
+  ASSERT_NE(names, nullptr);
+  ASSERT_EQ(names->class_type, MAT_C_CELL);
+  matvar_t* k2 = Mat_VarGetCell(names, 3);
+  ASSERT_NE(k2, nullptr);
+  EXPECT_EQ(std::string(static_cast<const char*>(k2->data), k2->dims[1]), "k2");
+  Mat_VarFree(names);
+  Mat_Close(mat);
+
+  // A validation: measured and simulated outputs.
+  r = riccati("validate --model two_tank --params 10,5,0.0791,0.1342 --data " + kData + "/two_tank.csv");
+  ASSERT_EQ(r.exit_code, 0) << last_stderr();
+  const std::string validation = job_id_in(last_stderr());
+  const auto val_file = dir_.path() / "validation.mat";
+  ASSERT_EQ(riccati("result " + validation + " --export " + val_file.string()).exit_code, 0) << last_stderr();
+  EXPECT_EQ(read_mat_variable(val_file.string(), "Y").cols, 2000u);
+  EXPECT_EQ(read_mat_variable(val_file.string(), "Ymod").rows, 2u);
+  // An extension that says no format: refused.
+  r = riccati("result " + job + " --export " + (dir_.path() / "result.xlsx").string());
+  EXPECT_EQ(r.exit_code, 2);
+  EXPECT_NE(last_stderr().find(".csv, .json or .mat"), std::string::npos) << last_stderr();
+}
+
+// P0 left out: riccatid's documented default (the protos' p0), here
+// diag(0, 0, 20^2, 20^2, 1, 1): h1 and h2 start at their first
+// measurement, each parameter with a standard deviation of its start.
+TEST_F(CliTest, WithoutP0TheDefaultIsFromTheParametersScale) {
+  const std::string common = "--json identify --model two_tank --passes 10 --theta0 20,20,1,1 --r 1e-3 --data " +
+                             kData + "/two_tank.csv";
+  const CliRun without = riccati(common);
+  ASSERT_EQ(without.exit_code, 0) << last_stderr();
+  const CliRun explicit_p0 = riccati(common + " --p0 0,0,400,400,1,1");
+  ASSERT_EQ(explicit_p0.exit_code, 0) << last_stderr();
+  const auto a = nlohmann::json::parse(without.out)["identification"];
+  const auto b = nlohmann::json::parse(explicit_p0.out)["identification"];
+  EXPECT_EQ(a["theta_mean"], b["theta_mean"]);
+  EXPECT_EQ(a["theta_std"], b["theta_std"]);
+  // And it identifies: within 2 % of the truth after ten passes, as Hensen's P0 does.
+  const std::vector<double> truth = truth_of(kData + "/two_tank.json");
+  for (int i = 0; i < 4; ++i) EXPECT_NEAR(a["theta_mean"][i].get<double>(), truth[i], 0.02 * truth[i]) << i;
 }
 
 // Output error from Hensen's start (2 to 13 times the truth) on the
@@ -425,7 +676,6 @@ TEST_F(CliTest, RiccatidRefusesFilterSettingsNamingTheSetting) {
   const std::vector<std::pair<std::string, std::string>> refusals = {
       {"--p0 1", "filter.r is required"},
       {"--p0 1 --r 1e-3,1e-3,1e-3", "filter.r.diagonal needs 2 values, got 3"},
-      {"--r 1e-3", "p0 is required"},
       {"--p0 1 --r 1e-3 --v 1e6", "filter.optimal applies to the optimal filter only"},
       {"--filter optimal --r 1e-3 --v 1 --w 1 --p0 1", "filter.q and filter.r do not apply to the optimal filter"},
       {"--filter optimal --v 1 --w 1 --p0 1", "model two_tank has no mechanical form"},
@@ -508,8 +758,8 @@ TEST_F(SecureCliTest, AWrongOrMissingTokenFailsWithTheReason) {
   EXPECT_EQ(r.exit_code, 3) << last_stderr();
 }
 
-// A session kept after its stream (--keep): listed, shown and closed by id.
-TEST_F(CliTest, SessionsAreListedShownAndClosed) {
+// A session kept after its stream (--keep): listed, shown, retuned and closed by id.
+TEST_F(CliTest, SessionsAreListedShownRetunedAndClosed) {
   const auto out = dir_.path() / "kept.csv";
   CliRun r = riccati("stream --model two_tank --data " + kData +
                      "/two_tank.csv --r 1e-3 --p0 0,0,10,10,10,10 --theta0 20,20,1,1 --batch 100 --keep -o " +
@@ -525,14 +775,69 @@ TEST_F(CliTest, SessionsAreListedShownAndClosed) {
   r = riccati("sessions show " + id + " --json");
   ASSERT_EQ(r.exit_code, 0) << last_stderr();
   const auto info = nlohmann::json::parse(r.out);
-  EXPECT_EQ(info["measurements"], "2000") << r.out;  // uint64 as protobuf's JSON writes it
+  EXPECT_EQ(info["measurements"], 2000) << r.out;  // a number, not protobuf's string for a uint64
   EXPECT_FALSE(info["instance"].get<std::string>().empty()) << r.out;
   r = riccati("sessions show " + id);
   EXPECT_NE(r.out.find("2000 measurements"), std::string::npos) << r.out;
+  // Retuned while kept: R (the measurement noise) raised, Q unchanged; the
+  // session records it, at the time and count where it stands.
+  r = riccati("sessions retune " + id + " --r 1e-2 --json");
+  ASSERT_EQ(r.exit_code, 0) << last_stderr();
+  const auto retuned = nlohmann::json::parse(r.out);
+  ASSERT_EQ(retuned["retunings"].size(), 1u) << r.out;
+  EXPECT_EQ(retuned["retunings"][0]["r"]["scalar"], 1e-2) << r.out;
+  EXPECT_EQ(retuned["retunings"][0]["measurements"], 2000) << r.out;
+  EXPECT_EQ(retuned["retunings"][0]["t"], 1999.0) << r.out;
+  EXPECT_FALSE(retuned["retunings"][0].contains("q")) << r.out;
+  // What a new session would refuse, riccatid refuses, naming it; nothing changes.
+  r = riccati("sessions retune " + id + " --r 1,2,3");
+  EXPECT_EQ(r.exit_code, 1);
+  EXPECT_NE(last_stderr().find("retuning session " + id + ": "), std::string::npos) << last_stderr();
+  EXPECT_NE(last_stderr().find("r.diagonal needs 2 values, got 3"), std::string::npos) << last_stderr();
+  r = riccati("sessions retune " + id);
+  EXPECT_EQ(r.exit_code, 2) << last_stderr();
+  r = riccati("--json sessions show " + id);
+  EXPECT_EQ(nlohmann::json::parse(r.out)["retunings"].size(), 1u) << r.out;
+
   r = riccati("sessions close " + id);
   ASSERT_EQ(r.exit_code, 0) << last_stderr();
   r = riccati("sessions show " + id);
   EXPECT_EQ(r.exit_code, 4) << r.out;
+}
+
+// A kept session resumed with the whole file (--session): the rows after
+// its t are sent, and the estimates end where an unbroken stream's end.
+TEST_F(CliTest, StreamResumesAKeptSession) {
+  const std::string settings = " --r 2.5e-5 --p0 0,0,10,10,10,10 --theta0 20,20,1,1 --batch 20";
+  const auto half = dir_.path() / "first_half.csv";
+  {
+    std::ifstream in(kData + "/two_tank_noisy.csv");
+    std::ofstream out(half);
+    std::string line;
+    for (int i = 0; i < 1001 && std::getline(in, line); ++i) out << line << "\n";  // the header and 1000 rows
+  }
+  CliRun r = riccati("stream --model two_tank --data " + half.string() + settings + " --keep -o " +
+                     (dir_.path() / "a.csv").string());
+  ASSERT_EQ(r.exit_code, 0) << last_stderr();
+  const std::string err = last_stderr();
+  const auto at = err.find("session ses-");
+  ASSERT_NE(at, std::string::npos) << err;
+  const std::string id = err.substr(at + 8, err.find('\n', at) - at - 8);
+  const auto resumed = dir_.path() / "resumed.csv", whole = dir_.path() / "whole.csv";
+  r = riccati("stream --session " + id + " --data " + kData + "/two_tank_noisy.csv --batch 20 -o " + resumed.string());
+  ASSERT_EQ(r.exit_code, 0) << last_stderr();
+  EXPECT_NE(last_stderr().find("resuming session " + id + " after t = 999 s (1000 rows skipped)"), std::string::npos)
+      << last_stderr();
+  EXPECT_NE(last_stderr().find("1000 estimates, 0 refused"), std::string::npos) << last_stderr();
+  r = riccati("stream --model two_tank --data " + kData + "/two_tank_noisy.csv" + settings + " -o " + whole.string());
+  ASSERT_EQ(r.exit_code, 0) << last_stderr();
+  std::string header;
+  const auto resumed_rows = csv_rows(resumed, &header);
+  const auto whole_rows = csv_rows(whole, &header);
+  ASSERT_EQ(resumed_rows.size(), 1000u);
+  ASSERT_EQ(whole_rows.size(), 2000u);
+  EXPECT_EQ(resumed_rows.front(), whole_rows[1000]);  // t = 1000: the first row it had not seen
+  EXPECT_EQ(resumed_rows.back(), whole_rows.back());
 }
 
 // The noisy two-tank record through an EKF session, from Hensen's start
@@ -633,6 +938,115 @@ TEST_F(CliTest, StreamsTheManipulatorIntoAnOptimalFilterSessionWithALiveView) {
   ASSERT_EQ(v.size(), 32u);  // t, 10 states, 10 std, 2 innovations, nis, 3 estimated, 5 residuals
   // After 2 s, k (truth 5.8, start 6.5) is within 5 %.
   EXPECT_NEAR(v[7], 5.8, 0.29);
+}
+
+// --json on every command: stdout is JSON alone (stream: one object per
+// line, a result per measurement), counts are numbers rather than protobuf's
+// strings for 64-bit integers, and zeros are printed rather than left out.
+TEST_F(CliTest, JsonOnEveryCommandWithNumbersAsNumbersAndZerosPresent) {
+  CliRun r = riccati("--json data upload " + kData + "/two_tank.csv --inputs F1,F2 --outputs h1,h2");
+  ASSERT_EQ(r.exit_code, 0) << last_stderr();
+  const auto dataset = nlohmann::json::parse(r.out);
+  EXPECT_TRUE(dataset["samples"].is_number_unsigned()) << r.out;
+  EXPECT_EQ(dataset["samples"], 2000) << r.out;
+  EXPECT_EQ(dataset["t_start"], 0.0) << r.out;  // the record starts at t = 0: present all the same
+  const std::string id = dataset["id"];
+
+  // simulate: the outputs by name, one value per row of the inputs file.
+  r = riccati("simulate --json --model two_tank --params 10,5,0.0791,0.1342 --x0 0.4,0.15 --inputs " + kData +
+              "/two_tank.csv");
+  ASSERT_EQ(r.exit_code, 0) << last_stderr();
+  const auto simulated = nlohmann::json::parse(r.out);
+  ASSERT_EQ(simulated["t"].size(), 2000u);
+  ASSERT_EQ(simulated["outputs"]["h1"].size(), 2000u);
+  ASSERT_EQ(simulated["inputs"]["F2"].size(), 2000u);
+  // At t = 0 the output is x0 (g = x): the first value is 0.4 exactly.
+  EXPECT_EQ(simulated["outputs"]["h1"][0].get<double>(), 0.4) << r.out.substr(0, 400);
+
+  // identify and result: the same JSON, numbers as numbers.
+  r = riccati("identify --json --model two_tank --data " + id + " --passes 1 --theta0 20,20,1,1 --p0 0,0,10,10,10,10 --r 1e-3");
+  ASSERT_EQ(r.exit_code, 0) << last_stderr();
+  const auto identified = nlohmann::json::parse(r.out);
+  EXPECT_EQ(identified["identification"]["theta_mean"].size(), 4u);
+  const std::string job = job_id_in(last_stderr());
+  ASSERT_FALSE(job.empty()) << last_stderr();
+  r = riccati("result " + job + " --json");
+  ASSERT_EQ(r.exit_code, 0) << last_stderr();
+  EXPECT_EQ(nlohmann::json::parse(r.out), identified);
+  r = riccati("--json jobs");
+  ASSERT_EQ(r.exit_code, 0) << last_stderr();
+  const auto jobs = nlohmann::json::parse(r.out);
+  ASSERT_EQ(jobs["jobs"].size(), 1u) << r.out;
+  EXPECT_EQ(jobs["jobs"][0]["attempts"], 1) << r.out;
+  EXPECT_EQ(jobs["jobs"][0]["progress"]["samples"], 2000) << r.out;
+  EXPECT_EQ(jobs["jobs"][0]["progress"]["iteration"], 0) << r.out;  // the filter has no iterations: 0, not absent
+
+  // stream: a JSON object per line, each with its sequence number and estimate.
+  r = riccati("stream --json --model two_tank --data " + kData +
+              "/two_tank.csv --r 1e-3 --p0 0,0,10,10,10,10 --theta0 20,20,1,1 --batch 50");
+  ASSERT_EQ(r.exit_code, 0) << last_stderr();
+  std::istringstream lines(r.out);
+  std::size_t count = 0;
+  for (std::string line; std::getline(lines, line); ++count) {
+    const auto result = nlohmann::json::parse(line);
+    ASSERT_TRUE(result["sequence"].is_number_unsigned()) << line;
+    ASSERT_EQ(result["estimate"]["state"].size(), 6u) << line;  // [h1 h2 A1 A2 k1 k2]
+  }
+  EXPECT_EQ(count, 2000u);
+
+  // What used to print nothing prints what it did.
+  r = riccati("data delete " + id + " --json");
+  ASSERT_EQ(r.exit_code, 0) << last_stderr();
+  EXPECT_EQ(nlohmann::json::parse(r.out), (nlohmann::json{{"id", id}, {"deleted", true}}));
+}
+
+// Ctrl-C while `identify` waits cancels the job, says so, and exits 130:
+// no job is left running unseen. The CLI runs as a process of its own here
+// (not through a shell), so that SIGINT reaches it alone.
+TEST_F(CliTest, CtrlCDuringIdentifyCancelsTheJob) {
+  const auto err_file = dir_.path() / "identify.stderr";
+  const std::vector<std::string> args = {RICCATI_CLI_BIN, "--server", daemon_->address(), "identify", "--model",
+                                         "two_tank", "--data", kData + "/two_tank.csv", "--filter", "ukf",
+                                         "--passes", "3000", "--theta0", "20,20,1,1", "--p0", "0,0,10,10,10,10",
+                                         "--r", "1e-3"};
+  const pid_t pid = fork();
+  ASSERT_GE(pid, 0);
+  if (pid == 0) {
+    const int err = ::open(err_file.c_str(), O_WRONLY | O_CREAT | O_TRUNC, 0600);
+    const int null = ::open("/dev/null", O_WRONLY);
+    dup2(err, STDERR_FILENO);
+    dup2(null, STDOUT_FILENO);
+    setenv("HOME", dir_.path().c_str(), 1);
+    std::vector<char*> argv;
+    for (const auto& a : args) argv.push_back(const_cast<char*>(a.c_str()));
+    argv.push_back(nullptr);
+    execv(argv[0], argv.data());
+    _exit(127);
+  }
+  const auto read_err = [&] {
+    std::ifstream in(err_file);
+    return std::string(std::istreambuf_iterator<char>(in), {});
+  };
+  // Interrupted once it watches (it says "job ... (Ctrl-C cancels it)" then).
+  std::string job;
+  int status = 0;
+  for (int i = 0; i < 600 && job.empty(); ++i) {
+    std::this_thread::sleep_for(std::chrono::milliseconds(50));
+    if (read_err().find("(Ctrl-C cancels it)") != std::string::npos) job = job_id_in(read_err());
+    ASSERT_EQ(waitpid(pid, &status, WNOHANG), 0) << "riccati ended before it was interrupted: " << read_err();
+  }
+  ASSERT_FALSE(job.empty()) << read_err();
+  ASSERT_EQ(kill(pid, SIGINT), 0);
+  ASSERT_EQ(waitpid(pid, &status, 0), pid);
+  ASSERT_TRUE(WIFEXITED(status)) << "ended by signal " << (WIFSIGNALED(status) ? WTERMSIG(status) : 0);
+  EXPECT_EQ(WEXITSTATUS(status), 130) << read_err();
+  EXPECT_NE(read_err().find("cancelling " + job + "; cancelled"), std::string::npos) << read_err();
+  // And riccatid has it cancelled, short of its 3000 passes.
+  const CliRun shown = riccati("--json job show " + job);
+  ASSERT_EQ(shown.exit_code, 0) << last_stderr();
+  const auto cancelled = nlohmann::json::parse(shown.out);
+  EXPECT_EQ(cancelled["state"], "JOB_STATE_CANCELLED") << shown.out;
+  EXPECT_LT(cancelled["progress"]["pass_number"].get<int>(), 3000) << shown.out;
 }
 
 // `riccati health`: grpc.health.v1 Check, what container health checks and

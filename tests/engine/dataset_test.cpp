@@ -298,6 +298,34 @@ TEST(ParseCsv, TimeMustIncrease) {
                         StatusCode::kInvalidArgument, {"at sample 3: t = 0.5 after t = 0.5"}));
 }
 
+// A file without a time column, given the sample time: t = k * ts. The
+// input and output columns are read as with a time column.
+TEST(ParseCsv, ASampleTimeInsteadOfATimeColumn) {
+  ColumnMapping mapping{"", {"u"}, {"y"}};
+  mapping.sample_time = 0.25;
+  const auto data = parse_csv("u,y\n1,10\n2,20\n3,30\n", mapping, "x.csv");
+  ASSERT_TRUE(data.is_ok()) << data.status().to_string();
+  EXPECT_EQ(data.value().t, (Eigen::Vector3d(0.0, 0.25, 0.5)));
+  EXPECT_EQ(data.value().u, (Eigen::RowVector3d(1, 2, 3)));
+  EXPECT_EQ(data.value().y, (Eigen::RowVector3d(10, 20, 30)));
+  // An input may be called "t" then: there is no time column to clash with.
+  ColumnMapping t_input{"", {"t"}, {"y"}};
+  t_input.sample_time = 1.0;
+  EXPECT_TRUE(parse_csv("t,y\n5,1\n6,1\n", t_input, "x.csv").is_ok());
+
+  mapping.sample_time = -1.0;
+  EXPECT_TRUE(FailsWith(parse_csv("u,y\n1,10\n2,20\n", mapping, "x.csv").status(), StatusCode::kInvalidArgument,
+                        {"x.csv: the sample time must be a positive number of seconds, not -1"}));
+  ColumnMapping both{"t", {"u"}, {"y"}};
+  both.sample_time = 1.0;
+  EXPECT_TRUE(FailsWith(parse_csv("t,u,y\n0,1,10\n1,2,20\n", both, "x.csv").status(), StatusCode::kInvalidArgument,
+                        {"give either a time column (\"t\") or a sample time, not both"}));
+  ColumnMapping mat{"", {}, {"y"}};
+  mat.sample_time = 1.0;
+  EXPECT_TRUE(FailsWith(parse_mat("", mat, "x.mat").status(), StatusCode::kInvalidArgument,
+                        {"a MAT file has its times in T"}));
+}
+
 // ------------------------------------------------------------------ validate_dataset
 
 Dataset small_dataset() {

@@ -174,3 +174,25 @@ def test_columns_named_as_the_models_need_no_mapping(client, two_tank_csv):
     np.testing.assert_array_equal(named.theta.to_numpy(), mapped.theta.to_numpy())
     uploaded = client.job(named.job_id).proto.identification.dataset_id
     assert client.dataset(uploaded).input_names == ["F1", "F2"]
+
+
+def test_plots_of_traces_and_of_a_validation_are_written(hensen, tmp_path):
+    import xml.etree.ElementTree as ET
+    c, ds, job, res, _ = hensen
+    traces = tmp_path / "traces.png"
+    fig = res.plot_traces(traces)
+    assert len(fig.axes) == 4  # a subplot per parameter
+    # The passes one after the other: 10 passes of 2000 samples on each subplot's line.
+    passes = [line for line in fig.axes[0].lines if len(line.get_xdata()) > 2]  # not the marker lines
+    assert [len(line.get_xdata()) for line in passes] == [2000] * 10
+    np.testing.assert_array_equal(passes[-1].get_ydata(), res.traces.loc[10, "A1"].to_numpy())
+    data = traces.read_bytes()
+    assert data.startswith(b"\x89PNG\r\n\x1a\n") and len(data) > 20000
+    fit = c.validate("two_tank", ds, job)
+    overlay = tmp_path / "fit.svg"
+    fig = fit.plot(overlay)
+    assert [ax.get_ylabel() for ax in fig.axes] == ["h1", "h2"]
+    np.testing.assert_array_equal(fig.axes[0].lines[1].get_ydata(), fit.to_frame()["simulated_h1"].to_numpy())
+    root = ET.parse(overlay).getroot()  # parses as XML: an SVG document
+    assert root.tag == "{http://www.w3.org/2000/svg}svg"
+    assert len(root.findall(".//{http://www.w3.org/2000/svg}path")) > 10

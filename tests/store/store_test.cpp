@@ -143,7 +143,9 @@ class StoreTest : public ::testing::TestWithParam<StoreKind> {
 TEST_P(StoreTest, DatasetRoundTripIsBitExact) {
   auto store = open();
   const Dataset d = random_dataset(500, 1);
-  ASSERT_TRUE(store->put_dataset(record_for("ds-1", "alice", d, 10), d).is_ok());
+  DatasetRecord record = record_for("ds-1", "alice", d, 10);
+  record.sha256 = std::string(64, 'a');
+  ASSERT_TRUE(store->put_dataset(record, d).is_ok());
   auto loaded = store->load_dataset("alice", "ds-1");
   ASSERT_TRUE(loaded.is_ok()) << loaded.status().to_string();
   EXPECT_EQ(std::memcmp(loaded.value().u.data(), d.u.data(), sizeof(double) * d.u.size()), 0);
@@ -156,6 +158,8 @@ TEST_P(StoreTest, DatasetRoundTripIsBitExact) {
   EXPECT_EQ(rec.value().samples, 500);
   EXPECT_EQ(rec.value().output_names, std::vector<std::string>{"y"});
   EXPECT_EQ(std::bit_cast<std::uint64_t>(rec.value().t_end), std::bit_cast<std::uint64_t>(d.t[499]));
+  EXPECT_EQ(rec.value().sha256, std::string(64, 'a'));
+  EXPECT_EQ(store->list_datasets("alice").value().at(0).sha256, std::string(64, 'a'));
 }
 
 TEST_P(StoreTest, NamesAndMetadataSurviveAnyCharacters) {
@@ -790,7 +794,7 @@ TEST(PostgresStore, StoresOpeningAtOnceOnAnEmptyDatabaseAllSucceed) {
   for (int i = 0; i < kStores; ++i) ASSERT_TRUE(opened[i].is_ok()) << i << ": " << opened[i].status().to_string();
   const pqxx::result versions = schema.exec("SELECT version FROM riccati_schema_migrations ORDER BY version");
   // Each migration applied once, in order.
-  ASSERT_EQ(versions.size(), 7u);  // postgres_store.cpp's migrations
+  ASSERT_EQ(versions.size(), 8u);  // postgres_store.cpp's migrations
   for (int v = 0; v < static_cast<int>(versions.size()); ++v) EXPECT_EQ(versions[v][0].as<int>(), v + 1);
   // And they share one database: what one stores, another reads.
   ASSERT_TRUE(opened[0].value()->put_job_pass("t", "none", 1, "c").code() == StatusCode::kNotFound);

@@ -31,6 +31,7 @@ void print_text_model(const v1::ModelInfo& info);
 struct UploadOptions {
   std::string file, name, time = "t";
   std::vector<std::string> inputs, outputs;
+  double sample_time = 0.0;  // --ts: no time column, t = k * sample_time
 };
 int data_upload(Client& c, const UploadOptions& o, std::string* dataset_id = nullptr);
 int data_list(Client& c);
@@ -40,7 +41,9 @@ int data_delete(Client& c, const std::string& id);
 bool is_local_file(const std::string& path);
 // The dataset `data` names: uploaded first when it is a local file, its
 // columns named by `inputs` and `outputs`, or, when neither is given, by the
-// names of `model`'s inputs and outputs.
+// names of `model`'s inputs and outputs. A file the tenant uploaded before
+// (a dataset with the file's SHA-256 and the same input and output names)
+// is not uploaded again: that dataset is used, and stderr says so.
 int dataset_for(Client& c, const std::string& data, const std::vector<std::string>& inputs,
                 const std::vector<std::string>& outputs, std::string* id, const std::string& model = "");
 
@@ -48,16 +51,35 @@ int identify(Client& c, const RunSettings& s, bool wait);
 int sessions_list(Client& c);
 int session_show(Client& c, const std::string& id);
 int session_close(Client& c, const std::string& id);
-int jobs_list(Client& c);
+// RetuneSession: the running session's Q and R (EKF, UKF) or V and W (the
+// optimal filter) from `s`, the others unchanged; riccatid checks them.
+int session_retune(Client& c, const std::string& id, const RunSettings& s);
+// `riccati jobs`: the filters and the page (ListJobsRequest).
+struct JobsOptions {
+  std::vector<std::string> states;  // the API's names: queued, running, ...
+  std::string model, page_token;
+  uint32_t limit = 0;  // 0: all
+};
+int jobs_list(Client& c, const JobsOptions& o);
 int job_show(Client& c, const std::string& id);
 int job_watch(Client& c, const std::string& id);
 int job_cancel(Client& c, const std::string& id);
 int job_delete(Client& c, const std::string& id);
+// What Ctrl-C (SIGINT) does to a watch.
+enum class OnInterrupt {
+  kStopWatching,  // the default action: the command ends, the job runs on (`job watch`)
+  kCancelJob,     // the job is cancelled, and stderr says so ("cancelling job-...; cancelled"); exit 130.
+                  // For the commands that submit a job and wait for it: no job is left running unseen.
+};
 // Follows a job to its end (a progress bar on a terminal); `last` is the job
 // as it ended.
-int watch_until_done(Client& c, const std::string& id, v1::Job* last);
+int watch_until_done(Client& c, const std::string& id, v1::Job* last,
+                     OnInterrupt on_interrupt = OnInterrupt::kStopWatching);
 int result(Client& c, const std::string& id, const std::string& format, const std::string& output,
            const std::vector<double>& truth);
+// `riccati result JOB --export FILE`: by the file's extension, .csv (as
+// --format csv), .json (as --format json) or .mat (mat_export.hpp).
+int result_export(Client& c, const std::string& id, const std::string& path);
 
 // `riccati validate`: model, data, x0, hold and integrator in `settings`.
 struct ValidateOptions {
@@ -90,6 +112,9 @@ struct StreamOptions {
   int batch = 1;
   bool full_covariance = false;
   bool keep = false;
+  // Resume this session (kept with --keep, or whose stream broke): the rows
+  // after its time t are sent, the session's settings stay as they are.
+  std::string session;
   std::string live = "auto";  // the live view on stderr: auto (on a terminal), always, never
 };
 int stream(Client& c, const StreamOptions& o);

@@ -15,6 +15,7 @@
 #include <cstdio>
 
 #include "commands/commands.hpp"
+#include "output.hpp"
 
 namespace riccati::cli {
 
@@ -108,7 +109,7 @@ int health(Client& c, const std::string& service) {
     return c.fail(what, s);
   }
   if (c.json) {
-    std::printf("{\n  \"service\": \"%s\",\n  \"status\": \"%s\"\n}\n", service.c_str(), status.c_str());
+    std::printf("%s\n", to_json(nlohmann::json{{"service", service}, {"status", status}}).c_str());
   } else {
     std::printf("%s\n", status.c_str());
   }

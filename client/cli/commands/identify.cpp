@@ -38,9 +38,8 @@ int identify(Client& c, const RunSettings& settings, bool wait) {
     std::printf("%s\n", c.json ? to_json(job).c_str() : job.id().c_str());
     return kExitOk;
   }
-  std::fprintf(stderr, "job %s\n", job.id().c_str());
   v1::Job last;
-  if (const int rc = watch_until_done(c, job.id(), &last); rc != kExitOk) return rc;
+  if (const int rc = watch_until_done(c, job.id(), &last, OnInterrupt::kCancelJob); rc != kExitOk) return rc;
   return result(c, job.id(), c.json ? "json" : "table", "", settings.truth.value_or(std::vector<double>{}));
 }
 

@@ -1,24 +1,48 @@
+#include <semaphore.h>
+#include <signal.h>
 #include <unistd.h>
 
+#include <atomic>
+#include <optional>
 #include <cstdio>
+#include <filesystem>
 #include <fstream>
+#include <thread>
 
 #include "commands/commands.hpp"
+#include "mat_export.hpp"
 #include "output.hpp"
+#include "riccati/enum_names.hpp"
 
 namespace riccati::cli {
 
-int jobs_list(Client& c) {
+int jobs_list(Client& c, const JobsOptions& o) {
+  v1::ListJobsRequest request;
+  for (const std::string& state : o.states) {
+    const auto* value = api::find_enum_value(*v1::JobState_descriptor(), state);
+    if (value == nullptr || value->number() == 0) {
+      std::fprintf(stderr, "riccati: --state: \"%s\" is not a job state (%s)\n", state.c_str(),
+                   api::enum_choice_list(*v1::JobState_descriptor()).c_str());
+      return kExitUsage;
+    }
+    request.add_states(static_cast<v1::JobState>(value->number()));
+  }
+  request.set_model(o.model);
+  request.set_page_size(o.limit);
+  request.set_page_token(o.page_token);
   auto ctx = c.context();
   v1::ListJobsResponse list;
-  const grpc::Status s = c.jobs->ListJobs(ctx.get(), {}, &list);
+  const grpc::Status s = c.jobs->ListJobs(ctx.get(), request, &list);
   if (!s.ok()) return c.fail("listing jobs", s);
   if (c.json) {
     std::printf("%s\n", to_json(list).c_str());
     return kExitOk;
   }
-  std::printf("%-22s %-15s %-10s %-20s %s\n", "id", "kind", "state", "model", "progress");
+  std::printf("%s\n", job_header().c_str());
   for (const auto& j : list.jobs()) std::printf("%s\n", job_line(j).c_str());
+  if (!list.next_page_token().empty()) {
+    std::fprintf(stderr, "more: riccati jobs --page-token %s (with the same filters)\n", list.next_page_token().c_str());
+  }
   return kExitOk;
 }
 
@@ -65,11 +89,93 @@ int job_delete(Client& c, const std::string& id) {
   v1::DeleteJobResponse response;
   const grpc::Status s = c.jobs->DeleteJob(ctx.get(), request, &response);
   if (!s.ok()) return c.fail("deleting job " + id, s);
+  if (c.json) std::printf("%s\n", to_json(nlohmann::json{{"id", id}, {"deleted", true}}).c_str());
   return kExitOk;
 }
 
-int watch_until_done(Client& c, const std::string& id, v1::Job* last) {
+namespace {
+
+// SIGINT while a watch runs: the handler only posts a semaphore (all a
+// signal handler may safely do); a thread waiting on it cancels the watch's
+// call, which ends the watch. The default action is back after the first
+// SIGINT (SA_RESETHAND), so a second Ctrl-C ends the command at once.
+sem_t interrupt_semaphore;
+std::atomic<bool> interrupt_signalled{false};
+
+extern "C" void on_sigint(int) {
+  interrupt_signalled.store(true);
+  sem_post(&interrupt_semaphore);
+}
+
+class CancelWatchOnInterrupt {
+ public:
+  explicit CancelWatchOnInterrupt(grpc::ClientContext* watch) {
+    interrupt_signalled.store(false);
+    sem_init(&interrupt_semaphore, 0, 0);
+    struct sigaction action {};
+    action.sa_handler = on_sigint;
+    sigemptyset(&action.sa_mask);
+    action.sa_flags = SA_RESETHAND;
+    sigaction(SIGINT, &action, &previous_);
+    waiter_ = std::thread([watch] {
+      while (sem_wait(&interrupt_semaphore) != 0) {
+      }  // (EINTR: again)
+      if (interrupt_signalled.load()) watch->TryCancel();
+    });
+  }
+  ~CancelWatchOnInterrupt() {
+    sigaction(SIGINT, &previous_, nullptr);
+    sem_post(&interrupt_semaphore);  // ends the waiter if no SIGINT came
+    waiter_.join();
+    sem_destroy(&interrupt_semaphore);
+  }
+  CancelWatchOnInterrupt(const CancelWatchOnInterrupt&) = delete;
+  CancelWatchOnInterrupt& operator=(const CancelWatchOnInterrupt&) = delete;
+
+  bool interrupted() const { return interrupt_signalled.load(); }
+
+ private:
+  struct sigaction previous_ {};
+  std::thread waiter_;
+};
+
+// After Ctrl-C: cancels job `id`, saying so on stderr ("cancelling job-...;
+// cancelled"), and waits (one --timeout at most) for a running job to stop.
+int cancel_interrupted(Client& c, const std::string& id) {
+  std::fprintf(stderr, "\ncancelling %s; ", id.c_str());
+  std::fflush(stderr);
+  v1::Job job;
+  {
+    auto ctx = c.context();
+    v1::CancelJobRequest request;
+    request.set_id(id);
+    if (const grpc::Status s = c.jobs->CancelJob(ctx.get(), request, &job); !s.ok()) {
+      std::fprintf(stderr, "failed\n");
+      c.fail("cancelling job " + id, s);
+      return kExitInterrupted;
+    }
+  }
+  if (job.state() == v1::JOB_STATE_CANCELLING) {
+    auto ctx = c.context();
+    v1::WatchJobRequest request;
+    request.set_id(id);
+    auto reader = c.jobs->WatchJob(ctx.get(), request);
+    for (v1::Job update; reader->Read(&update);) job = update;
+    (void)reader->Finish();
+  }
+  std::fprintf(stderr, "%s\n", state_name(job.state()).c_str());
+  return kExitInterrupted;
+}
+
+}  // namespace
+
+int watch_until_done(Client& c, const std::string& id, v1::Job* last, OnInterrupt on_interrupt) {
   auto ctx = c.stream_context();
+  std::optional<CancelWatchOnInterrupt> interrupt;
+  if (on_interrupt == OnInterrupt::kCancelJob) {
+    interrupt.emplace(ctx.get());
+    std::fprintf(stderr, "job %s (Ctrl-C cancels it)\n", id.c_str());
+  }
   v1::WatchJobRequest request;
   request.set_id(id);
   auto reader = c.jobs->WatchJob(ctx.get(), request);
@@ -100,6 +206,10 @@ int watch_until_done(Client& c, const std::string& id, v1::Job* last) {
   }
   if (tty) std::fprintf(stderr, "\n");
   const grpc::Status s = reader->Finish();
+  if (interrupt && interrupt->interrupted()) {
+    interrupt.reset();  // a second Ctrl-C now ends the command
+    return cancel_interrupted(c, id);
+  }
   if (!s.ok()) return c.fail("watching job " + id, s);
   if (last->state() != v1::JOB_STATE_SUCCEEDED) {
     std::fprintf(stderr, "riccati: job %s %s: %s\n", id.c_str(), state_name(last->state()).c_str(),
@@ -174,6 +284,31 @@ int result(Client& c, const std::string& id, const std::string& format_name, con
       return kExitUsage;
     }
   }
+  return kExitOk;
+}
+
+int result_export(Client& c, const std::string& id, const std::string& path) {
+  const std::string extension = std::filesystem::path(path).extension().string();
+  if (extension != ".csv" && extension != ".json" && extension != ".mat") {
+    std::fprintf(stderr, "riccati: --export %s: the file's extension says the format: .csv, .json or .mat\n",
+                 path.c_str());
+    return kExitUsage;
+  }
+  if (extension != ".mat") {
+    const int rc = result(c, id, extension.substr(1), path, {});
+    if (rc == kExitOk) std::fprintf(stderr, "wrote %s\n", path.c_str());
+    return rc;
+  }
+  v1::JobResult r;
+  auto ctx = c.context();
+  v1::GetResultRequest request;
+  request.set_job_id(id);
+  if (const grpc::Status s = c.jobs->GetResult(ctx.get(), request, &r); !s.ok()) return c.fail("result of job " + id, s);
+  if (const auto problem = write_result_mat(r, path)) {
+    std::fprintf(stderr, "riccati: --export %s: %s\n", path.c_str(), problem->c_str());
+    return kExitFailed;
+  }
+  std::fprintf(stderr, "wrote %s\n", path.c_str());
   return kExitOk;
 }
 

@@ -153,7 +153,7 @@ int models_remove(Client& c, const std::string& name) {
     return c.fail("removing model " + name, s);
   }
   if (c.json) {
-    std::printf("{}\n");
+    std::printf("%s\n", to_json(nlohmann::json{{"name", name}, {"removed", true}}).c_str());
   } else {
     std::printf("removed %s\n", name.c_str());
   }

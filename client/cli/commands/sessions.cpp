@@ -71,6 +71,31 @@ int session_close(Client& c, const std::string& id) {
   v1::CloseSessionResponse response;
   const grpc::Status s = c.sessions->CloseSession(ctx.get(), request, &response);
   if (!s.ok()) return c.fail("closing session " + id, s);
+  if (c.json) std::printf("%s\n", to_json(nlohmann::json{{"id", id}, {"closed", true}}).c_str());
+  return kExitOk;
+}
+
+int session_retune(Client& c, const std::string& id, const RunSettings& s) {
+  if (!s.q && !s.r && !s.v && !s.w) {
+    std::fprintf(stderr, "riccati: sessions retune needs --q, --r (EKF, UKF), --v or --w (the optimal filter)\n");
+    return kExitUsage;
+  }
+  v1::RetuneSessionRequest request;
+  request.set_id(id);
+  if (s.q) *request.mutable_q() = *s.q;
+  if (s.r) *request.mutable_r() = *s.r;
+  if (s.v) *request.mutable_v() = *s.v;
+  if (s.w) *request.mutable_w() = *s.w;
+  auto ctx = c.context();
+  v1::SessionInfo info;
+  const grpc::Status status = c.sessions->RetuneSession(ctx.get(), request, &info);
+  if (!status.ok()) return c.fail("retuning session " + id, status);
+  if (c.json) {
+    std::printf("%s\n", to_json(info).c_str());
+    return kExitOk;
+  }
+  std::printf("retuned %s at t = %.17g s, after %llu measurements (retuning %d)\n", info.id().c_str(), info.t(),
+              static_cast<unsigned long long>(info.measurements()), info.retunings_size());
   return kExitOk;
 }
 

@@ -58,17 +58,32 @@ int simulate(Client& c, const SimulateOptions& o) {
     std::fprintf(stderr, "riccati: cannot write %s\n", o.output.c_str());
     return kExitUsage;
   }
-  std::fprintf(out, "t");
-  for (const auto& n : inputs) std::fprintf(out, ",%s", n.c_str());
-  for (const auto& n : info.output_names()) std::fprintf(out, ",%s", n.c_str());
-  std::fprintf(out, "\n");
-  for (std::size_t k = 0; k < table.rows(); ++k) {
-    std::fprintf(out, "%.17g", table.row(k)[0]);
-    for (double v : table.row(k).subspan(1)) std::fprintf(out, ",%.17g", v);
-    for (uint32_t i = 0; i < response.y().rows(); ++i) {
-      std::fprintf(out, ",%.17g", element(response.y(), i, static_cast<uint32_t>(k)));
+  if (c.json) {
+    // {"model": ..., "t": [...], "inputs": {name: [...]}, "outputs": {name: [...]}}
+    nlohmann::json j{{"model", model}, {"t", nlohmann::json::array()}};
+    for (std::size_t k = 0; k < table.rows(); ++k) j["t"].push_back(table.row(k)[0]);
+    for (std::size_t i = 0; i < inputs.size(); ++i) {
+      auto& column = j["inputs"][inputs[i]] = nlohmann::json::array();
+      for (std::size_t k = 0; k < table.rows(); ++k) column.push_back(table.row(k)[1 + i]);
     }
+    for (uint32_t i = 0; i < response.y().rows(); ++i) {
+      auto& column = j["outputs"][info.output_names(static_cast<int>(i))] = nlohmann::json::array();
+      for (std::size_t k = 0; k < table.rows(); ++k) column.push_back(element(response.y(), i, static_cast<uint32_t>(k)));
+    }
+    std::fprintf(out, "%s\n", to_json(j).c_str());
+  } else {
+    std::fprintf(out, "t");
+    for (const auto& n : inputs) std::fprintf(out, ",%s", n.c_str());
+    for (const auto& n : info.output_names()) std::fprintf(out, ",%s", n.c_str());
     std::fprintf(out, "\n");
+    for (std::size_t k = 0; k < table.rows(); ++k) {
+      std::fprintf(out, "%.17g", table.row(k)[0]);
+      for (double v : table.row(k).subspan(1)) std::fprintf(out, ",%.17g", v);
+      for (uint32_t i = 0; i < response.y().rows(); ++i) {
+        std::fprintf(out, ",%.17g", element(response.y(), i, static_cast<uint32_t>(k)));
+      }
+      std::fprintf(out, "\n");
+    }
   }
   if (out != stdout) std::fclose(out);
   return kExitOk;

@@ -33,9 +33,8 @@ int smooth(Client& c, const SmoothOptions& o) {
     const grpc::Status status = c.jobs->SubmitSmoothing(ctx.get(), spec, &job);
     if (!status.ok()) return c.fail("submitting the smoothing", status);
   }
-  std::fprintf(stderr, "job %s\n", job.id().c_str());
   v1::Job last;
-  if (const int rc = watch_until_done(c, job.id(), &last); rc != kExitOk) return rc;
+  if (const int rc = watch_until_done(c, job.id(), &last, OnInterrupt::kCancelJob); rc != kExitOk) return rc;
   return result(c, job.id(), c.json ? "json" : o.format, o.output, {});
 }
 

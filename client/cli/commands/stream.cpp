@@ -13,6 +13,7 @@
 #include "commands/commands.hpp"
 #include "csv/csv.hpp"
 #include "live_view.hpp"
+#include "output.hpp"
 
 namespace riccati::cli {
 
@@ -156,14 +157,16 @@ struct Tally {
   std::size_t estimates = 0, refused = 0;
 };
 
-// The reader: each result as it arrives, estimates to the CSV and the live
-// view, refusals to stderr.
-Tally print_results(StreamRpc* rpc, EstimateCsv* csv, LiveView* view, RoundTrips* trips) {
+// The reader: each result as it arrives, estimates to the CSV (or, with
+// --json, every result as one line of JSON) and the live view, refusals to
+// stderr.
+Tally print_results(StreamRpc* rpc, EstimateCsv* csv, std::FILE* json_lines, LiveView* view, RoundTrips* trips) {
   Tally tally;
   v1::StreamResponse response;
   while (rpc->Read(&response)) {
     const double trip_us = trips->answered();
     for (const auto& r : response.results()) {
+      if (json_lines != nullptr) std::fprintf(json_lines, "%s\n", json_of(r).dump().c_str());
       if (r.has_error()) {
         ++tally.refused;
         std::fprintf(stderr, "measurement %llu refused: %s\n", static_cast<unsigned long long>(r.sequence()),
@@ -171,7 +174,7 @@ Tally print_results(StreamRpc* rpc, EstimateCsv* csv, LiveView* view, RoundTrips
         continue;
       }
       ++tally.estimates;
-      csv->write(r.estimate());
+      if (json_lines == nullptr) csv->write(r.estimate());
       if (view != nullptr) view->add(r.estimate(), trip_us);
     }
   }
@@ -219,9 +222,24 @@ void print_summary(const Tally& tally, double seconds, RoundTrips* trips) {
 }  // namespace
 
 int stream(Client& c, const StreamOptions& o) {
-  const RunSettings& s = o.settings;
+  RunSettings s = o.settings;
+  v1::SessionInfo resumed;  // --session: where it stands
+  if (!o.session.empty()) {
+    auto ctx = c.context();
+    v1::GetSessionRequest request;
+    request.set_id(o.session);
+    if (const grpc::Status status = c.sessions->GetSession(ctx.get(), request, &resumed); !status.ok()) {
+      return c.fail("session " + o.session, status);
+    }
+    if (s.model && *s.model != resumed.model()) {
+      std::fprintf(stderr, "riccati: --model %s: session %s runs model %s\n", s.model->c_str(), o.session.c_str(),
+                   resumed.model().c_str());
+      return kExitUsage;
+    }
+    s.model = resumed.model();
+  }
   if (!s.model) {
-    std::fprintf(stderr, "riccati: stream needs --model\n");
+    std::fprintf(stderr, "riccati: stream needs --model (or --session to resume)\n");
     return kExitUsage;
   }
   v1::ModelInfo info;  // names the estimates' columns and the live view's rows
@@ -234,6 +252,15 @@ int stream(Client& c, const StreamOptions& o) {
     std::fprintf(stderr, "riccati: %s\n", error.c_str());
     return kExitUsage;
   }
+  if (!o.session.empty() && resumed.measurements() > 0) {
+    // The rows the session has not seen: those after its time.
+    std::size_t seen = 0;
+    while (seen < recording.table.rows() && recording.table.row(seen)[0] <= resumed.t()) ++seen;
+    recording.table.values.erase(recording.table.values.begin(),
+                                 recording.table.values.begin() + static_cast<std::ptrdiff_t>(seen * recording.table.columns));
+    std::fprintf(stderr, "resuming session %s after t = %.17g s (%zu rows skipped)\n", o.session.c_str(),
+                 resumed.t(), seen);
+  }
   std::FILE* out = o.output.empty() ? stdout : std::fopen(o.output.c_str(), "w");
   if (out == nullptr) {
     std::fprintf(stderr, "riccati: cannot write %s\n", o.output.c_str());
@@ -242,12 +269,14 @@ int stream(Client& c, const StreamOptions& o) {
   const auto close_output = [&] {
     if (out != stdout) std::fclose(out);
   };
-  v1::SessionInfo session;
-  if (const grpc::Status status = create_session(c, s, &session); !status.ok()) {
-    close_output();
-    return c.fail("creating the session", status);
+  v1::SessionInfo session = resumed;
+  if (o.session.empty()) {
+    if (const grpc::Status status = create_session(c, s, &session); !status.ok()) {
+      close_output();
+      return c.fail("creating the session", status);
+    }
+    std::fprintf(stderr, "session %s\n", session.id().c_str());
   }
-  std::fprintf(stderr, "session %s\n", session.id().c_str());
 
   EstimateCsv csv(out, info);
   const std::unique_ptr<LiveView> view =
@@ -262,11 +291,11 @@ int stream(Client& c, const StreamOptions& o) {
   const auto start = Clock::now();
   RoundTrips trips;
   Tally tally;
-  std::thread reader([&] { tally = print_results(rpc.get(), &csv, view.get(), &trips); });
+  std::thread reader([&] { tally = print_results(rpc.get(), &csv, c.json ? out : nullptr, view.get(), &trips); });
   send_rows(rpc.get(), recording, o.rate, o.batch, &trips);
   rpc->WritesDone();
   reader.join();
-  csv.finish();
+  if (!c.json) csv.finish();
   if (view) view->finish();
   const grpc::Status finished = rpc->Finish();
   const double seconds = std::chrono::duration<double>(Clock::now() - start).count();

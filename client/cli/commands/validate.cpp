@@ -82,7 +82,7 @@ int validate(Client& c, const ValidateOptions& o) {
     if (!status.ok()) return c.fail("submitting the validation", status);
   }
   v1::Job last;
-  if (const int rc = watch_until_done(c, job.id(), &last); rc != kExitOk) return rc;
+  if (const int rc = watch_until_done(c, job.id(), &last, OnInterrupt::kCancelJob); rc != kExitOk) return rc;
   return result(c, job.id(), c.json ? "json" : "table", "", {});
 }
 

@@ -70,12 +70,21 @@ Status check_mapping(const ColumnMapping& mapping, const std::string& source) {
   if (mapping.outputs.empty()) {
     return invalid_argument(source + ": the column mapping names no outputs (at least one measured output is needed)");
   }
+  const bool sampled = mapping.sample_time != 0.0;  // no time column
+  if (sampled && !(std::isfinite(mapping.sample_time) && mapping.sample_time > 0.0)) {
+    return invalid_argument(source + ": the sample time must be a positive number of seconds, not " +
+                            format_number(mapping.sample_time));
+  }
+  if (sampled && !mapping.time.empty()) {
+    return invalid_argument(source + ": give either a time column (\"" + mapping.time +
+                            "\") or a sample time, not both");
+  }
   const MappingSlots slots{mapping};
-  for (std::size_t a = 0; a < slots.size(); ++a) {
+  for (std::size_t a = sampled ? 1 : 0; a < slots.size(); ++a) {
     if (slots.name(a).empty()) {
       return invalid_argument(source + ": the column mapping gives no column name for " + slots.role(a));
     }
-    for (std::size_t b = a + 1; b < slots.size(); ++b) {
+    for (std::size_t b = a + 1; b < slots.size(); ++b) {  // (slot 0 is empty with a sample time)
       if (slots.name(a) == slots.name(b)) {
         return invalid_argument(source + ": column " + in_quotes(slots.name(a)) + " is requested twice in the column mapping (as " +
                                 slots.role(a) + " and " + slots.role(b) + ")");
@@ -258,13 +267,15 @@ Result<Dataset> parse_csv(std::string_view text, const ColumnMapping& mapping, s
   const std::string& source = data.name;
   RICCATI_RETURN_IF_ERROR(check_mapping(mapping, source));
   const MappingSlots slots{mapping};
+  const bool sampled = mapping.sample_time != 0.0;  // no time column: t = k * sample_time
   std::vector<std::string> columns;
   columns.reserve(slots.size());
-  for (std::size_t slot = 0; slot < slots.size(); ++slot) columns.push_back(slots.name(slot));
+  for (std::size_t slot = sampled ? 1 : 0; slot < slots.size(); ++slot) columns.push_back(slots.name(slot));
   csv::Table table;
   if (auto error = csv::parse(text, columns, source, &table)) return invalid_argument(std::move(*error));
 
-  // Row by row, the table is a (1 + nu + ny) x N matrix: time, inputs, outputs.
+  // Row by row, the table is a ([1 +] nu + ny) x N matrix: time (unless
+  // sampled), inputs, outputs.
   const auto nu = static_cast<Index>(mapping.inputs.size()), ny = static_cast<Index>(mapping.outputs.size());
   const auto n = static_cast<Index>(table.rows());
   if (n == 0) {  // no samples (validate_dataset says so); an empty table has no storage to map
@@ -273,8 +284,12 @@ Result<Dataset> parse_csv(std::string_view text, const ColumnMapping& mapping, s
     data.y.resize(ny, 0);
   } else {
     const Eigen::Map<const Eigen::MatrixXd> samples(table.values.data(), static_cast<Index>(columns.size()), n);
-    data.t = samples.row(0).transpose();
-    data.u = samples.middleRows(1, nu);
+    if (sampled) {
+      data.t = Eigen::VectorXd::LinSpaced(n, 0.0, static_cast<double>(n - 1)) * mapping.sample_time;
+    } else {
+      data.t = samples.row(0).transpose();
+    }
+    data.u = samples.middleRows(sampled ? 0 : 1, nu);
     data.y = samples.bottomRows(ny);
   }
   data.input_names = mapping.inputs;
@@ -293,6 +308,10 @@ Result<Dataset> parse_mat(std::string_view bytes, const ColumnMapping& mapping, 
   Dataset data;
   data.name = std::move(source_name);
   const std::string& source = data.name;
+  if (mapping.sample_time != 0.0) {
+    return invalid_argument(source + ": a MAT file has its times in T; a sample time is for CSV files without a "
+                                     "time column");
+  }
   RICCATI_ASSIGN_OR_RETURN(const ScreenedMatFile screened,
                            screen_mat_file(bytes, {"T", "U", "Y"}, source, max_value_bytes));
   const auto has = [&screened](const char* name) {

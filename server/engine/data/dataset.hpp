@@ -33,6 +33,9 @@ struct ColumnMapping {
   std::string time = "t";
   std::vector<std::string> inputs;
   std::vector<std::string> outputs;
+  // CSV without a time column: t = k * sample_time (s), k = 0, 1, ...; `time`
+  // must then be empty. 0: time is the column `time`.
+  double sample_time = 0.0;
 };
 
 // Checks what every filter relies on: at least two samples, every value

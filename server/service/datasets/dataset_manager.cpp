@@ -5,6 +5,7 @@
 #include <filesystem>
 #include <utility>
 
+#include "engine/sha256.hpp"
 #include "service/ids.hpp"
 
 namespace riccati::service {
@@ -120,6 +121,7 @@ Result<DatasetRecord> DatasetManager::upload(UploadTicket& ticket, DatasetUpload
   record.t_start = data.t[0];
   record.t_end = data.t[data.size() - 1];
   record.size_bytes = size;
+  record.sha256 = sha256_hex(upload.bytes);
   record.created_ms = now_ms();
   const Status put = store_.put_dataset(record, data);
   if (put.code() == StatusCode::kAlreadyExists && !upload.request_id.empty()) {

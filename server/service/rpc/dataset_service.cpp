@@ -14,7 +14,8 @@ DatasetUpload upload_from_header(const v1::UploadHeader& header) {
   upload.name = header.name();
   if (header.format() == v1::DATASET_FORMAT_CSV) upload.format = DatasetFormat::kCsv;
   if (header.format() == v1::DATASET_FORMAT_MAT) upload.format = DatasetFormat::kMat;
-  if (!header.time_column().empty()) upload.mapping.time = header.time_column();
+  if (!header.time_column().empty() || header.sample_time() != 0.0) upload.mapping.time = header.time_column();
+  upload.mapping.sample_time = header.sample_time();
   upload.mapping.inputs.assign(header.input_columns().begin(), header.input_columns().end());
   upload.mapping.outputs.assign(header.output_columns().begin(), header.output_columns().end());
   upload.request_id = header.request_id();
@@ -44,6 +45,7 @@ v1::DatasetInfo to_proto(const DatasetRecord& r) {
   info.set_t_end(r.t_end);
   info.set_size_bytes(static_cast<uint64_t>(r.size_bytes));
   set_timestamp(r.created_ms, info.mutable_created());
+  info.set_sha256(r.sha256);
   return info;
 }
 

@@ -2,6 +2,7 @@
 
 #include <spdlog/spdlog.h>
 
+#include <algorithm>
 #include <chrono>
 #include <optional>
 #include <utility>
@@ -229,11 +230,55 @@ grpc::Status JobServiceImpl::GetJob(grpc::ServerContext* context, const v1::GetJ
   return grpc::Status::OK;
 }
 
-grpc::Status JobServiceImpl::ListJobs(grpc::ServerContext* context, const v1::ListJobsRequest*,
+namespace {
+
+const std::string& model_of(const v1::Job& job) {
+  return job.has_smoothing() ? job.smoothing().model()
+         : job.has_validation() ? job.validation().model()
+                                : job.identification().model();
+}
+
+// ListJobsRequest's filters: the states asked for, and the model by name
+// (any revision) or by name@revision.
+bool listed(const v1::Job& job, const v1::ListJobsRequest& request) {
+  if (!request.states().empty() &&
+      std::find(request.states().begin(), request.states().end(), job.state()) == request.states().end()) {
+    return false;
+  }
+  if (request.model().empty()) return true;
+  const std::string& model = model_of(job);
+  return model == request.model() ||
+         (model.size() > request.model().size() && model.compare(0, request.model().size(), request.model()) == 0 &&
+          model[request.model().size()] == '@');
+}
+
+}  // namespace
+
+grpc::Status JobServiceImpl::ListJobs(grpc::ServerContext* context, const v1::ListJobsRequest* request,
                                       v1::ListJobsResponse* response) {
   auto jobs = jobs_.list(auth_.tenant(*context));
   if (!jobs.is_ok()) return to_grpc(jobs.status());
-  for (const JobRecord& job : jobs.value()) *response->add_jobs() = to_proto(job);
+  // The page token is the id of the previous page's last job (oldest first).
+  auto from = jobs.value().begin();
+  if (!request->page_token().empty()) {
+    from = std::find_if(jobs.value().begin(), jobs.value().end(),
+                        [&](const JobRecord& job) { return job.id == request->page_token(); });
+    if (from == jobs.value().end()) {
+      return {grpc::StatusCode::INVALID_ARGUMENT,
+              "page_token \"" + request->page_token() +
+                  "\" is not a page token of ListJobs (or its job was deleted since): list from the start"};
+    }
+    ++from;
+  }
+  for (auto it = from; it != jobs.value().end(); ++it) {
+    v1::Job job = to_proto(*it);
+    if (!listed(job, *request)) continue;
+    if (request->page_size() > 0 && static_cast<uint32_t>(response->jobs_size()) == request->page_size()) {
+      response->set_next_page_token(response->jobs(response->jobs_size() - 1).id());
+      break;
+    }
+    *response->add_jobs() = std::move(job);
+  }
   return grpc::Status::OK;
 }
 

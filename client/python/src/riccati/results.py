@@ -43,6 +43,24 @@ def _frame(m, columns, t):
     return pd.DataFrame(a.T, index=pd.Index(t, name="t"), columns=_names(columns, a.shape[0], "v"))
 
 
+def _figure(rows):
+    """A matplotlib Figure with a subplot per row, sharing x. Figure, not pyplot:
+    no backend is chosen or changed, so it works headless and beside a GUI."""
+    try:
+        from matplotlib.figure import Figure
+    except ImportError as e:  # an optional dependency (Debian: python3-matplotlib)
+        raise ImportError("plots need matplotlib (Debian: apt install python3-matplotlib)") from e
+    fig = Figure(figsize=(8, 1.8 + 1.6 * rows), layout="constrained")
+    return fig, fig.subplots(rows, 1, sharex=True, squeeze=False)[:, 0]
+
+
+def _save(fig, path):
+    """Saved to `path` when given (the format from its extension: .png, .svg, .pdf)."""
+    if path is not None:
+        fig.savefig(path)
+    return fig
+
+
 def _fits(fits):
     return pd.DataFrame({"rmse": [f.rmse for f in fits], "fit_percent": [f.fit_percent for f in fits],
                          "vaf_percent": [f.vaf_percent for f in fits], "rrse": [f.rrse for f in fits]},
@@ -104,6 +122,25 @@ class IdentificationResult(_Result):
               **{f"mean_{n_}": v for n_, v in zip(names, p_result.theta_mean)},
               **{f"innovation_rms_{o}": v for o, v in zip(model.output_names, p_result.innovation_rms)}}
              for p_result in r.passes], index=pd.Index(range(1, len(r.passes) + 1), name="pass"))
+
+    def plot_traces(self, path=None):
+        """The parameters' traces (the toolbox's Trace), a subplot per parameter, the
+        passes one after the other with a line between them, and the reported estimate
+        (the mean over the last pass). Returns the matplotlib Figure; saves it to `path`
+        if given (PNG, SVG, ... by the extension)."""
+        fig, axes = _figure(len(self.param_names))
+        for ax, name in zip(axes, self.param_names):
+            x = 0
+            for k, trace in self.traces[name].groupby(level="pass"):
+                ax.plot(np.arange(x, x + len(trace)), trace.to_numpy(), color="C0", lw=1)
+                x += len(trace)
+                ax.axvline(x, color="0.8", lw=0.8)
+            ax.axhline(self.theta[name], color="C1", lw=1, ls="--", label=f"estimate {self.theta[name]:.6g}")
+            ax.set_ylabel(name)
+            ax.legend(loc="upper right", fontsize="small")
+        axes[-1].set_xlabel("sample (passes one after the other)")
+        fig.suptitle(f"{self.model.name}: parameter traces, job {self.job_id}")
+        return _save(fig, path)
 
     def to_frame(self):
         r = self.proto
@@ -202,6 +239,23 @@ class ValidationResult(_Result):
         self.fits = _fits(r.fits)
         self.parameters_from = r.parameters_from
         self.x0_from = r.x0_from
+
+    def plot(self, path=None):
+        """Measured and simulated outputs over time, a subplot per output with its fit %.
+        Returns the matplotlib Figure; saves it to `path` if given (PNG, SVG, ...)."""
+        frame = self.to_frame()
+        outputs = list(self.model.output_names)
+        fig, axes = _figure(len(outputs))
+        for ax, name in zip(axes, outputs):
+            ax.plot(frame.index, frame[name], color="0.4", lw=1, label="measured")
+            ax.plot(frame.index, frame[f"simulated_{name}"], color="C1", lw=1.2, label="simulated")
+            fit = self.fits.loc[name, "fit_percent"] if name in self.fits.index else float("nan")
+            ax.set_ylabel(name)
+            ax.set_title(f"{name}: fit {fit:.2f} %", fontsize="small", loc="left")
+            ax.legend(loc="upper right", fontsize="small")
+        axes[-1].set_xlabel("t [s]")
+        fig.suptitle(f"{self.model.name}: validation, job {self.job_id}")
+        return _save(fig, path)
 
     def to_frame(self):
         r = self.proto
