@@ -83,7 +83,8 @@ Result<DatasetRecord> DatasetManager::upload(UploadTicket& ticket, DatasetUpload
   const DatasetFormat format =
       upload.format.value_or(extension == ".mat" || extension == ".MAT" ? DatasetFormat::kMat : DatasetFormat::kCsv);
   RICCATI_ASSIGN_OR_RETURN(const Dataset data, parse(upload, name, format));
-  upload.bytes = std::string();  // parsed: the bytes go before the samples are stored (memory peaks once)
+  const std::string digest = sha256_hex(upload.bytes);
+  upload.bytes = std::string();  // parsed and hashed: the bytes go before the samples are stored (memory peaks once)
   if (data.size() > limits_.max_dataset_samples) {
     return limit_reached("max_dataset_samples", limits_.max_dataset_samples,
                          name + " has " + std::to_string(data.size()) + " samples");
@@ -121,7 +122,7 @@ Result<DatasetRecord> DatasetManager::upload(UploadTicket& ticket, DatasetUpload
   record.t_start = data.t[0];
   record.t_end = data.t[data.size() - 1];
   record.size_bytes = size;
-  record.sha256 = sha256_hex(upload.bytes);
+  record.sha256 = digest;
   record.created_ms = now_ms();
   const Status put = store_.put_dataset(record, data);
   if (put.code() == StatusCode::kAlreadyExists && !upload.request_id.empty()) {
