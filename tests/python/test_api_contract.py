@@ -239,6 +239,29 @@ def test_a_divergence_within_a_batch_answers_every_measurement(daemon, two_tank_
         assert info.state == sessions_pb2.SESSION_STATE_DIVERGED and info.measurements == first
 
 
+def test_a_stream_frame_that_does_not_parse_ends_the_stream_naming_it(daemon):
+    """Bytes that are no StreamRequest used to end the stream with OK and no answer."""
+    channel, _, _, _, sessions = _stubs(daemon.address)
+    with channel:
+        request = sessions_pb2.CreateSessionRequest(model="two_tank", theta0=[10, 5, 0.08, 0.13])
+        request.initial_state.first_measurement = True
+        request.filter.r.scalar = 1e-3
+        session = sessions.CreateSession(request, timeout=30)
+        opening = sessions_pb2.StreamRequest(open=sessions_pb2.StreamOpen(session_id=session.id))
+        raw = channel.stream_stream("/riccati.v1.SessionService/Stream")  # bytes in, bytes out
+        junk = b"\xff\xff\xff\xff\x07"
+        for frames, number in (([junk], 1), ([opening.SerializeToString(), junk], 2)):
+            with pytest.raises(grpc.RpcError) as e:
+                list(raw(iter(frames), timeout=30))
+            assert e.value.code() == grpc.StatusCode.INVALID_ARGUMENT, e.value.details()
+            assert f"message {number} of the stream is not a StreamRequest" in e.value.details()
+        # The session and the daemon serve the next stream as before.
+        batch = sessions_pb2.MeasurementBatch()
+        batch.measurements.add(t=0, u=[1e-5, 1e-5], y=[0.5, 0.5])
+        responses = list(sessions.Stream(iter([opening, sessions_pb2.StreamRequest(batch=batch)]), timeout=30))
+        assert [r.WhichOneof("outcome") for r in responses[0].results] == ["estimate"]
+
+
 def test_a_retried_request_gets_the_object_the_first_made(daemon, two_tank_csv):
     import threading
     channel, _, datasets, jobs, sessions = _stubs(daemon.address)

@@ -71,7 +71,7 @@ v1::MeasurementResult* reused_result(v1::StreamResponse& response, int index) {
 
 }  // namespace
 
-class SessionServiceImpl::StreamReactor final : public grpc::ServerBidiReactor<v1::StreamRequest, v1::StreamResponse> {
+class SessionServiceImpl::StreamReactor final : public grpc::ServerBidiReactor<grpc::ByteBuffer, grpc::ByteBuffer> {
  public:
   StreamReactor(SessionServiceImpl& service, grpc::CallbackServerContext* context)
       : service_(service), tenant_(service.auth_.tenant(*context)) {
@@ -93,11 +93,17 @@ class SessionServiceImpl::StreamReactor final : public grpc::ServerBidiReactor<v
               "restarts"});
       return;
     }
-    StartRead(&request_);
+    StartRead(&received_);
   }
 
   void OnReadDone(bool ok) override {
     if (!ok) return finish(grpc::Status::OK);  // the client is done sending (or gone)
+    ++messages_;
+    if (!grpc::SerializationTraits<v1::StreamRequest>::Deserialize(&received_, &request_).ok()) {
+      return finish(to_grpc(invalid_argument("message " + std::to_string(messages_) +
+                                             " of the stream is not a StreamRequest (its bytes do not parse): "
+                                             "the stream ends here")));
+    }
     if (session_ == nullptr) return open();
     if (!request_.has_batch()) return finish(to_grpc(invalid_argument("after StreamOpen, only measurement batches")));
     const auto& measurements = request_.batch().measurements();
@@ -123,10 +129,14 @@ class SessionServiceImpl::StreamReactor final : public grpc::ServerBidiReactor<v
     }
     while (response_.results_size() > answered) response_.mutable_results()->RemoveLast();  // kept for reuse
     service_.sessions_.after_batch(*session_);  // hands a snapshot to the writer when one is due
+    bool own_buffer = false;
+    const grpc::Status serialized =
+        grpc::SerializationTraits<v1::StreamResponse>::Serialize(response_, &sent_, &own_buffer);
+    if (!serialized.ok()) return finish(serialized);
     std::lock_guard lock(mu_);
     if (finished_) return;  // drained meanwhile: the status is on its way
     writing_ = true;
-    StartWrite(&response_);
+    StartWrite(&sent_);
   }
 
   void OnWriteDone(bool ok) override {
@@ -139,7 +149,7 @@ class SessionServiceImpl::StreamReactor final : public grpc::ServerBidiReactor<v
     if (pending) return finish(*pending);
     if (!ok) return finish(grpc::Status::OK);  // the client went away
     if (!diverged_.is_ok()) return finish(to_grpc(diverged_));
-    StartRead(&request_);
+    StartRead(&received_);
   }
 
   void OnCancel() override {
@@ -191,7 +201,7 @@ class SessionServiceImpl::StreamReactor final : public grpc::ServerBidiReactor<v
       }
       session_ = found.value();
     }
-    StartRead(&request_);
+    StartRead(&received_);
   }
 
   // Finishes once; while a write is in flight, when it completes.
@@ -220,6 +230,8 @@ class SessionServiceImpl::StreamReactor final : public grpc::ServerBidiReactor<v
   bool registered_ = false;
   std::shared_ptr<Session> session_;
   bool full_covariance_ = false;
+  grpc::ByteBuffer received_, sent_;  // the messages as bytes (parsed and written here)
+  int messages_ = 0;                  // received so far, for the error that names one
   v1::StreamRequest request_;
   v1::StreamResponse response_;
   Status diverged_;
@@ -241,7 +253,7 @@ grpc::Status SessionServiceImpl::CloseSession(grpc::ServerContext* context, cons
   return to_grpc(closed);
 }
 
-grpc::ServerBidiReactor<v1::StreamRequest, v1::StreamResponse>* SessionServiceImpl::Stream(
+grpc::ServerBidiReactor<grpc::ByteBuffer, grpc::ByteBuffer>* SessionServiceImpl::Stream(
     grpc::CallbackServerContext* context) {
   return new StreamReactor(*this, context);
 }

@@ -22,8 +22,12 @@ namespace riccati::service {
 // by an idle stream, a response is written before the next message is read
 // (back-pressure: a client that does not read its responses stops being
 // read, so its memory on the server stays bounded), and drain() can end
-// every stream at once with UNAVAILABLE when the daemon stops.
-class SessionServiceImpl final : public v1::SessionService::WithCallbackMethod_Stream<v1::SessionService::Service> {
+// every stream at once with UNAVAILABLE when the daemon stops. Its messages
+// arrive as bytes and are parsed here (gRPC's raw callback method): a frame
+// that is not a StreamRequest ends the stream with INVALID_ARGUMENT naming
+// it, where gRPC's own parsing would end it as if the client had finished.
+class SessionServiceImpl final
+    : public v1::SessionService::WithRawCallbackMethod_Stream<v1::SessionService::Service> {
  public:
   SessionServiceImpl(const Authenticator& auth, SessionManager& sessions, Limits limits, Metrics& metrics,
                      StreamSlots& slots)
@@ -34,7 +38,7 @@ class SessionServiceImpl final : public v1::SessionService::WithCallbackMethod_S
   grpc::Status ListSessions(grpc::ServerContext*, const v1::ListSessionsRequest*, v1::ListSessionsResponse*) override;
   grpc::Status CloseSession(grpc::ServerContext*, const v1::CloseSessionRequest*, v1::CloseSessionResponse*) override;
   grpc::Status RetuneSession(grpc::ServerContext*, const v1::RetuneSessionRequest*, v1::SessionInfo*) override;
-  grpc::ServerBidiReactor<v1::StreamRequest, v1::StreamResponse>* Stream(grpc::CallbackServerContext*) override;
+  grpc::ServerBidiReactor<grpc::ByteBuffer, grpc::ByteBuffer>* Stream(grpc::CallbackServerContext*) override;
 
   // Ends every open stream with UNAVAILABLE and refuses new ones; returns
   // once all have ended or `deadline` has passed.
