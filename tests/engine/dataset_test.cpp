@@ -186,6 +186,24 @@ TEST(ParseCsv, SelectsColumnsByNameInMappingOrder) {
   EXPECT_EQ(data->y(1, 1), 4.5);
 }
 
+// The upload path's parse lets the text go early; what it reads is the same,
+// and so are its errors.
+TEST(ParseCsv, ReleasingTheTextReadsTheSameAndFailsTheSame) {
+  const std::string text = "h2,note,t,F1,h1\n4,start,0,1,3\n4.5,n/a,1,1.5,3.5\n";
+  const ColumnMapping mapping{"t", {"F1"}, {"h1", "h2"}};
+  const Result<Dataset> kept = parse_csv(text, mapping, "rig.csv");
+  const Result<Dataset> released = parse_csv_releasing(text, mapping, "rig.csv");
+  ASSERT_TRUE(kept.is_ok() && released.is_ok()) << released.status().to_string();
+  EXPECT_EQ(released->name, "rig.csv");
+  EXPECT_EQ(released->t, kept->t);
+  EXPECT_EQ(released->u, kept->u);
+  EXPECT_EQ(released->y, kept->y);
+  EXPECT_EQ(released->output_names, kept->output_names);
+  const Result<Dataset> bad = parse_csv_releasing("t,y\n0,1\n1,2.5x\n", {"t", {}, {"y"}}, "x.csv");
+  EXPECT_EQ(bad.status().message(), parse_csv("t,y\n0,1\n1,2.5x\n", {"t", {}, {"y"}}, "x.csv").status().message());
+  EXPECT_NE(bad.status().message().find("line 3"), std::string::npos) << bad.status().message();
+}
+
 TEST(ParseCsv, AcceptsBomQuotedHeaderCrlfAndTrailingBlankLines) {
   const std::string_view text =
       "\xEF\xBB\xBF\"time\" , \"u\",\"y\"\r\n"

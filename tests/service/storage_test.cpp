@@ -197,13 +197,14 @@ TEST(Storage, AFullDiskRefusesWritesKeepsServingAndDeletingMakesRoom) {
 
 
 // An upload's memory: the daemon holds the bytes as they arrive (their size
-// declared, as the CLI and the Python client do: one buffer), parses them,
-// lets the bytes go, and stores the samples as they are (no copy). Its peak
-// over an idle daemon was 3.0 times the file (52 MB of CSV): the bytes, the
-// parsed table, the samples, two copies of them for the store and SQLite's
-// record at once. Now 2.1: the bytes, the table and the samples, while
-// parsing (SQLite's record of the samples is the peak while storing).
-TEST(Storage, AnUploadPeaksUnderTwiceAndAHalfItsSize) {
+// declared, as the CLI and the Python client do: one buffer), hashes them,
+// reads them into a table, lets them go, copies the samples out and stores
+// them as they are (no copy). Its peak over an idle daemon was 3.0 times the
+// file (52 MB of CSV): the bytes, the parsed table, the samples, two copies
+// of them for the store and SQLite's record at once; then 2.1 (the bytes
+// were "released" by assigning an empty string, which keeps the buffer).
+// Now 1.5-1.8 here: the bytes and the table (1.4), with gRPC's buffers.
+TEST(Storage, AnUploadPeaksUnderTwiceItsSize) {
   TempDir dir;
   DaemonProcess daemon(dir.path() / "data");
   daemon.start();
@@ -220,7 +221,7 @@ TEST(Storage, AnUploadPeaksUnderTwiceAndAHalfItsSize) {
   ASSERT_TRUE(s.ok()) << s.error_message();
   const double growth = static_cast<double>(daemon.peak_rss_kib() - before) * 1024.0 / static_cast<double>(csv.size());
   RecordProperty("peak_growth_per_byte", std::to_string(growth));
-  EXPECT_LT(growth, 2.4) << "peak resident memory grew by " << growth << " times the upload's " << csv.size()
+  EXPECT_LT(growth, 2.0) << "peak resident memory grew by " << growth << " times the upload's " << csv.size()
                          << " bytes";
   datasets.reset();
   EXPECT_EQ(daemon.stop(), 0) << daemon.exit_report();

@@ -261,19 +261,24 @@ Status validate_dataset(const Dataset& data) {
   return Status::ok();
 }
 
-Result<Dataset> parse_csv(std::string_view text, const ColumnMapping& mapping, std::string source_name) {
-  Dataset data;
-  data.name = std::move(source_name);
-  const std::string& source = data.name;
-  RICCATI_RETURN_IF_ERROR(check_mapping(mapping, source));
+namespace {
+
+// The columns a mapping takes from a CSV file, in the order of its table:
+// time (unless sampled), inputs, outputs.
+std::vector<std::string> csv_columns(const ColumnMapping& mapping) {
   const MappingSlots slots{mapping};
   const bool sampled = mapping.sample_time != 0.0;  // no time column: t = k * sample_time
   std::vector<std::string> columns;
   columns.reserve(slots.size());
   for (std::size_t slot = sampled ? 1 : 0; slot < slots.size(); ++slot) columns.push_back(slots.name(slot));
-  csv::Table table;
-  if (auto error = csv::parse(text, columns, source, &table)) return invalid_argument(std::move(*error));
+  return columns;
+}
 
+// The dataset of a table read with csv_columns(mapping).
+Result<Dataset> dataset_from_table(const csv::Table& table, const ColumnMapping& mapping, std::string source_name) {
+  Dataset data;
+  data.name = std::move(source_name);
+  const bool sampled = mapping.sample_time != 0.0;
   // Row by row, the table is a ([1 +] nu + ny) x N matrix: time (unless
   // sampled), inputs, outputs.
   const auto nu = static_cast<Index>(mapping.inputs.size()), ny = static_cast<Index>(mapping.outputs.size());
@@ -283,7 +288,7 @@ Result<Dataset> parse_csv(std::string_view text, const ColumnMapping& mapping, s
     data.u.resize(nu, 0);
     data.y.resize(ny, 0);
   } else {
-    const Eigen::Map<const Eigen::MatrixXd> samples(table.values.data(), static_cast<Index>(columns.size()), n);
+    const Eigen::Map<const Eigen::MatrixXd> samples(table.values.data(), static_cast<Index>(table.columns), n);
     if (sampled) {
       data.t = Eigen::VectorXd::LinSpaced(n, 0.0, static_cast<double>(n - 1)) * mapping.sample_time;
     } else {
@@ -296,6 +301,23 @@ Result<Dataset> parse_csv(std::string_view text, const ColumnMapping& mapping, s
   data.output_names = mapping.outputs;
   RICCATI_RETURN_IF_ERROR(validate_dataset(data));
   return data;
+}
+
+}  // namespace
+
+Result<Dataset> parse_csv(std::string_view text, const ColumnMapping& mapping, std::string source_name) {
+  RICCATI_RETURN_IF_ERROR(check_mapping(mapping, source_name));
+  csv::Table table;
+  if (auto error = csv::parse(text, csv_columns(mapping), source_name, &table)) return invalid_argument(std::move(*error));
+  return dataset_from_table(table, mapping, std::move(source_name));
+}
+
+Result<Dataset> parse_csv_releasing(std::string text, const ColumnMapping& mapping, std::string source_name) {
+  RICCATI_RETURN_IF_ERROR(check_mapping(mapping, source_name));
+  csv::Table table;
+  if (auto error = csv::parse(text, csv_columns(mapping), source_name, &table)) return invalid_argument(std::move(*error));
+  std::string().swap(text);  // the table holds the samples now (assigning an empty string would keep the buffer)
+  return dataset_from_table(table, mapping, std::move(source_name));
 }
 
 Result<Dataset> read_csv_file(const std::string& path, const ColumnMapping& mapping) {

@@ -46,6 +46,10 @@ Status validate_dataset(const Dataset& data);
 // CSV with a header row; values separated by commas; the columns named in
 // `mapping` are taken, others ignored. Errors name the line and column.
 Result<Dataset> parse_csv(std::string_view text, const ColumnMapping& mapping, std::string source_name);
+// The same, letting the text go once it is read, before the samples are
+// copied out: an upload's memory peaks at its text and its samples once,
+// not twice.
+Result<Dataset> parse_csv_releasing(std::string text, const ColumnMapping& mapping, std::string source_name);
 Result<Dataset> read_csv_file(const std::string& path, const ColumnMapping& mapping);
 
 // A level 5 MAT file (MATLAB's -v6 and -v7, compressed or not; see

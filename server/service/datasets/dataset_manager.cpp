@@ -63,11 +63,11 @@ Result<UploadTicket> DatasetManager::begin_upload(const std::string& tenant, con
   return UploadTicket(this, tenant, name.empty() ? "upload" : name, stored);
 }
 
-Result<Dataset> DatasetManager::parse(const DatasetUpload& upload, const std::string& name,
+Result<Dataset> DatasetManager::parse(std::string bytes, const ColumnMapping& mapping, const std::string& name,
                                       DatasetFormat format) const {
-  if (format == DatasetFormat::kCsv) return parse_csv(upload.bytes, upload.mapping, name);
+  if (format == DatasetFormat::kCsv) return parse_csv_releasing(std::move(bytes), mapping, name);
   Result<Dataset> parsed =
-      parse_mat(upload.bytes, upload.mapping, name, static_cast<std::uint64_t>(limits_.max_dataset_bytes));
+      parse_mat(bytes, mapping, name, static_cast<std::uint64_t>(limits_.max_dataset_bytes));
   if (parsed.status().code() == StatusCode::kResourceExhausted) {
     return limit_reached("max_dataset_bytes", limits_.max_dataset_bytes, parsed.status().message());
   }
@@ -82,9 +82,10 @@ Result<DatasetRecord> DatasetManager::upload(UploadTicket& ticket, DatasetUpload
   const std::string extension = std::filesystem::path(name).extension().string();
   const DatasetFormat format =
       upload.format.value_or(extension == ".mat" || extension == ".MAT" ? DatasetFormat::kMat : DatasetFormat::kCsv);
-  RICCATI_ASSIGN_OR_RETURN(const Dataset data, parse(upload, name, format));
   const std::string digest = sha256_hex(upload.bytes);
-  upload.bytes = std::string();  // parsed and hashed: the bytes go before the samples are stored (memory peaks once)
+  // The bytes are parsed's to let go as soon as they are read: memory peaks
+  // once, at the text and its table, not again at the samples and the store.
+  RICCATI_ASSIGN_OR_RETURN(const Dataset data, parse(std::exchange(upload.bytes, std::string()), upload.mapping, name, format));
   if (data.size() > limits_.max_dataset_samples) {
     return limit_reached("max_dataset_samples", limits_.max_dataset_samples,
                          name + " has " + std::to_string(data.size()) + " samples");

@@ -72,7 +72,7 @@ class DatasetManager {
 
  private:
   friend class UploadTicket;
-  Result<Dataset> parse(const DatasetUpload& upload, const std::string& name, DatasetFormat format) const;
+  Result<Dataset> parse(std::string bytes, const ColumnMapping& mapping, const std::string& name, DatasetFormat format) const;
   Result<std::int64_t> stored_bytes(const std::string& tenant);
   Status quota_error(std::int64_t used) const;
 

@@ -135,7 +135,6 @@ class DatasetServiceImpl::UploadReactor final : public grpc::ServerReadReactor<v
     }
     storing_ = std::thread([this] {
       const Result<DatasetRecord> stored = service_.datasets_.upload(*ticket_, upload_);
-      upload_.bytes = std::string();  // freed now rather than when the call is done
       if (!stored.is_ok()) return end_with(to_grpc(stored.status()));
       *response_ = to_proto(stored.value());
       end_with(grpc::Status::OK);
