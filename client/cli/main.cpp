@@ -245,7 +245,7 @@ int main(int argc, char** argv) {
       ->delimiter(',');
   simulate_cmd->add_option("--time", sim.time, "Time column")->capture_default_str();
   simulate_cmd->add_option("--x0", sim.x0,
-                           "Initial state (default: zeros, as validate starts a state that no output measures)");
+                           "Initial state (default, as identify and validate: a state named as an output at that column's first value in the inputs file, others 0)");
   simulate_cmd->add_option("--output,-o", sim.output, "Write to this file");
 
   if (const std::string unknown = unknown_command(app, argc, argv); !unknown.empty()) {

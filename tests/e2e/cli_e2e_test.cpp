@@ -17,6 +17,7 @@
 #include <nlohmann/json.hpp>
 #include <matio.h>
 
+#include "csv/csv.hpp"
 #include "service/daemon_fixture.hpp"
 #include "support/two_tank_hensen.hpp"
 #include "engine/estimation/identification.hpp"
@@ -962,6 +963,28 @@ TEST_F(CliTest, JsonOnEveryCommandWithNumbersAsNumbersAndZerosPresent) {
   ASSERT_EQ(simulated["inputs"]["F2"].size(), 2000u);
   // At t = 0 the output is x0 (g = x): the first value is 0.4 exactly.
   EXPECT_EQ(simulated["outputs"]["h1"][0].get<double>(), 0.4) << r.out.substr(0, 400);
+
+  // Without --x0, simulate starts as validate does: a state named as an
+  // output at that column's first value in the file (two_tank.csv: h1 = 0.4,
+  // h2 = 0.15, the record's first measurements as written), others at 0.
+  r = riccati("simulate --json --model two_tank --params 10,5,0.0791,0.1342 --inputs " + kData + "/two_tank.csv");
+  ASSERT_EQ(r.exit_code, 0) << last_stderr();
+  const auto from_first = nlohmann::json::parse(r.out);
+  {
+    csv::Table measured;
+    const std::string columns[] = {"h1", "h2"};
+    ASSERT_FALSE(csv::read_file(kData + "/two_tank.csv", columns, &measured));
+    EXPECT_EQ(from_first["outputs"]["h1"][0].get<double>(), measured.row(0)[0]);
+    EXPECT_EQ(from_first["outputs"]["h2"][0].get<double>(), measured.row(0)[1]);
+  }
+  {
+    testing::TempDir inputs_only;
+    const auto file = inputs_only.path() / "inputs.csv";
+    std::ofstream(file) << "t,F1,F2\n0,1,1\n4,1,1\n8,1,1\n";
+    r = riccati("simulate --json --model two_tank --params 10,5,0.0791,0.1342 --inputs " + file.string());
+    ASSERT_EQ(r.exit_code, 0) << last_stderr();
+    EXPECT_EQ(nlohmann::json::parse(r.out)["outputs"]["h1"][0].get<double>(), 0.0) << "no h1 column: h1 starts at 0";
+  }
 
   // identify and result: the same JSON, numbers as numbers.
   r = riccati("identify --json --model two_tank --data " + id + " --passes 1 --theta0 20,20,1,1 --p0 0,0,10,10,10,10 --r 1e-3");

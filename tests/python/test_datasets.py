@@ -42,6 +42,21 @@ def test_a_dataframe_and_arrays_are_uploaded_exactly(client):
     np.testing.assert_array_equal(client.dataset_data(ds3).to_numpy(), back.to_numpy())
 
 
+def test_data_without_a_time_column_takes_a_sample_time(client, tmp_path):
+    ref = _reference()
+    untimed = tmp_path / "untimed.csv"
+    ref[["F1", "F2", "h1", "h2"]].to_csv(untimed, index=False, float_format="%.17g")
+    ds = client.upload(str(untimed), inputs=["F1", "F2"], outputs=["h1", "h2"], ts=4.0)
+    back = client.dataset_data(ds)
+    np.testing.assert_array_equal(back.index.to_numpy(), 4.0 * np.arange(len(ref)))
+    np.testing.assert_array_equal(back.to_numpy(), ref[["F1", "F2", "h1", "h2"]].to_numpy())
+    frame = ref[["F1", "F2", "h1", "h2"]].head(10)
+    ds2 = client.upload(frame, inputs=["F1", "F2"], outputs=["h1", "h2"], ts=0.5)
+    np.testing.assert_array_equal(client.dataset_data(ds2).index.to_numpy(), 0.5 * np.arange(10))
+    with pytest.raises(ValueError, match="ts must be a positive sample time"):
+        client.upload(frame, inputs=["F1", "F2"], outputs=["h1", "h2"], ts=-1)
+
+
 def test_a_mat_file(client):
     ds = client.upload(os.path.join(DATA, "two_tank.mat"), inputs=["F1", "F2"], outputs=["h1", "h2"])
     back = client.dataset_data(ds)

@@ -774,6 +774,10 @@ TEST(DaemonFaults, AFailingModelEndsOnlyItsOwnSessionAndJob) {
     EXPECT_EQ(job.state(), v1::JOB_STATE_FAILED);
     EXPECT_EQ(job.error().code(), static_cast<int>(grpc::StatusCode::FAILED_PRECONDITION));
     EXPECT_NE(job.error().message().find("velocity"), std::string::npos) << job.error().message();
+    // Its progress stops where its error says it failed: one sample of pass 1 done.
+    EXPECT_NE(job.error().message().find("pass 1, sample 2"), std::string::npos) << job.error().message();
+    EXPECT_EQ(job.progress().pass_number(), 1u) << job.ShortDebugString();
+    EXPECT_EQ(job.progress().sample(), 1u) << job.ShortDebugString();
   }
 
   // The other session goes on.

@@ -414,7 +414,9 @@ TEST(Soak, MixedLoadWithBadInputsKeepsMemoryThreadsFilesAndTheStoreBounded) {
     const Footprint& f = samples[i];
     EXPECT_LE(f.threads, warm.threads + 16) << "threads at " << f.seconds << " s";
     EXPECT_LE(f.fds, warm.fds + 32) << "file descriptors at " << f.seconds << " s";
-    if (!testing::kSanitized) EXPECT_LE(f.rss_kib, warm.rss_kib + 16 * 1024) << "RSS at " << f.seconds << " s";
+    if (!testing::kSanitized) {
+      EXPECT_LE(f.rss_kib, warm.rss_kib + 16 * 1024) << "RSS at " << f.seconds << " s";
+    }
     // Retention keeps 20 jobs; the uploads' rows are deleted and their pages reused.
     EXPECT_LE(f.store_kib, std::max(2 * warm.store_kib, warm.store_kib + 16 * 1024)) << "store at " << f.seconds << " s";
   }

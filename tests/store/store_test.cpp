@@ -384,7 +384,9 @@ TEST_P(StoreTest, RetentionDeletesEndedJobsByAgeAndKeepsTheNewestOfEachTenant) {
     j.state = state;
     j.finished_ms = finished;
     ASSERT_TRUE(store->update_job(j).is_ok());
-    if (state == JobState::kSucceeded) ASSERT_TRUE(store->put_result(tenant, id, "r").is_ok());
+    if (state == JobState::kSucceeded) {
+      ASSERT_TRUE(store->put_result(tenant, id, "r").is_ok());
+    }
   };
   for (int i = 1; i <= 5; ++i) end("a-" + std::to_string(i), "a", 10 * i, i % 2 ? JobState::kSucceeded : JobState::kFailed);
   end("a-run", "a", 0, JobState::kRunning);

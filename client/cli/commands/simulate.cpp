@@ -1,10 +1,33 @@
+#include <algorithm>
 #include <cstdio>
+#include <string>
+#include <vector>
 
 #include "commands/commands.hpp"
 #include "csv/csv.hpp"
 #include "output.hpp"
 
 namespace riccati::cli {
+
+namespace {
+
+// x0 when --x0 is not given, by the rule identify and validate follow
+// (x0 `first`): a state named as an output starts at the first value of that
+// output's column, when the file has one; every other state at 0.
+std::vector<double> first_values(const std::string& file, const v1::ModelInfo& info) {
+  std::vector<double> x0(static_cast<std::size_t>(info.state_names_size()), 0.0);
+  for (int i = 0; i < info.state_names_size(); ++i) {
+    const std::string& state = info.state_names(i);
+    const auto& outputs = info.output_names();
+    if (std::find(outputs.begin(), outputs.end(), state) == outputs.end()) continue;
+    const std::string column[] = {state};
+    csv::Table table;
+    if (!csv::read_file(file, column, &table) && table.rows() > 0) x0[static_cast<std::size_t>(i)] = table.row(0)[0];
+  }
+  return x0;
+}
+
+}  // namespace
 
 int simulate(Client& c, const SimulateOptions& o) {
   const RunSettings& s = o.settings;
@@ -36,7 +59,7 @@ int simulate(Client& c, const SimulateOptions& o) {
     std::fprintf(stderr, "riccati: --x0: %s\n", error.c_str());
     return kExitUsage;
   }
-  if (x0.empty()) x0.assign(static_cast<std::size_t>(info.state_names_size()), 0.0);
+  if (x0.empty()) x0 = first_values(o.inputs_file, info);
   request.mutable_x0()->Add(x0.begin(), x0.end());
   request.mutable_u()->set_rows(static_cast<uint32_t>(inputs.size()));
   request.mutable_u()->set_cols(static_cast<uint32_t>(table.rows()));

@@ -90,7 +90,7 @@ class Pass {
       Status st = measured ? runner_.advance(bound_.t[s], {u, static_cast<std::size_t>(model.nu())},
                                              {bound_.y.col(s).data(), static_cast<std::size_t>(ny)})
                            : runner_.advance_without_measurement(bound_.t[s], {u, static_cast<std::size_t>(model.nu())});
-      if (!st.is_ok()) return st.with_context(where());
+      if (!st.is_ok()) return failed_at(k, st.with_context(where()), report);
 
       const Filter& filter = runner_.filter();
       const Eigen::VectorXd& z = filter.state();
@@ -110,7 +110,7 @@ class Pass {
           result->innovations.col(k).setZero();
         }
         st = model.g(bound_.t[s], u, 1, 1, z.data(), z.data() + nx, y_model.data());
-        if (!st.is_ok()) return st.with_context(where());
+        if (!st.is_ok()) return failed_at(k, st.with_context(where()), report);
         result->y_model.col(k) = y_model;
       }
       if (hooks_.progress) {
@@ -128,6 +128,17 @@ class Pass {
   }
 
  private:
+  // A pass that fails tells its progress first, `done` samples into the
+  // pass the error names: a job's progress and its error agree on where it
+  // stopped, even when that is the first sample of a pass.
+  Status failed_at(Eigen::Index done, Status error, IdentificationProgress& report) const {
+    if (hooks_.progress) {
+      report.sample = done;
+      hooks_.progress(report);
+    }
+    return error;
+  }
+
   OnlineRunner& runner_;
   const Dataset& bound_;
   const Eigen::ArrayXXd& mask_;
@@ -188,8 +199,12 @@ Result<IdentificationResult> identify(ModelPtr model, const Dataset& data, const
   Pass pass(runner, bound, settings.mask, range, hooks);
   for (int p = first_pass; p <= settings.passes; ++p) {
     if (p > first_pass) {
-      RICCATI_RETURN_IF_ERROR(runner.restart(next_pass_start(settings.initial, result.passes.back().theta_final,
-                                                             runner.filter().covariance(), nx)));
+      const Status started = runner.restart(next_pass_start(settings.initial, result.passes.back().theta_final,
+                                                            runner.filter().covariance(), nx));
+      if (!started.is_ok()) {
+        if (hooks.progress) hooks.progress({p, settings.passes, 0, N, &runner.filter().state()});
+        return started.with_context("starting pass " + std::to_string(p));
+      }
     }
     PassResult pass_result;
     RICCATI_RETURN_IF_ERROR(pass.run(p, settings.passes, &pass_result, &result));

@@ -67,7 +67,7 @@ struct IdentificationResult {
 struct IdentificationProgress {
   int pass = 0;              // 1-based
   int passes = 0;
-  Eigen::Index sample = 0;   // 1-based, within the pass
+  Eigen::Index sample = 0;   // samples done in the pass (after a failure: those before the one that failed)
   Eigen::Index samples = 0;
   const Eigen::VectorXd* state = nullptr;  // the estimate of [x; theta] now
 };

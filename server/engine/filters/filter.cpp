@@ -158,18 +158,36 @@ Status Filter::step(double t1, const double* u0, const double* u1, const double*
   return update(y1, u1);
 }
 
+std::string Filter::element_name(Eigen::Index i) const {
+  const Eigen::Index nx = model_->nx();
+  const auto& names = i < nx ? model_->state_names() : model_->param_names();
+  const Eigen::Index k = i < nx ? i : i - nx;
+  const char* kind = i < nx ? "state " : "parameter ";
+  return k < static_cast<Eigen::Index>(names.size()) ? kind + names[static_cast<std::size_t>(k)]
+                                                      : "element " + std::to_string(i);
+}
+
 Status Filter::check_estimate(const char* where) const {
-  // The message is built only on failure: this runs at every sample.
+  // The message is built only on failure: this runs at every sample. It
+  // names the first state or parameter that went wrong, as the user named it.
   auto diverged = [&](const std::string& what) {
     return failed_precondition("filter diverged: " + what + " after the " + where + " at t = " + std::to_string(t_));
   };
-  if (!z_.allFinite()) return diverged("the state is not finite");
-  if (!P_.allFinite()) return diverged("the covariance is not finite");
+  if (!z_.allFinite()) {
+    Eigen::Index i = 0;
+    while (std::isfinite(z_[i])) ++i;
+    return diverged("the estimate of " + element_name(i) + " is " + std::to_string(z_[i]));
+  }
+  if (!P_.allFinite()) {
+    Eigen::Index i = 0;
+    while (P_.row(i).allFinite()) ++i;
+    return diverged("the covariance of " + element_name(i) + " is not finite");
+  }
   const double scale = std::max(1.0, P_.diagonal().cwiseAbs().maxCoeff());
   for (Eigen::Index i = 0; i < P_.rows(); ++i) {
     if (P_(i, i) < -1e-9 * scale) {
-      return diverged("the covariance lost positive semi-definiteness (variance " + std::to_string(P_(i, i)) +
-                      " of element " + std::to_string(i) + ")");
+      return diverged("the covariance lost positive semi-definiteness (the variance of " + element_name(i) + " is " +
+                      std::to_string(P_(i, i)) + ")");
     }
   }
   return Status::ok();

@@ -191,6 +191,8 @@ class Filter {
   // A diverged filter: non-finite state or a covariance that lost positive
   // semi-definiteness. Returns kFailedPrecondition naming what went wrong.
   Status check_estimate(const char* where) const;
+  // "state h1", "parameter A1": element i of z = [x; theta] as messages name it.
+  std::string element_name(Eigen::Index i) const;
 
   ModelPtr model_;
   FilterSettings settings_;

@@ -130,6 +130,7 @@ class SessionServiceImpl::StreamReactor final : public grpc::ServerBidiReactor<g
     while (response_.results_size() > answered) response_.mutable_results()->RemoveLast();  // kept for reuse
     service_.sessions_.after_batch(*session_);  // hands a snapshot to the writer when one is due
     bool own_buffer = false;
+    sent_.Clear();  // the last response's bytes, written by now: serializing asks for an empty buffer
     const grpc::Status serialized =
         grpc::SerializationTraits<v1::StreamResponse>::Serialize(response_, &sent_, &own_buffer);
     if (!serialized.ok()) return finish(serialized);

@@ -22,27 +22,32 @@ def _csv(frame):
     return out.getvalue().encode("utf-8")
 
 
-def as_upload(data, inputs, outputs, time):
-    """(name, bytes, inputs, outputs, time column) for a path, a DataFrame or (t, u, y) arrays."""
+def as_upload(data, inputs, outputs, time, ts=None):
+    """(name, bytes, inputs, outputs, time column) for a path, a DataFrame or (t, u, y) arrays.
+    With ts (a sample time), the data has no time column: the time column is then ""."""
+    if ts is not None and not ts > 0:
+        raise ValueError(f"ts must be a positive sample time, got {ts!r}")
     if isinstance(data, (str, os.PathLike)):
         path = os.fspath(data)
         with open(path, "rb") as f:
-            return os.path.basename(path), f.read(), inputs, outputs, time
+            return os.path.basename(path), f.read(), inputs, outputs, "" if ts else time
     if isinstance(data, pd.DataFrame):
         frame = data
-        if time not in frame.columns:
+        if ts is None and time not in frame.columns:
             # The index is the time (a frame indexed by t, as to_frame() gives).
             frame = frame.reset_index()
             frame = frame.rename(columns={frame.columns[0]: time})
-        columns = [time] + list(inputs or []) + list(outputs or [])
+        columns = ([] if ts else [time]) + list(inputs or []) + list(outputs or [])
         missing = [c for c in columns if c not in frame.columns]
         if missing:
             raise ValueError(f"the DataFrame has no column {', '.join(map(repr, missing))} "
                              f"(it has {', '.join(map(str, frame.columns))})")
         if not inputs and not outputs:
             columns = list(frame.columns)
-        return "dataframe.csv", _csv(frame[columns]), inputs, outputs, time
+        return "dataframe.csv", _csv(frame[columns]), inputs, outputs, "" if ts else time
     if isinstance(data, (tuple, list)) and len(data) == 3:
+        if ts is not None:
+            raise ValueError("(t, u, y) arrays carry their times: ts is for a file or DataFrame without a time column")
         t, u, y = data
         t = np.asarray(t, dtype=float)
         u, y = _column(u, "u"), _column(y, "y")

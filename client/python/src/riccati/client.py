@@ -140,15 +140,18 @@ class Client:
 
     # ------------------------------------------------------------ datasets
 
-    def upload(self, data, inputs=None, outputs=None, time="t", name=None, request_id=None):
+    def upload(self, data, inputs=None, outputs=None, time="t", name=None, request_id=None, ts=None):
         """Stores a dataset: a CSV or MAT file's path, a pandas DataFrame (a time
         column, else its index, and the columns named by inputs and outputs), or
         (t, u, y) numpy arrays with a sample per row. Returns a Dataset (its .id).
-        request_id (default: a new UUID) makes a retry get the same dataset."""
-        file_name, content, inputs, outputs, time = _data.as_upload(data, inputs, outputs, time)
+        ts: the sample time of a CSV file or DataFrame without a time column
+        (t = k * ts), as the CLI's --ts. request_id (default: a new UUID) makes a
+        retry get the same dataset."""
+        file_name, content, inputs, outputs, time = _data.as_upload(data, inputs, outputs, time, ts)
         header = datasets_pb2.UploadHeader(name=name or file_name, time_column=time,
                                            input_columns=list(inputs or []), output_columns=list(outputs or []),
-                                           request_id=request_id or str(uuid.uuid4()), size_bytes=len(content))
+                                           request_id=request_id or str(uuid.uuid4()), size_bytes=len(content),
+                                           sample_time=float(ts or 0.0))
 
         def parts():
             yield datasets_pb2.UploadDatasetRequest(header=header)
