@@ -393,6 +393,70 @@ TEST(StreamLimits, ABatchStopsWhenItsStreamIsCancelled) {
 }
 
 
+// SIGTERM while a Simulate of many seconds and a batch of tens of seconds
+// run, neither with a deadline (they once held riccatid 17-26 s against its
+// 5 s grace): both stop within the grace period, between two steps, and
+// riccatid exits 0 soon after it.
+TEST(Shutdown, LongSimulationsAndBatchesStopWithinTheGracePeriod) {
+  TempDir dir;
+  DaemonProcess daemon(dir.path() / "data", {"--max-simulation-steps", "400000000"});
+  daemon.start();
+  auto models = v1::ModelService::NewStub(daemon.channel());
+  auto sessions = v1::SessionService::NewStub(daemon.channel());
+  v1::SimulateRequest simulate;
+  simulate.set_model("two_tank");
+  for (double x : {0.4, 0.15}) simulate.add_x0(x);
+  constexpr int kSamples = 3001;
+  for (int k = 0; k < kSamples; ++k) simulate.add_t(0.1 * k);
+  simulate.mutable_u()->set_rows(2);
+  simulate.mutable_u()->set_cols(kSamples);
+  for (int k = 0; k < 2 * kSamples; ++k) simulate.mutable_u()->add_values(0.01);
+  simulate.mutable_integrator()->set_substeps(100'000);  // 3e8 steps: far longer than the grace
+
+  v1::CreateSessionRequest create = testing::two_tank_session();
+  create.mutable_filter()->mutable_integrator()->set_substeps(100'000);  // tens of ms a measurement
+  v1::SessionInfo session;
+  {
+    grpc::ClientContext ctx;
+    ASSERT_TRUE(sessions->CreateSession(&ctx, create, &session).ok());
+  }
+  std::atomic<int> answered{0};
+  grpc::Status simulated, streamed;
+  std::thread simulating([&] {
+    grpc::ClientContext ctx;
+    v1::SimulateResponse response;
+    simulated = models->Simulate(&ctx, simulate, &response);
+  });
+  std::thread streaming([&] {
+    grpc::ClientContext ctx;
+    auto stream = sessions->Stream(&ctx);
+    v1::StreamRequest open;
+    open.mutable_open()->set_session_id(session.id());
+    stream->Write(open);
+    v1::StreamRequest batch;
+    for (int k = 0; k < 1000; ++k) testing::add_measurement(batch, k, {0.1, 0.03}, {0.4, 0.15});
+    stream->Write(batch);
+    v1::StreamResponse response;
+    while (stream->Read(&response)) answered += response.results_size();
+    streamed = stream->Finish();
+  });
+  std::this_thread::sleep_for(std::chrono::seconds(1));  // both well under way
+
+  const auto signalled = std::chrono::steady_clock::now();
+  const int status = daemon.stop();
+  const auto took = std::chrono::steady_clock::now() - signalled;
+  simulating.join();
+  streaming.join();
+  EXPECT_EQ(status, 0) << daemon.exit_report();
+  // The grace (5 s) and the time a step and the store's close take.
+  EXPECT_LT(took, std::chrono::seconds(testing::kSanitized ? 60 : 8))
+      << std::chrono::duration_cast<std::chrono::milliseconds>(took).count() << " ms";
+  EXPECT_FALSE(simulated.ok()) << "the simulation ran to its end: it was not long enough to test this";
+  EXPECT_FALSE(streamed.ok()) << "the batch ran to its end: it was not long enough to test this";
+  EXPECT_EQ(streamed.error_code(), grpc::StatusCode::UNAVAILABLE) << streamed.error_message();
+  EXPECT_LT(answered.load(), 1000);
+}
+
 // The tenant's quota holds however many uploads run at once: room is
 // reserved as the bytes arrive, with what is stored and every upload in
 // flight (12 concurrent uploads against a 500 KB quota stored 691 KB).
