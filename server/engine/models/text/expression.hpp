@@ -61,6 +61,7 @@ enum class Op : std::uint8_t {
   kNe,
   kIf,     // if(c, a, b): a where c is not 0, else b
   kChain,  // chain(d, f'): f' * d, and 0 where d is 0 (derivatives only, never written)
+  kNegMul,  // -(a * b): a product with a negated operand, fused on the tape (tapes only, never in a graph)
 };
 
 // A function callable in expressions.

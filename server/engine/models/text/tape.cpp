@@ -44,6 +44,7 @@ double apply(Op op, double a, double b, double c) {
     case Op::kNe: return a != b ? 1.0 : 0.0;
     case Op::kIf: return a != 0.0 ? b : c;
     case Op::kChain: return a == 0.0 ? 0.0 : b * a;
+    case Op::kNegMul: return -(a * b);
   }
   return a;
 }
@@ -57,7 +58,7 @@ int arity(Op op) {
       return 0;
     case Op::kAdd: case Op::kSub: case Op::kMul: case Op::kDiv: case Op::kPow: case Op::kAtan2:
     case Op::kMin: case Op::kMax: case Op::kHypot: case Op::kLt: case Op::kLe: case Op::kGt:
-    case Op::kGe: case Op::kEq: case Op::kNe: case Op::kChain:
+    case Op::kGe: case Op::kEq: case Op::kNe: case Op::kChain: case Op::kNegMul:
       return 2;
     case Op::kIf:
       return 3;
@@ -235,6 +236,7 @@ std::vector<int> Graph::derivative(const std::vector<int>& roots, int slot) {
       case Op::kIf: r = make(Op::kIf, n.a, db, dc); break;
       case Op::kSign: case Op::kLt: case Op::kLe: case Op::kGt: case Op::kGe: case Op::kEq: case Op::kNe:
       case Op::kChain:  // derivatives are not differentiated again
+      case Op::kNegMul:   // made by Tape::compile, never in a graph
         break;
     }
     d[i] = r;
@@ -245,6 +247,43 @@ std::vector<int> Graph::derivative(const std::vector<int>& roots, int slot) {
   return out;
 }
 
+namespace {
+
+// A negation read by a sum, a difference or a product is folded into it
+// (x + -y is x - y, x - -y is x + y, -x * y is -(x y)): derivatives are full
+// of them (d(a/b)/db = -(a/b) / b), and each is an instruction of a tape that
+// runs at a few ns an instruction. The results are the same to the bit:
+// IEEE 754 defines x - y as x + (-y), and negation is exact.
+struct Folded {
+  Op op;
+  int a, b;
+};
+
+Folded fold_negations(const Graph& graph, const Node& n) {
+  const auto negated = [&](int i) { return i >= 0 && graph.node(i).op == Op::kNeg; };
+  const auto inner = [&](int i) { return graph.node(i).a; };
+  const bool na = negated(n.a), nb = negated(n.b);
+  switch (n.op) {
+    case Op::kMul:
+      if (na && nb) return {Op::kMul, inner(n.a), inner(n.b)};
+      if (na) return {Op::kNegMul, inner(n.a), n.b};
+      if (nb) return {Op::kNegMul, n.a, inner(n.b)};
+      break;
+    case Op::kAdd:
+      if (nb && !na) return {Op::kSub, n.a, inner(n.b)};
+      if (na && !nb) return {Op::kSub, n.b, inner(n.a)};
+      break;
+    case Op::kSub:
+      if (nb) return {Op::kAdd, n.a, inner(n.b)};
+      break;
+    default:
+      break;
+  }
+  return {n.op, n.a, n.b};
+}
+
+}  // namespace
+
 Tape Tape::compile(const Graph& graph, const std::vector<int>& outputs, int num_inputs) {
   Tape tape;
   tape.num_inputs_ = num_inputs;
@@ -254,12 +293,22 @@ Tape Tape::compile(const Graph& graph, const std::vector<int>& outputs, int num_
   while (!stack.empty()) {
     const Node& n = graph.node(stack.back());
     stack.pop_back();
-    for (const int child : {n.a, n.b, n.c}) {
+    const Folded f = fold_negations(graph, n);  // a folded negation is needed only if read elsewhere
+    for (const int child : {f.a, f.b, n.c}) {
       if (child >= 0 && !needed[static_cast<std::size_t>(child)]) {
         needed[static_cast<std::size_t>(child)] = 1;
         stack.push_back(child);
       }
     }
+  }
+  // A quotient a / b whose reciprocal 1 / b the tape computes anyway (a
+  // derivative of a / b needs it) is a * (1 / b): one division instead of
+  // two, and the value the SDK's dual numbers compute for a / b, so that a
+  // text model's Jacobian call gives its plugin's values to the bit there.
+  std::unordered_map<int, int> reciprocal;  // b -> the node 1 / b
+  for (std::size_t i = 0; i < graph.size(); ++i) {
+    const Node& n = graph.node(static_cast<int>(i));
+    if (needed[i] && n.op == Op::kDiv && graph.is_constant(n.a, 1.0)) reciprocal.emplace(n.b, static_cast<int>(i));
   }
   std::vector<std::uint32_t> reg(graph.size(), 0);
   for (std::size_t i = 0; i < graph.size(); ++i) {  // constants first: registers of their own
@@ -269,20 +318,36 @@ Tape Tape::compile(const Graph& graph, const std::vector<int>& outputs, int num_
     tape.constants_.push_back(n.k);
   }
   const auto first = static_cast<std::uint32_t>(num_inputs) + static_cast<std::uint32_t>(tape.constants_.size());
+  std::vector<char> emitted(graph.size(), 0);
+  // Nodes in index order (children first), except that a reciprocal is
+  // emitted ahead of the quotient that reads it (its own operands, 1 and b,
+  // come before that quotient too).
+  const auto emit = [&](std::size_t i, Folded f, const Node& n) {
+    Instruction in{f.op, 0, 0, 0};
+    if (f.a >= 0) in.a = reg[static_cast<std::size_t>(f.a)];
+    if (f.b >= 0) in.b = reg[static_cast<std::size_t>(f.b)];
+    if (n.c >= 0) in.c = reg[static_cast<std::size_t>(n.c)];
+    reg[i] = first + static_cast<std::uint32_t>(tape.code_.size());
+    tape.code_.push_back(in);
+    emitted[i] = 1;
+  };
   for (std::size_t i = 0; i < graph.size(); ++i) {
-    if (!needed[i]) continue;
+    if (!needed[i] || emitted[i]) continue;
     const Node& n = graph.node(static_cast<int>(i));
     if (n.op == Op::kConst) continue;
     if (n.op == Op::kInput) {
       reg[i] = static_cast<std::uint32_t>(n.k);
       continue;
     }
-    Instruction in{n.op, 0, 0, 0};
-    if (n.a >= 0) in.a = reg[static_cast<std::size_t>(n.a)];
-    if (n.b >= 0) in.b = reg[static_cast<std::size_t>(n.b)];
-    if (n.c >= 0) in.c = reg[static_cast<std::size_t>(n.c)];
-    reg[i] = first + static_cast<std::uint32_t>(tape.code_.size());
-    tape.code_.push_back(in);
+    Folded f = fold_negations(graph, n);
+    if (f.op == Op::kDiv && !graph.is_constant(f.a, 1.0)) {
+      if (const auto inv = reciprocal.find(f.b); inv != reciprocal.end()) {
+        const auto k = static_cast<std::size_t>(inv->second);
+        if (!emitted[k]) emit(k, fold_negations(graph, graph.node(inv->second)), graph.node(inv->second));
+        f = {Op::kMul, f.a, inv->second};
+      }
+    }
+    emit(i, f, n);
   }
   for (const int o : outputs) tape.outputs_.push_back(reg[static_cast<std::size_t>(o)]);
   return tape;
@@ -313,6 +378,7 @@ void Tape::run(double* r, double* out, std::size_t stride) const {
       case Op::kSqrt: v = std::sqrt(a); break;
       case Op::kIf: v = a != 0.0 ? r[in.b] : r[in.c]; break;
       case Op::kChain: v = a == 0.0 ? 0.0 : r[in.b] * a; break;
+      case Op::kNegMul: v = -(a * r[in.b]); break;
       case Op::kGt: v = a > r[in.b] ? 1.0 : 0.0; break;
       case Op::kLt: v = a < r[in.b] ? 1.0 : 0.0; break;
       case Op::kSin: v = std::sin(a); break;
@@ -327,6 +393,19 @@ void Tape::run(double* r, double* out, std::size_t stride) const {
   for (std::size_t i = 0; i < outputs_.size(); ++i) out[i * stride] = r[outputs_[i]];
 }
 
+namespace {
+
+// One operation over the lanes of a register. The register written comes
+// after every register read (no overlap, as __restrict says), which lets the
+// loop vectorise.
+template <typename F>
+[[gnu::always_inline]] inline void each_lane(double* __restrict v, const double* __restrict a,
+                                             const double* __restrict b, const double* __restrict c, F f) {
+  for (std::size_t j = 0; j < Tape::kLanes; ++j) v[j] = f(a[j], b[j], c[j]);
+}
+
+}  // namespace
+
 void Tape::run_lanes(double* r, std::size_t points, double* out, std::size_t ld) const {
   constexpr std::size_t L = kLanes;
   std::size_t w = (static_cast<std::size_t>(num_inputs_) + constants_.size()) * L;
@@ -336,14 +415,17 @@ void Tape::run_lanes(double* r, std::size_t points, double* out, std::size_t ld)
     const double* c = r + std::size_t{in.c} * L;
     double* v = r + w;
     switch (in.op) {
-      case Op::kAdd: for (std::size_t j = 0; j < L; ++j) v[j] = a[j] + b[j]; break;
-      case Op::kSub: for (std::size_t j = 0; j < L; ++j) v[j] = a[j] - b[j]; break;
-      case Op::kMul: for (std::size_t j = 0; j < L; ++j) v[j] = a[j] * b[j]; break;
-      case Op::kDiv: for (std::size_t j = 0; j < L; ++j) v[j] = a[j] / b[j]; break;
-      case Op::kNeg: for (std::size_t j = 0; j < L; ++j) v[j] = -a[j]; break;
-      case Op::kIf: for (std::size_t j = 0; j < L; ++j) v[j] = a[j] != 0.0 ? b[j] : c[j]; break;
-      case Op::kGt: for (std::size_t j = 0; j < L; ++j) v[j] = a[j] > b[j] ? 1.0 : 0.0; break;
-      case Op::kLt: for (std::size_t j = 0; j < L; ++j) v[j] = a[j] < b[j] ? 1.0 : 0.0; break;
+      case Op::kAdd: each_lane(v, a, b, c, [](double x, double y, double) { return x + y; }); break;
+      case Op::kSub: each_lane(v, a, b, c, [](double x, double y, double) { return x - y; }); break;
+      case Op::kMul: each_lane(v, a, b, c, [](double x, double y, double) { return x * y; }); break;
+      case Op::kDiv: each_lane(v, a, b, c, [](double x, double y, double) { return x / y; }); break;
+      case Op::kNeg: each_lane(v, a, b, c, [](double x, double, double) { return -x; }); break;
+      case Op::kNegMul: each_lane(v, a, b, c, [](double x, double y, double) { return -(x * y); }); break;
+      case Op::kSqrt: each_lane(v, a, b, c, [](double x, double, double) { return std::sqrt(x); }); break;
+      case Op::kChain: each_lane(v, a, b, c, [](double x, double y, double) { return x == 0.0 ? 0.0 : y * x; }); break;
+      case Op::kIf: each_lane(v, a, b, c, [](double x, double y, double z) { return x != 0.0 ? y : z; }); break;
+      case Op::kGt: each_lane(v, a, b, c, [](double x, double y, double) { return x > y ? 1.0 : 0.0; }); break;
+      case Op::kLt: each_lane(v, a, b, c, [](double x, double y, double) { return x < y ? 1.0 : 0.0; }); break;
       default: for (std::size_t j = 0; j < points; ++j) v[j] = apply(in.op, a[j], b[j], c[j]); break;
     }
     w += L;
