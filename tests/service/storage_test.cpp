@@ -221,6 +221,9 @@ TEST(Storage, AnUploadPeaksUnderTwiceItsSize) {
   ASSERT_TRUE(s.ok()) << s.error_message();
   const double growth = static_cast<double>(daemon.peak_rss_kib() - before) * 1024.0 / static_cast<double>(csv.size());
   RecordProperty("peak_growth_per_byte", std::to_string(growth));
+  // A sanitized build keeps freed memory in quarantine (5.4 times here):
+  // the bound is for the build that is run.
+  if (testing::kSanitized) GTEST_SKIP() << "peak memory is not measured under the sanitizers (growth " << growth << ")";
   EXPECT_LT(growth, 2.0) << "peak resident memory grew by " << growth << " times the upload's " << csv.size()
                          << " bytes";
   datasets.reset();

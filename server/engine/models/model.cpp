@@ -1,6 +1,8 @@
 #include "engine/models/model.hpp"
 
 #include <array>
+#include <bit>
+#include <cstdint>
 #include <cstddef>
 #include <cmath>
 #include <limits>
@@ -64,11 +66,15 @@ int index_of(const std::vector<std::string>& names, std::string_view n) {
 // vectorised sum would load them in pairs before those stores complete, a
 // store-forwarding stall per pair that costs more than the tests (this runs
 // on every model evaluation).
+// Without a branch per value (this runs on every evaluation, a UKF's 13
+// points at a time): a double is NaN or infinite when its exponent bits are
+// all ones, and adding 1 to the exponent field then carries into bit 63.
+// Integer adds and ors, which SSE2 vectorises.
 bool all_finite(const double* v, std::size_t n) {
-  for (std::size_t i = 0; i < n; ++i) {
-    if (!std::isfinite(v[i])) return false;
-  }
-  return true;
+  constexpr std::uint64_t kExponent = 0x7ff0000000000000ULL, kOne = 0x0010000000000000ULL;
+  std::uint64_t carried = 0;
+  for (std::size_t i = 0; i < n; ++i) carried |= (std::bit_cast<std::uint64_t>(v[i]) & kExponent) + kOne;
+  return (carried >> 63) == 0;
 }
 
 // Scratch space for finite differences, per thread so that concurrent
