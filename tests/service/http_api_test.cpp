@@ -242,6 +242,13 @@ TEST_F(HttpApiTest, AnIdentificationSubmittedInJsonIsWatchedByEventsAndItsResult
   EXPECT_EQ(over_grpc.identification().theta_mean_size(), 4);
   // Doubles survive JSON exactly (protobuf prints the shortest round trip).
   EXPECT_TRUE(MessageDifferencer::Equals(over_http, over_grpc));
+  // Again: the JSON kept from the first time, the same to the byte.
+  const std::string first_body = res->body;
+  res = http_->Get(("/api/v1/jobs/" + job.id() + "/result").c_str(), bearer(kAlpha));
+  ASSERT_TRUE(res);
+  ASSERT_EQ(res->status, 200) << res->body;
+  EXPECT_EQ(res->body, first_body);
+  EXPECT_NE(res->get_header_value("Content-Type").find("application/json"), std::string::npos);
 
   // Another tenant: 404 for the job, its events and its result.
   for (const std::string& path : {"/api/v1/jobs/" + job.id(), "/api/v1/jobs/" + job.id() + "/events",
@@ -254,7 +261,8 @@ TEST_F(HttpApiTest, AnIdentificationSubmittedInJsonIsWatchedByEventsAndItsResult
   ASSERT_TRUE(res);
   EXPECT_EQ(parse<v1::ListJobsResponse>(res->body).jobs_size(), 1);
 
-  // DeleteJob: not another tenant's (404); the owner's goes with its result.
+  // DeleteJob: not another tenant's (404); the owner's goes with its result
+  // (the JSON kept in memory is not served for a job that is gone).
   res = http_->Delete(("/api/v1/jobs/" + job.id()).c_str(), bearer(kBeta));
   ASSERT_TRUE(res);
   EXPECT_EQ(res->status, 404);

@@ -55,9 +55,27 @@ int http_status(StatusCode code) {
 // protobuf's printer with always_print_primitive_fields writes them.
 std::string to_json(const google::protobuf::Message& message) { return message_to_json(message); }
 
-void reply(Response& res, const google::protobuf::Message& message) {
+// The JSON is moved into the response: set_content copies its argument, a
+// second allocation and copy of a result's megabytes.
+void reply_json(Response& res, std::string json) {
   res.status = 200;
-  res.set_content(to_json(message), "application/json");
+  res.body = std::move(json);
+  const auto [first, last] = res.headers.equal_range("Content-Type");
+  res.headers.erase(first, last);
+  res.set_header("Content-Type", "application/json");
+}
+
+void reply(Response& res, const google::protobuf::Message& message) { reply_json(res, to_json(message)); }
+
+// JSON that is kept (RenderedResults): sent from where it is, not copied
+// into the response; the response holds it while it is written.
+void reply_kept_json(Response& res, std::shared_ptr<const std::string> json) {
+  res.status = 200;
+  const std::size_t size = json->size();
+  res.set_content_provider(size, "application/json",
+                           [json = std::move(json)](std::size_t offset, std::size_t length, httplib::DataSink& sink) {
+                             return sink.write(json->data() + offset, length);
+                           });
 }
 
 void fail(Response& res, const Status& status, int http = 0) {
@@ -203,9 +221,19 @@ class HttpApi::Routes {
     }));
     server.Get(R"(/api/v1/jobs/([^/]+)/result)", authed([this](const std::string& tenant, const Request& req,
                                                                Response& res) {
-      const auto result = job_result(api_.jobs_, tenant, req.matches[1].str());
+      const std::string id = req.matches[1].str();
+      if (const auto kept = api_.rendered_results_.find(tenant, id)) {
+        // Served from memory only while the job is there (DeleteJob, retention).
+        const Result<JobRecord> job = api_.jobs_.get(tenant, id);
+        if (job.is_ok()) return reply_kept_json(res, kept);
+        api_.rendered_results_.erase(tenant, id);
+        return fail(res, job.status());
+      }
+      const auto result = job_result(api_.jobs_, tenant, id);
       if (!result.is_ok()) return fail(res, result.status());
-      reply(res, result.value());
+      auto json = std::make_shared<const std::string>(to_json(result.value()));
+      api_.rendered_results_.put(tenant, id, json);
+      reply_kept_json(res, std::move(json));
     }));
     server.Get(R"(/api/v1/jobs/([^/]+)/events)", authed([this](const std::string& tenant, const Request& req,
                                                                Response& res) { job_events(tenant, req.matches[1].str(), res); }));

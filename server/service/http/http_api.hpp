@@ -52,6 +52,7 @@
 #include "engine/status.hpp"
 #include "service/auth.hpp"
 #include "service/datasets/dataset_manager.hpp"
+#include "service/http/rendered_results.hpp"
 #include "service/jobs/job_manager.hpp"
 #include "service/limits.hpp"
 #include "service/models/model_catalog.hpp"
@@ -90,6 +91,9 @@ class HttpApi {
   // of this server's threads while it lasts, so there are at most this many
   // at once (503 past it), leaving threads for the other requests.
   static constexpr int kMaxEventStreams = 32;
+  // Results' JSON kept once written (rendered_results.hpp), at most this
+  // many bytes in all.
+  static constexpr std::size_t kRenderedResultBytes = 64 * 1024 * 1024;
 
  private:
   class Routes;
@@ -100,6 +104,7 @@ class HttpApi {
   SessionManager& sessions_;
   StreamSlots& stream_slots_;
   const Limits limits_;
+  RenderedResults rendered_results_{kRenderedResultBytes};
   std::unique_ptr<Routes> routes_;  // the handlers, which the server calls
   std::unique_ptr<httplib::Server> server_;
   std::thread thread_;
