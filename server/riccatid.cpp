@@ -12,6 +12,7 @@
 #include <csignal>
 #include <cstdio>
 #include <algorithm>
+#include <filesystem>
 #include <fstream>
 #include <limits>
 #include <utility>
@@ -21,6 +22,15 @@
 #include <spdlog/spdlog.h>
 
 #include "service/daemon.hpp"
+
+// Written whole or not at all (a temporary file renamed over it), so that a
+// reader never sees it empty or half written.
+static void write_port_file(const std::string& path, int port) {
+  const std::string temporary = path + ".tmp";
+  std::ofstream(temporary) << port << "\n";
+  std::error_code ignored;
+  std::filesystem::rename(temporary, path, ignored);
+}
 
 int main(int argc, char** argv) {
   using riccati::service::DaemonConfig;
@@ -184,12 +194,10 @@ int main(int argc, char** argv) {
     spdlog::error("riccatid cannot start: {}", started.message());
     return 1;
   }
-  if (!port_file.empty()) {
-    std::ofstream(port_file) << daemon.port() << "\n";
-  }
-  if (!http_port_file.empty() && daemon.http_port() != 0) {
-    std::ofstream(http_port_file) << daemon.http_port() << "\n";
-  }
+  // The HTTP port first: whoever waits for --port-file finds both once it is
+  // there (tests and scripts wait on it alone).
+  if (!http_port_file.empty() && daemon.http_port() != 0) write_port_file(http_port_file, daemon.http_port());
+  if (!port_file.empty()) write_port_file(port_file, daemon.port());
   int signal_number = 0;
   for (sigwait(&signals, &signal_number); signal_number == SIGHUP; sigwait(&signals, &signal_number)) {
     const auto reloaded = daemon.reload_models();  // the catalog logs what it found

@@ -259,6 +259,20 @@ TEST(ResultLimits, AJobWhoseResultWouldBeTooLargeIsRefusedAtSubmit) {
   }
 }
 
+// A Simulate of the two-tank model: `samples` samples 0.1 s apart under a
+// constant input, `substeps` RK4 steps each.
+v1::SimulateRequest two_tank_simulation(int samples, int substeps) {
+  v1::SimulateRequest r;
+  r.set_model("two_tank");
+  for (double x : {0.4, 0.15}) r.add_x0(x);
+  for (int k = 0; k < samples; ++k) r.add_t(0.1 * k);
+  r.mutable_u()->set_rows(2);
+  r.mutable_u()->set_cols(static_cast<std::uint32_t>(samples));
+  for (int k = 0; k < 2 * samples; ++k) r.mutable_u()->add_values(0.01);
+  r.mutable_integrator()->set_substeps(static_cast<std::uint32_t>(substeps));
+  return r;
+}
+
 // Simulate's work is bounded before it starts and stops when nobody waits:
 // 1e8 RK4 steps are refused naming the limit; a long simulation whose
 // deadline passed stops between samples (with one simulation allowed at a
@@ -269,17 +283,7 @@ TEST(SimulateLimits, WorkIsBoundedAtTheStartAndStopsAtTheDeadline) {
   DaemonProcess daemon(dir.path() / "data", {"--max-simulations", "1", "--max-simulation-steps", "400000000"});
   daemon.start();
   auto models = v1::ModelService::NewStub(daemon.channel());
-  auto request = [](int samples, int substeps) {
-    v1::SimulateRequest r;
-    r.set_model("two_tank");
-    for (double x : {0.4, 0.15}) r.add_x0(x);
-    for (int k = 0; k < samples; ++k) r.add_t(0.1 * k);
-    r.mutable_u()->set_rows(2);
-    r.mutable_u()->set_cols(static_cast<std::uint32_t>(samples));
-    for (int k = 0; k < 2 * samples; ++k) r.mutable_u()->add_values(0.01);
-    r.mutable_integrator()->set_substeps(static_cast<std::uint32_t>(substeps));
-    return r;
-  };
+  const auto request = two_tank_simulation;
   v1::SimulateResponse response;
   {
     grpc::ClientContext ctx;
@@ -403,15 +407,7 @@ TEST(Shutdown, LongSimulationsAndBatchesStopWithinTheGracePeriod) {
   daemon.start();
   auto models = v1::ModelService::NewStub(daemon.channel());
   auto sessions = v1::SessionService::NewStub(daemon.channel());
-  v1::SimulateRequest simulate;
-  simulate.set_model("two_tank");
-  for (double x : {0.4, 0.15}) simulate.add_x0(x);
-  constexpr int kSamples = 3001;
-  for (int k = 0; k < kSamples; ++k) simulate.add_t(0.1 * k);
-  simulate.mutable_u()->set_rows(2);
-  simulate.mutable_u()->set_cols(kSamples);
-  for (int k = 0; k < 2 * kSamples; ++k) simulate.mutable_u()->add_values(0.01);
-  simulate.mutable_integrator()->set_substeps(100'000);  // 3e8 steps: far longer than the grace
+  const v1::SimulateRequest simulate = two_tank_simulation(3001, 100'000);  // 3e8 steps: far longer than the grace
 
   v1::CreateSessionRequest create = testing::two_tank_session();
   create.mutable_filter()->mutable_integrator()->set_substeps(100'000);  // tens of ms a measurement
