@@ -103,6 +103,7 @@ class HttpApiTest : public ::testing::Test {
                                            "--http-port-file", (dir_.path() / "http_port").string()};
     extra.insert(extra.begin(), base.begin(), base.end());
     daemon_ = std::make_unique<DaemonProcess>(dir_.path() / "data", extra);
+    if (!log_file_.empty()) daemon_->set_log_file(log_file_);
     daemon_->start();
     std::ifstream(dir_.path() / "http_port") >> http_port_;
     ASSERT_GT(http_port_, 0) << "no --http-port-file";
@@ -132,6 +133,7 @@ class HttpApiTest : public ::testing::Test {
   }
 
   TempDir dir_;
+  std::filesystem::path log_file_;  // empty: the daemon's log goes to the test's output
   std::unique_ptr<DaemonProcess> daemon_;
   int http_port_ = 0;
   std::unique_ptr<httplib::Client> http_;
@@ -272,6 +274,43 @@ TEST_F(HttpApiTest, AnIdentificationSubmittedInJsonIsWatchedByEventsAndItsResult
   res = http_->Get(("/api/v1/jobs/" + job.id() + "/result").c_str(), bearer(kAlpha));
   ASSERT_TRUE(res);
   EXPECT_EQ(res->status, 404);
+}
+
+// The workbench opens a result when its job's end event arrives: the JSON is
+// written as the job ends (riccatid's debug log says where each one was
+// written), so that GET only sends it.
+TEST_F(HttpApiTest, AResultsJsonIsWrittenAsItsJobEndsAndTheFirstGetOnlySendsIt) {
+  daemon_.reset();
+  log_file_ = dir_.path() / "riccatid.log";
+  start({"--log-level", "debug"});
+  const v1::DatasetInfo info = upload_two_tank(kAlpha);
+  ASSERT_FALSE(info.id().empty());
+  v1::Job job;
+  ASSERT_TRUE(jobs_->SubmitIdentification(as(kAlpha).get(), testing::hensen_spec(info.id(), 2), &job).ok());
+  const std::string written_at_end = "result JSON written job=" + job.id() + " ";
+  const auto log_has = [&](const std::string& what, const std::string& where) {
+    const std::string log = read_file(log_file_.string());
+    for (std::size_t at = log.find(what); at != std::string::npos; at = log.find(what, at + 1)) {
+      if (log.compare(log.find('\n', at) - where.size(), where.size(), where) == 0) return true;
+    }
+    return false;
+  };
+  ASSERT_TRUE(testing::wait_until([&] { return log_has(written_at_end, "at=\"job end\""); },
+                                  std::chrono::seconds(60), "the result's JSON is written as the job ends"));
+
+  const auto res = http_->Get(("/api/v1/jobs/" + job.id() + "/result").c_str(), bearer(kAlpha));
+  ASSERT_TRUE(res);
+  ASSERT_EQ(res->status, 200) << res->body;
+  v1::GetResultRequest get;
+  get.set_job_id(job.id());
+  v1::JobResult over_grpc;
+  ASSERT_TRUE(jobs_->GetResult(as(kAlpha).get(), get, &over_grpc).ok());
+  EXPECT_TRUE(MessageDifferencer::Equals(parse<v1::JobResult>(res->body), over_grpc));
+  EXPECT_FALSE(log_has(written_at_end, "at=\"first GET\"")) << "the GET wrote the JSON again";
+  // Another tenant's GET finds nothing, written or not.
+  const auto other = http_->Get(("/api/v1/jobs/" + job.id() + "/result").c_str(), bearer(kBeta));
+  ASSERT_TRUE(other);
+  EXPECT_EQ(other->status, 404);
 }
 
 TEST_F(HttpApiTest, MalformedJsonIs400NamingTheFieldAndUnknownRoutesAre404) {

@@ -92,7 +92,7 @@ class HttpApi {
   // at once (503 past it), leaving threads for the other requests.
   static constexpr int kMaxEventStreams = 32;
   // Results' JSON kept once written (rendered_results.hpp), at most this
-  // many bytes in all.
+  // many bytes in all; written when a job ends here, or at the first GET.
   static constexpr std::size_t kRenderedResultBytes = 64 * 1024 * 1024;
 
  private:
@@ -104,7 +104,9 @@ class HttpApi {
   SessionManager& sessions_;
   StreamSlots& stream_slots_;
   const Limits limits_;
-  RenderedResults rendered_results_{kRenderedResultBytes};
+  // Shared with the job manager's result listener, which writes a result's
+  // JSON as its job ends (set while serving).
+  std::shared_ptr<RenderedResults> rendered_results_ = std::make_shared<RenderedResults>(kRenderedResultBytes);
   std::unique_ptr<Routes> routes_;  // the handlers, which the server calls
   std::unique_ptr<httplib::Server> server_;
   std::thread thread_;

@@ -362,6 +362,11 @@ void JobManager::set_change_listener(std::function<void(const std::string&)> lis
   change_listener_ = std::move(listener);
 }
 
+void JobManager::set_result_listener(ResultListener listener) {
+  std::lock_guard lock(mu_);
+  result_listener_ = std::move(listener);
+}
+
 void JobManager::notify_changed(const std::string& id) {
   std::function<void(const std::string&)> listener;
   {
@@ -550,6 +555,14 @@ void JobManager::finish(JobRecord job, const Result<std::string>& result,
   // next on /metrics includes it.
   if (stored.is_ok() && metrics_ != nullptr) {
     metrics_->job_ended(job.kind, job.state, std::chrono::steady_clock::now() - claimed);
+  }
+  if (stored.is_ok() && job.state == JobState::kSucceeded) {
+    ResultListener listener;
+    {
+      std::lock_guard lock(mu_);
+      listener = result_listener_;
+    }
+    if (listener) listener(job, result.value());
   }
   {
     std::lock_guard lock(mu_);

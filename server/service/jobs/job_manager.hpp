@@ -109,6 +109,12 @@ class JobManager {
   // with an empty id at shutdown; empty: none. The watch pump
   // (service/rpc/job_service.cpp) wakes on it.
   void set_change_listener(std::function<void(const std::string& id)> listener);
+  // Called on the worker thread with a job that succeeded and its result
+  // (encoded JobResult) once both are stored, before watchers hear of the
+  // end; empty: none. The HTTP API writes the result's JSON there, so that
+  // the workbench's GET after the end event finds it written.
+  using ResultListener = std::function<void(const JobRecord& job, const std::string& result)>;
+  void set_result_listener(ResultListener listener);
 
   static constexpr std::chrono::milliseconds kProgressInterval{100};
 
@@ -165,6 +171,7 @@ class JobManager {
   std::mutex submit_mu_;  // a limit check and the insert it allows go together
   std::mutex mu_;
   std::function<void(const std::string&)> change_listener_;  // a running job changed, or shutdown
+  ResultListener result_listener_;                            // a job's result was stored
   std::condition_variable work_ready_;  // a job was submitted here, or shutdown (workers)
   std::condition_variable stopped_;     // shutdown (the renewal thread)
   std::map<std::string, LiveJob> live_;  // the jobs running on this instance
