@@ -1,8 +1,8 @@
 #!/usr/bin/env bash
 # The web workbench on this machine, in one command: builds riccatid if
 # needed, starts it on loopback with the workbench (--http-listen), loads the
-# shipped datasets (tests/data/*.csv, their columns from the .json beside
-# them) unless they are there already, and prints the URL. Ctrl-C stops it.
+# shipped datasets (tests/data/*.csv, their columns and true parameters from
+# the .json beside them) unless they are there already, and prints the URL. Ctrl-C stops it.
 #
 #   scripts/workbench.sh [DATA_DIR]       (default: /var/tmp/riccati-workbench)
 #   RICCATI_HTTP=127.0.0.1:8080 RICCATI_LISTEN=127.0.0.1:7531 scripts/workbench.sh
@@ -37,8 +37,11 @@ for csv in "$root"/tests/data/*.csv; do
   query=$(/usr/bin/python3 - "${csv%.csv}.json" "$name" <<'PY'
 import json, sys, urllib.parse
 meta = json.load(open(sys.argv[1]))
-print(urllib.parse.urlencode({"name": sys.argv[2], "format": "csv", "input_columns": ",".join(meta["inputs"]),
-                              "output_columns": ",".join(meta["outputs"])}))
+query = {"name": sys.argv[2], "format": "csv", "input_columns": ",".join(meta["inputs"]),
+         "output_columns": ",".join(meta["outputs"])}
+if isinstance(meta.get("parameters"), dict):  # what it was simulated with: the result table's truth column
+    query["true_parameters"] = ",".join(f"{k}:{v!r}" for k, v in meta["parameters"].items())
+print(urllib.parse.urlencode(query))
 PY
 )
   curl -fsS -H 'Authorization: Bearer -' --data-binary "@$csv" "$base/api/v1/datasets?$query" >/dev/null

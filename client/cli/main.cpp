@@ -128,6 +128,10 @@ int main(int argc, char** argv) {
       ->check(CLI::PositiveNumber)
       ->excludes(upload_time);
   upload_cmd->add_option("--name", upload.name, "Name (default: the file name)");
+  std::string upload_truth;
+  upload_cmd->add_option("--truth", upload_truth,
+                         "NAME=VALUE,...: the parameters the data was made with (a simulated reference dataset); "
+                         "results on it show the error of each estimate");
   auto* data_list_cmd = data->add_subcommand("list", "List datasets");
   std::string data_id;
   auto* data_show_cmd = data->add_subcommand("show", "Show a dataset");
@@ -182,7 +186,7 @@ int main(int argc, char** argv) {
   result_cmd->add_option("id", job_id)->required();
   result_cmd->add_option("--format", format, "table, json or csv (traces and model outputs)")->capture_default_str();
   result_cmd->add_option("--output,-o", output, "Write to this file");
-  result_cmd->add_option("--truth", truth_text, "True parameters, to print the error");
+  result_cmd->add_option("--truth", truth_text, "True parameters, to print the error (default: those the dataset declares, data upload --truth)");
   std::string export_path;
   result_cmd->add_option("--export", export_path,
                          "Write the result to FILE.csv, FILE.json or FILE.mat (the 1999 toolbox's layout: T, Theta, "
@@ -273,7 +277,14 @@ int main(int argc, char** argv) {
     if (*models_reload_cmd) return models_reload(client);
     return models_list(client);
   }
-  if (*upload_cmd) return data_upload(client, upload);
+  if (*upload_cmd) {
+    std::string error;
+    if (!upload_truth.empty() && !parse_named_list(upload_truth, &upload.truth, &error)) {
+      std::fprintf(stderr, "riccati: --truth: %s\n", error.c_str());
+      return kExitUsage;
+    }
+    return data_upload(client, upload);
+  }
   if (*data_list_cmd) return data_list(client);
   if (*data_show_cmd) return data_show(client, data_id);
   if (*data_delete_cmd) return data_delete(client, data_id);

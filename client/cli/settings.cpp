@@ -668,6 +668,26 @@ bool parse_list(const std::string& text, std::vector<double>* out, std::string* 
   return true;
 }
 
+bool parse_named_list(const std::string& text, std::map<std::string, double>* out, std::string* error) {
+  out->clear();
+  std::stringstream ss(text);
+  std::string item;
+  while (std::getline(ss, item, ',')) {
+    const std::size_t equals = item.find('=');
+    double v = 0.0;
+    if (equals == std::string::npos || !parse_number(std::string_view(item).substr(equals + 1), &v)) {
+      *error = in_quotes(item) + " is not NAME=VALUE";
+      return false;
+    }
+    (*out)[std::string(trim(std::string_view(item).substr(0, equals)))] = v;
+  }
+  if (out->empty()) {
+    *error = "an empty list";
+    return false;
+  }
+  return true;
+}
+
 namespace {
 
 // A count for a uint32 field: past its range is past riccatid's limits too,

@@ -67,6 +67,7 @@
 
 #include <cstdint>
 #include <deque>
+#include <map>
 #include <optional>
 #include <string>
 #include <string_view>
@@ -156,6 +157,8 @@ class RunFlags {
 
 // Parses "1,2,3" (a flag's list).
 bool parse_list(const std::string& text, std::vector<double>* out, std::string* error);
+// Parses "A1=10,k1=0.08" (named values).
+bool parse_named_list(const std::string& text, std::map<std::string, double>* out, std::string* error);
 
 // What the flags' syntax cannot say alone: an --exclude of an experiment
 // that is not given. Everything else is riccatid's to check.

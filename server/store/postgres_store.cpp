@@ -137,6 +137,11 @@ const std::vector<const char*> kMigrations = {
     R"sql(
     ALTER TABLE datasets ADD COLUMN sha256 TEXT NOT NULL DEFAULT '';
     )sql",
+    // 9: the parameters a dataset was made with, when its upload declared
+    // them ("name=value" lines; '' for none).
+    R"sql(
+    ALTER TABLE datasets ADD COLUMN true_parameters TEXT NOT NULL DEFAULT '';
+    )sql",
 };
 
 // Leases are read against the database's clock, so that instances on hosts
@@ -269,7 +274,8 @@ JobRecord read_job(const pqxx::row& r) {
 }
 
 constexpr const char* kDatasetColumns =
-    "id, tenant, name, format, input_names, output_names, samples, t_start, t_end, size_bytes, created_ms, sha256";
+    "id, tenant, name, format, input_names, output_names, samples, t_start, t_end, size_bytes, created_ms, sha256, "
+    "true_parameters";
 
 DatasetRecord read_dataset(const pqxx::row& r) {
   DatasetRecord d;
@@ -285,6 +291,7 @@ DatasetRecord read_dataset(const pqxx::row& r) {
   d.size_bytes = r[9].as<std::int64_t>();
   d.created_ms = r[10].as<std::int64_t>();
   d.sha256 = r[11].as<std::string>();
+  d.true_parameters = decode_named_values(r[12].as<std::string>());
   return d;
 }
 
@@ -432,9 +439,10 @@ class PostgresStore final : public Store {
     return run<pqxx::work>("storing dataset " + r.id, false, [&](pqxx::work& tx) -> Status {
       tx.exec_params(
           "INSERT INTO datasets (id, tenant, name, format, input_names, output_names, samples, t_start, t_end, "
-          "size_bytes, created_ms, sha256) VALUES ($1, $2, $3, $4, $5::text[], $6::text[], $7, $8, $9, $10, $11, $12)",
+          "size_bytes, created_ms, sha256, true_parameters) VALUES ($1, $2, $3, $4, $5::text[], $6::text[], $7, $8, $9, "
+          "$10, $11, $12, $13)",
           r.id, r.tenant, r.name, r.format, text_array(r.input_names), text_array(r.output_names), r.samples,
-          r.t_start, r.t_end, r.size_bytes, r.created_ms, r.sha256);
+          r.t_start, r.t_end, r.size_bytes, r.created_ms, r.sha256, encode_named_values(r.true_parameters));
       tx.exec_params("INSERT INTO dataset_samples (dataset_id, t, u, y) VALUES ($1, $2::bytea, $3::bytea, $4::bytea)",
                      r.id, to_bytea(data.t.data(), static_cast<std::size_t>(data.t.size())),
                      to_bytea(data.u.data(), static_cast<std::size_t>(data.u.size())),

@@ -131,6 +131,11 @@ const std::vector<const char*> kMigrations = {
     R"sql(
     ALTER TABLE datasets ADD COLUMN sha256 TEXT NOT NULL DEFAULT '';
     )sql",
+    // 10: the parameters a dataset was made with, when its upload declared
+    // them ("name=value" lines; '' for none).
+    R"sql(
+    ALTER TABLE datasets ADD COLUMN true_parameters TEXT NOT NULL DEFAULT '';
+    )sql",
 };
 
 // Names never contain the ASCII unit separator, so it can join them.
@@ -282,7 +287,8 @@ JobRecord read_job(const Statement& s) {
 }
 
 constexpr const char* kDatasetColumns =
-    "id, tenant, name, format, input_names, output_names, samples, t_start, t_end, size_bytes, created_ms, sha256";
+    "id, tenant, name, format, input_names, output_names, samples, t_start, t_end, size_bytes, created_ms, sha256, "
+    "true_parameters";
 
 DatasetRecord read_dataset(const Statement& s) {
   DatasetRecord d;
@@ -298,6 +304,7 @@ DatasetRecord read_dataset(const Statement& s) {
   d.size_bytes = s.column_int(9);
   d.created_ms = s.column_int(10);
   d.sha256 = s.column_text(11);
+  d.true_parameters = decode_named_values(s.column_text(12));
   return d;
 }
 
@@ -370,10 +377,11 @@ class SqliteStore final : public Store {
     return in_transaction("storing dataset " + r.id, [&]() -> Status {
       Statement insert(db_.get(),
                        "INSERT INTO datasets (id, tenant, name, format, input_names, output_names, samples, t_start, "
-                       "t_end, size_bytes, created_ms, sha256) VALUES (?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?)");
+                       "t_end, size_bytes, created_ms, sha256, true_parameters) VALUES (?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?, "
+                       "?)");
       insert.text(r.id).text(r.tenant).text(r.name).text(r.format).text(join_names(r.input_names))
           .text(join_names(r.output_names)).integer(r.samples).real(r.t_start).real(r.t_end).integer(r.size_bytes)
-          .integer(r.created_ms).text(r.sha256);
+          .integer(r.created_ms).text(r.sha256).text(encode_named_values(r.true_parameters));
       RICCATI_RETURN_IF_ERROR(done(insert, "storing dataset " + r.id));
       Statement samples(db_.get(), "INSERT INTO dataset_samples (dataset_id, t, u, y) VALUES (?, ?, ?, ?)");
       samples.text(r.id)

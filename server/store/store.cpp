@@ -1,5 +1,6 @@
 #include "store/store.hpp"
 
+#include <charconv>
 #include <cstdio>
 
 namespace riccati {
@@ -50,6 +51,33 @@ std::string known_job_kinds_sql() {
     list += std::string(list.empty() ? "" : ", ") + "'" + job_kind_name(kind) + "'";
   }
   return list;
+}
+
+std::string encode_named_values(const std::map<std::string, double>& values) {
+  std::string out;
+  char number[32];
+  for (const auto& [name, value] : values) {
+    const auto end = std::to_chars(number, number + sizeof number, value).ptr;  // shortest round trip
+    out.append(name).append("=").append(number, end).append("\n");
+  }
+  return out;
+}
+
+std::map<std::string, double> decode_named_values(const std::string& text) {
+  std::map<std::string, double> values;
+  std::size_t at = 0;
+  while (at < text.size()) {
+    std::size_t end = text.find('\n', at);
+    if (end == std::string::npos) end = text.size();
+    const std::size_t equals = text.find('=', at);
+    if (equals < end) {
+      double value = 0.0;
+      std::from_chars(text.data() + equals + 1, text.data() + end, value);
+      values[text.substr(at, equals - at)] = value;
+    }
+    at = end + 1;
+  }
+  return values;
 }
 
 bool is_terminal(JobState state) {

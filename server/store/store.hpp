@@ -17,6 +17,7 @@
 #pragma once
 
 #include <cstdint>
+#include <map>
 #include <memory>
 #include <optional>
 #include <string>
@@ -40,7 +41,13 @@ struct DatasetRecord {
   std::int64_t size_bytes = 0;  // of the uploaded file
   std::int64_t created_ms = 0;
   std::string sha256;  // of the uploaded file, 64 hex digits ('' if stored before riccatid kept it)
+  std::map<std::string, double> true_parameters;  // declared at upload; empty: none
 };
+
+// Named values as one text column ("name=value" lines, values written to
+// round-trip exactly); names hold no '=' or newline (the service checks).
+std::string encode_named_values(const std::map<std::string, double>& values);
+std::map<std::string, double> decode_named_values(const std::string& text);
 
 enum class JobState { kQueued, kRunning, kSucceeded, kFailed, kCancelled };
 

@@ -555,6 +555,37 @@ TEST_F(CliTest, IdentifyByOutputErrorFindsTheTwoTankTruth) {
       << validated["parameters_from"];
 }
 
+// A dataset uploaded with the parameters it was made with: `data show`
+// lists them and `result` prints each estimate's error without --truth.
+TEST_F(CliTest, ADatasetsDeclaredTruthIsShownBesideItsResults) {
+  CliRun r = riccati("data upload " + kData + "/two_tank.csv --inputs F1,F2 --outputs h1,h2 --truth A1");
+  EXPECT_EQ(r.exit_code, 2);
+  EXPECT_NE(last_stderr().find("--truth: \"A1\" is not NAME=VALUE"), std::string::npos) << last_stderr();
+  r = riccati("data upload " + kData + "/two_tank.csv --inputs F1,F2 --outputs h1,h2 --truth 'A 1=10'");
+  EXPECT_EQ(r.exit_code, 1);
+  EXPECT_NE(last_stderr().find("\"A 1\" is not a parameter name"), std::string::npos) << last_stderr();
+  r = riccati("data upload " + kData + "/two_tank.csv --inputs F1,F2 --outputs h1,h2 "
+              "--truth A1=10,A2=5,k1=0.0791,k2=0.1342");
+  ASSERT_EQ(r.exit_code, 0) << last_stderr();
+  const std::string dataset = r.out.substr(0, r.out.find('\n'));
+  r = riccati("data show " + dataset);
+  EXPECT_NE(r.out.find("true parameters: A1 = 10, A2 = 5, k1 = 0.0791, k2 = 0.1342\n"), std::string::npos) << r.out;
+  r = riccati("identify --method oe --model two_tank --data " + dataset + " --theta0 20,20,1,1 --no-wait");
+  ASSERT_EQ(r.exit_code, 0) << last_stderr();
+  const std::string job = r.out.substr(0, r.out.find('\n'));
+  ASSERT_EQ(riccati("job watch " + job).exit_code, 0) << last_stderr();
+  const CliRun table = riccati("result " + job);
+  ASSERT_EQ(table.exit_code, 0) << last_stderr();
+  for (const auto& [name, truth] : std::vector<std::pair<std::string, std::string>>{
+           {"A1", "10"}, {"A2", "5"}, {"k1", "0.0791"}, {"k2", "0.1342"}}) {
+    // name, initial, estimate, std. error, [lo, hi], rel. std %, true, error %
+    const std::vector<std::string> row = words_of_line(table.out, name + " ");
+    ASSERT_GE(row.size(), 10u) << table.out;
+    EXPECT_EQ(row[8], truth) << table.out;
+    EXPECT_LT(std::abs(std::stod(row[9])), 1e-4) << name << " error %";
+  }
+}
+
 // CTSM-R's method with R estimated, on the first 500 samples of the noisy
 // record from near the truth (seconds): the table gives each parameter a
 // finite std and an interval around its estimate, and R with its std.

@@ -57,6 +57,22 @@ def test_data_without_a_time_column_takes_a_sample_time(client, tmp_path):
         client.upload(frame, inputs=["F1", "F2"], outputs=["h1", "h2"], ts=-1)
 
 
+def test_true_parameters_are_kept_with_the_dataset_and_checked(client):
+    truth = {"A1": 10.0, "A2": 5.0, "k1": 0.0791, "k2": 0.1342}
+    ds = client.upload(os.path.join(DATA, "two_tank.csv"), inputs=["F1", "F2"], outputs=["h1", "h2"],
+                       true_parameters=truth)
+    assert ds.true_parameters == truth
+    assert client.dataset(ds.id).true_parameters == truth
+    assert client.upload(os.path.join(DATA, "two_tank.csv"), inputs=["F1", "F2"],
+                         outputs=["h1", "h2"]).true_parameters == {}
+    with pytest.raises(riccati.InvalidArgument, match="not a finite number"):
+        client.upload(os.path.join(DATA, "two_tank.csv"), inputs=["F1", "F2"], outputs=["h1", "h2"],
+                      true_parameters={"A1": float("nan")})
+    with pytest.raises(riccati.InvalidArgument, match="is not a parameter name"):
+        client.upload(os.path.join(DATA, "two_tank.csv"), inputs=["F1", "F2"], outputs=["h1", "h2"],
+                      true_parameters={"A 1": 10.0})
+
+
 def test_a_mat_file(client):
     ds = client.upload(os.path.join(DATA, "two_tank.mat"), inputs=["F1", "F2"], outputs=["h1", "h2"])
     back = client.dataset_data(ds)

@@ -188,6 +188,20 @@ TEST_F(HttpApiTest, DatasetsUploadedOverHttpAreTheGrpcOnesAndOtherTenantsGet404)
   const auto data = parse<v1::DatasetData>(res->body);
   EXPECT_EQ(data.t_size(), 2000);
   EXPECT_EQ(data.y().rows(), 2u);
+  // Declared true parameters, kept with the dataset; a pair without a value is 400.
+  const std::string with_truth = "/api/v1/datasets?input_columns=F1,F2&output_columns=h1,h2&true_parameters=";
+  res = http_->Post((with_truth + "A1:10,k1:0.0791").c_str(), bearer(kAlpha), read_file(kData + "/two_tank.csv"),
+                    "text/csv");
+  ASSERT_TRUE(res);
+  ASSERT_EQ(res->status, 200) << res->body;
+  const auto declared = parse<v1::DatasetInfo>(res->body);
+  EXPECT_EQ(declared.true_parameters().size(), 2u);
+  EXPECT_EQ(declared.true_parameters().at("k1"), 0.0791);
+  res = http_->Post((with_truth + "A1").c_str(), bearer(kAlpha), read_file(kData + "/two_tank.csv"), "text/csv");
+  ASSERT_TRUE(res);
+  EXPECT_EQ(res->status, 400);
+  EXPECT_NE(parse<v1::Error>(res->body).message().find("true_parameters: expected name:value"), std::string::npos)
+      << res->body;
   // Another tenant sees nothing of it, over either transport.
   for (const std::string& path : {"/api/v1/datasets/" + info.id(), "/api/v1/datasets/" + info.id() + "/data"}) {
     res = http_->Get(path.c_str(), bearer(kBeta));

@@ -145,6 +145,8 @@ TEST_P(StoreTest, DatasetRoundTripIsBitExact) {
   const Dataset d = random_dataset(500, 1);
   DatasetRecord record = record_for("ds-1", "alice", d, 10);
   record.sha256 = std::string(64, 'a');
+  // Declared true parameters come back to the bit (0.1 and 1/3 have no short form).
+  record.true_parameters = {{"A1", 10.0}, {"k_1", 0.1}, {"third", 1.0 / 3.0}, {"tiny", -4.9e-324}};
   ASSERT_TRUE(store->put_dataset(record, d).is_ok());
   auto loaded = store->load_dataset("alice", "ds-1");
   ASSERT_TRUE(loaded.is_ok()) << loaded.status().to_string();
@@ -160,6 +162,10 @@ TEST_P(StoreTest, DatasetRoundTripIsBitExact) {
   EXPECT_EQ(std::bit_cast<std::uint64_t>(rec.value().t_end), std::bit_cast<std::uint64_t>(d.t[499]));
   EXPECT_EQ(rec.value().sha256, std::string(64, 'a'));
   EXPECT_EQ(store->list_datasets("alice").value().at(0).sha256, std::string(64, 'a'));
+  EXPECT_EQ(rec.value().true_parameters, record.true_parameters);
+  EXPECT_EQ(store->list_datasets("alice").value().at(0).true_parameters, record.true_parameters);
+  ASSERT_TRUE(store->put_dataset(record_for("ds-2", "alice", d, 11), d).is_ok());
+  EXPECT_TRUE(store->get_dataset("alice", "ds-2").value().true_parameters.empty());
 }
 
 TEST_P(StoreTest, NamesAndMetadataSurviveAnyCharacters) {
@@ -796,7 +802,7 @@ TEST(PostgresStore, StoresOpeningAtOnceOnAnEmptyDatabaseAllSucceed) {
   for (int i = 0; i < kStores; ++i) ASSERT_TRUE(opened[i].is_ok()) << i << ": " << opened[i].status().to_string();
   const pqxx::result versions = schema.exec("SELECT version FROM riccati_schema_migrations ORDER BY version");
   // Each migration applied once, in order.
-  ASSERT_EQ(versions.size(), 8u);  // postgres_store.cpp's migrations
+  ASSERT_EQ(versions.size(), 9u);  // postgres_store.cpp's migrations
   for (int v = 0; v < static_cast<int>(versions.size()); ++v) EXPECT_EQ(versions[v][0].as<int>(), v + 1);
   // And they share one database: what one stores, another reads.
   ASSERT_TRUE(opened[0].value()->put_job_pass("t", "none", 1, "c").code() == StatusCode::kNotFound);

@@ -37,6 +37,8 @@ from selenium.webdriver.support.ui import WebDriverWait
 
 ARGS = None
 TOKEN = "alpha-workbench-3e9d1c7b5a"
+# The two-tank record's true parameters (tests/data/two_tank.json).
+TRUTH = {"A1": 10, "A2": 5, "k1": 0.0791, "k2": 0.1342}
 # How long a wait may take before the test fails: generous, for a loaded
 # machine; the test never waits longer than what it waits for takes.
 WAIT = 180
@@ -167,7 +169,7 @@ class Workbench(unittest.TestCase):
         self.assertEqual(state.text, terminal_state, self.driver.find_element(By.ID, "main").text[:2000])
         return self.driver.current_url.split("#/jobs/")[1]
 
-    def upload(self, path, name):
+    def upload(self, path, name, truth=""):
         self.go("datasets")
         file_input = self.find("#upload-file")
         file_input.send_keys(path)
@@ -175,6 +177,8 @@ class Workbench(unittest.TestCase):
         field = self.find("#upload-name")
         field.clear()
         field.send_keys(name)
+        if truth:
+            self.find("#upload-truth").send_keys(truth)
         self.find("#upload-button").click()
         self.wait(lambda d: "Stored" in d.find_element(By.ID, "upload-status").text
                   or "error" in d.find_element(By.ID, "upload-status").get_attribute("innerHTML"))
@@ -202,14 +206,18 @@ class Workbench(unittest.TestCase):
 
     def test_2_upload_and_plot(self):
         csv = os.path.join(ARGS.source_dir, "tests/data/two_tank.csv")
-        Workbench.dataset = self.upload(csv, "two_tank.csv")
+        # With the parameters it was simulated with (tests/data/two_tank.json).
+        Workbench.dataset = self.upload(csv, "two_tank.csv", truth="A1:10, A2:5, k1:0.0791, k2:0.1342")
         info = self.api("/datasets/" + Workbench.dataset)
         self.assertEqual(int(info["samples"]), 2000)
         self.assertEqual(info["inputNames"], ["F1", "F2"])
         self.assertEqual(info["outputNames"], ["h1", "h2"])
+        self.assertEqual(info["trueParameters"], TRUTH)
         self.shot("datasets")
         self.go("datasets/" + Workbench.dataset)
         self.assertEqual(self.find("#dataset-name").text, "two_tank.csv")
+        self.assertEqual(self.find("#dataset-truth").text,
+                         "True parameters: A1 = 10, A2 = 5, k1 = 0.0791, k2 = 0.1342")
         self.assert_plots_drawn("#signal-plots", 4)
         self.shot("dataset")
 
@@ -256,6 +264,12 @@ class Workbench(unittest.TestCase):
             self.assertEqual(row.find_element(By.CSS_SELECTOR, "td.unit").text, ["m^2", "m^2", "m^2.5/s", "m^2.5/s"][i])
             # What is shown: the same number to five significant digits.
             self.assertAlmostEqual(float(estimate.text) / result["thetaMean"][i], 1.0, places=4)
+            # The truth the dataset declares, and the error in standard errors.
+            truth = row.find_element(By.CSS_SELECTOR, 'td[data-col="Truth"]')
+            self.assertEqual(float(truth.get_attribute("data-value")), TRUTH[name])
+            sigmas = row.find_element(By.CSS_SELECTOR, 'td[data-col="Error (σ)"]')
+            self.assertAlmostEqual(float(sigmas.get_attribute("data-value")),
+                                   (result["thetaMean"][i] - TRUTH[name]) / result["thetaStd"][i], places=9)
         # Hensen's estimates near the truth (two_tank.json: 10, 5, 0.0791, 0.1342).
         self.assertAlmostEqual(result["thetaMean"][0], 10, delta=1)
         self.find("#correlation")

@@ -4,6 +4,7 @@
 // identify.cpp, validate.cpp, stream.cpp, simulate.cpp, smooth.cpp.
 #pragma once
 
+#include <map>
 #include <optional>
 #include <string>
 #include <vector>
@@ -32,6 +33,7 @@ struct UploadOptions {
   std::string file, name, time = "t";
   std::vector<std::string> inputs, outputs;
   double sample_time = 0.0;  // --ts: no time column, t = k * sample_time
+  std::map<std::string, double> truth;  // --truth NAME=VALUE,...: the parameters the data was made with
 };
 int data_upload(Client& c, const UploadOptions& o, std::string* dataset_id = nullptr);
 int data_list(Client& c);

@@ -1,9 +1,11 @@
 #include <openssl/evp.h>
 
 #include <algorithm>
+#include <charconv>
 #include <cstdio>
 #include <filesystem>
 #include <fstream>
+#include <map>
 #include <optional>
 
 #include "commands/commands.hpp"
@@ -81,6 +83,7 @@ int data_upload(Client& c, const UploadOptions& o, std::string* dataset_id) {
   }
   for (const auto& i : o.inputs) h->add_input_columns(i);
   for (const auto& n : o.outputs) h->add_output_columns(n);
+  h->mutable_true_parameters()->insert(o.truth.begin(), o.truth.end());
   // Declared, so that the daemon reserves the quota for the whole file at once.
   std::error_code size_error;
   const auto size = std::filesystem::file_size(o.file, size_error);
@@ -142,6 +145,18 @@ int data_show(Client& c, const std::string& id) {
               info.id().c_str(), info.name().c_str(), static_cast<unsigned long long>(info.samples()), info.t_start(),
               info.t_end(), join(info.input_names()).c_str(), join(info.output_names()).c_str(),
               static_cast<unsigned long long>(info.size_bytes()));
+  if (!info.true_parameters().empty()) {
+    // In name order, as a map's are not.
+    const std::map<std::string, double> truth(info.true_parameters().begin(), info.true_parameters().end());
+    std::string line;
+    char number[32];
+    for (const auto& [name, value] : truth) {
+      // As given: the shortest text that reads back as the same double.
+      const auto end = std::to_chars(number, number + sizeof number, value).ptr;
+      line += (line.empty() ? "" : ", ") + name + " = " + std::string(number, end);
+    }
+    std::printf("  true parameters: %s\n", line.c_str());
+  }
   return kExitOk;
 }
 

@@ -241,6 +241,25 @@ void job_context(Client& c, const v1::Job& job, std::vector<double>* initial, Mo
   }
 }
 
+// The true parameters that the job's dataset declares (data upload
+// --truth), in the result's order; empty unless it declares every one.
+std::vector<double> declared_truth(Client& c, const v1::Job& job, const v1::JobResult& r) {
+  const auto& names = r.has_estimation() ? r.estimation().param_names() : r.identification().param_names();
+  if (!job.has_identification() || names.empty()) return {};
+  auto ctx = c.context();
+  v1::GetDatasetRequest request;
+  request.set_id(job.identification().dataset_id());
+  v1::DatasetInfo info;
+  if (!c.datasets->GetDataset(ctx.get(), request, &info).ok()) return {};
+  std::vector<double> truth;
+  for (const std::string& name : names) {
+    const auto it = info.true_parameters().find(name);
+    if (it == info.true_parameters().end()) return {};
+    truth.push_back(it->second);
+  }
+  return truth;
+}
+
 }  // namespace
 
 int result(Client& c, const std::string& id, const std::string& format_name, const std::string& output,
@@ -269,7 +288,7 @@ int result(Client& c, const std::string& id, const std::string& format_name, con
   } else if (format_name == "csv") {
     text = result_csv(r, names);
   } else if (format_name == "table") {
-    text = result_table(r, initial, truth, names);
+    text = result_table(r, initial, truth.empty() ? declared_truth(c, job, r) : truth, names);
   } else {
     std::fprintf(stderr, "riccati: unknown format \"%s\" (table, json or csv)\n", format_name.c_str());
     return kExitUsage;

@@ -2,10 +2,14 @@
 
 #include <spdlog/spdlog.h>
 
+#include <algorithm>
+#include <cctype>
+#include <cmath>
 #include <filesystem>
 #include <utility>
 
 #include "engine/sha256.hpp"
+#include "service/convert.hpp"
 #include "service/ids.hpp"
 
 namespace riccati::service {
@@ -74,11 +78,41 @@ Result<Dataset> DatasetManager::parse(std::string bytes, const ColumnMapping& ma
   return parsed;
 }
 
+namespace {
+
+// What a dataset may declare as its true parameters: names as models give
+// them (what the result table matches them by), finite values.
+Status check_true_parameters(const std::map<std::string, double>& values, const std::string& name) {
+  constexpr std::size_t kMaxValues = 64, kMaxName = 64;
+  if (values.size() > kMaxValues) {
+    return invalid_argument("true_parameters of " + name + ": " + std::to_string(values.size()) +
+                            " given, at most " + std::to_string(kMaxValues));
+  }
+  for (const auto& [parameter, value] : values) {
+    const bool well_formed =
+        !parameter.empty() && parameter.size() <= kMaxName && std::isdigit(static_cast<unsigned char>(parameter[0])) == 0 &&
+        std::all_of(parameter.begin(), parameter.end(),
+                    [](char c) { return std::isalnum(static_cast<unsigned char>(c)) != 0 || c == '_'; });
+    if (!well_formed) {
+      return invalid_argument("true_parameters of " + name + ": \"" + printable(parameter.substr(0, kMaxName)) +
+                              "\" is not a parameter name (letters, digits and '_', at most 64)");
+    }
+    if (!std::isfinite(value)) {
+      return invalid_argument("true_parameters of " + name + ": " + parameter + " is " + std::to_string(value) +
+                              ", not a finite number");
+    }
+  }
+  return Status::ok();
+}
+
+}  // namespace
+
 Result<DatasetRecord> DatasetManager::upload(UploadTicket& ticket, DatasetUpload& upload) {
   const std::string& tenant = ticket.tenant();
   const std::string name = upload.name.empty() ? "upload" : upload.name;
   const auto size = static_cast<std::int64_t>(upload.bytes.size());
   if (upload.bytes.empty()) return invalid_argument("upload of " + name + " is empty");
+  RICCATI_RETURN_IF_ERROR(check_true_parameters(upload.true_parameters, name));
   const std::string extension = std::filesystem::path(name).extension().string();
   const DatasetFormat format =
       upload.format.value_or(extension == ".mat" || extension == ".MAT" ? DatasetFormat::kMat : DatasetFormat::kCsv);
@@ -124,6 +158,7 @@ Result<DatasetRecord> DatasetManager::upload(UploadTicket& ticket, DatasetUpload
   record.t_end = data.t[data.size() - 1];
   record.size_bytes = size;
   record.sha256 = digest;
+  record.true_parameters = upload.true_parameters;
   record.created_ms = now_ms();
   const Status put = store_.put_dataset(record, data);
   if (put.code() == StatusCode::kAlreadyExists && !upload.request_id.empty()) {

@@ -25,6 +25,7 @@ struct DatasetUpload {
   ColumnMapping mapping;
   std::string bytes;                    // the whole file
   std::string request_id;               // the client's, for an idempotent upload; empty: none
+  std::map<std::string, double> true_parameters;  // declared by the client; empty: none
 };
 
 class DatasetManager;

@@ -5,6 +5,7 @@
 #include <httplib.h>
 #include <spdlog/spdlog.h>
 
+#include <charconv>
 #include <chrono>
 #include <optional>
 #include <string_view>
@@ -413,6 +414,18 @@ class HttpApi::Routes {
     header.set_time_column(req.get_param_value("time_column"));
     for (const auto& c : split_list(req.get_param_value("input_columns"))) header.add_input_columns(c);
     for (const auto& c : split_list(req.get_param_value("output_columns"))) header.add_output_columns(c);
+    for (const auto& pair : split_list(req.get_param_value("true_parameters"))) {
+      const std::size_t colon = pair.find(':');
+      double value = 0.0;
+      const char* const end = pair.data() + pair.size();
+      const auto parsed = colon == std::string::npos ? std::from_chars_result{pair.data(), std::errc::invalid_argument}
+                                                     : std::from_chars(pair.data() + colon + 1, end, value);
+      if (parsed.ec != std::errc() || parsed.ptr != end) {
+        return fail(res, invalid_argument("true_parameters: expected name:value pairs separated by commas, not \"" +
+                                          printable(pair) + "\""));
+      }
+      (*header.mutable_true_parameters())[pair.substr(0, colon)] = value;
+    }
     DatasetUpload upload = upload_from_header(header);
     if (req.has_header("Content-Length")) {
       const std::int64_t length = std::strtoll(req.get_header_value("Content-Length").c_str(), nullptr, 10);

@@ -12,7 +12,7 @@
 //   DELETE /api/v1/models/{name}             {}
 //   GET    /api/v1/datasets                  ListDatasetsResponse
 //   POST   /api/v1/datasets?name=&format=csv|mat&time_column=&input_columns=a,b&output_columns=c
-//                                            the file as the body; DatasetInfo
+//          &true_parameters=A1:10,k1:0.08    the file as the body; DatasetInfo
 //   GET    /api/v1/datasets/{id}             DatasetInfo
 //   GET    /api/v1/datasets/{id}/data        DatasetData
 //   DELETE /api/v1/datasets/{id}             {}

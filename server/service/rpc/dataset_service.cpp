@@ -19,6 +19,7 @@ DatasetUpload upload_from_header(const v1::UploadHeader& header) {
   upload.mapping.inputs.assign(header.input_columns().begin(), header.input_columns().end());
   upload.mapping.outputs.assign(header.output_columns().begin(), header.output_columns().end());
   upload.request_id = header.request_id();
+  upload.true_parameters.insert(header.true_parameters().begin(), header.true_parameters().end());
   return upload;
 }
 
@@ -46,6 +47,7 @@ v1::DatasetInfo to_proto(const DatasetRecord& r) {
   info.set_size_bytes(static_cast<uint64_t>(r.size_bytes));
   set_timestamp(r.created_ms, info.mutable_created());
   info.set_sha256(r.sha256);
+  info.mutable_true_parameters()->insert(r.true_parameters.begin(), r.true_parameters.end());
   return info;
 }
 

@@ -16,7 +16,8 @@ _CHUNK = 64 * 1024
 
 
 class Dataset:
-    """A dataset stored by riccatid: id, name, input_names, output_names, samples, t_start, t_end."""
+    """A dataset stored by riccatid: id, name, input_names, output_names, samples, t_start, t_end,
+    true_parameters (a dict, empty unless the upload declared them)."""
 
     def __init__(self, info):
         self.proto = info
@@ -27,6 +28,7 @@ class Dataset:
         self.samples = info.samples
         self.t_start = info.t_start
         self.t_end = info.t_end
+        self.true_parameters = dict(info.true_parameters)
 
     def __repr__(self):
         return f"<Dataset {self.id} {self.name!r}: {self.samples} samples>"
@@ -140,18 +142,23 @@ class Client:
 
     # ------------------------------------------------------------ datasets
 
-    def upload(self, data, inputs=None, outputs=None, time="t", name=None, request_id=None, ts=None):
+    def upload(self, data, inputs=None, outputs=None, time="t", name=None, request_id=None, ts=None,
+               true_parameters=None):
         """Stores a dataset: a CSV or MAT file's path, a pandas DataFrame (a time
         column, else its index, and the columns named by inputs and outputs), or
         (t, u, y) numpy arrays with a sample per row. Returns a Dataset (its .id).
         ts: the sample time of a CSV file or DataFrame without a time column
-        (t = k * ts), as the CLI's --ts. request_id (default: a new UUID) makes a
-        retry get the same dataset."""
+        (t = k * ts), as the CLI's --ts. true_parameters: {name: value}, the
+        parameters the data was made with, as the CLI's --truth (the workbench's
+        result table then shows each estimate's error). request_id (default: a
+        new UUID) makes a retry get the same dataset."""
         file_name, content, inputs, outputs, time = _data.as_upload(data, inputs, outputs, time, ts)
         header = datasets_pb2.UploadHeader(name=name or file_name, time_column=time,
                                            input_columns=list(inputs or []), output_columns=list(outputs or []),
                                            request_id=request_id or str(uuid.uuid4()), size_bytes=len(content),
-                                           sample_time=float(ts or 0.0))
+                                           sample_time=float(ts or 0.0),
+                                           true_parameters={str(k): float(v) for k, v in
+                                                            (true_parameters or {}).items()})
 
         def parts():
             yield datasets_pb2.UploadDatasetRequest(header=header)

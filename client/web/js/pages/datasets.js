@@ -40,6 +40,7 @@ function uploadForm(models, refresh) {
   const time = h('input', {id: 'upload-time', value: 't', size: 6});
   const inputs = h('input', {id: 'upload-inputs', placeholder: 'F1,F2', size: 18});
   const outputs = h('input', {id: 'upload-outputs', placeholder: 'h1,h2', size: 18});
+  const truth = h('input', {id: 'upload-truth', placeholder: 'A1:10,A2:5 (optional)', size: 24});
   const model = h('select', {id: 'upload-model'}, h('option', {value: ''}, '(none)'),
     models.map((m) => h('option', {value: m.name}, m.name)));
   const columns = h('div', {class: 'chips muted', id: 'upload-columns'});
@@ -79,6 +80,7 @@ function uploadForm(models, refresh) {
       h('label', {}, 'Time column', time),
       h('label', {}, 'Input columns', inputs),
       h('label', {}, 'Output columns', outputs),
+      h('label', {title: 'The parameters the data was made with, if known: results on it show each estimate\'s error'}, 'True parameters', truth),
       h('label', {}, '\u00a0', submit)),
     status);
   form.addEventListener('submit', async (e) => {
@@ -90,6 +92,7 @@ function uploadForm(models, refresh) {
       format: f.name.toLowerCase().endsWith('.mat') ? 'mat' : 'csv',
       time_column: time.value, input_columns: inputs.value, output_columns: outputs.value,
     });
+    if (truth.value.trim()) query.set('true_parameters', truth.value.replace(/\s+/g, ''));
     submit.disabled = true;
     clear(status, h('span', {class: 'muted'}, 'Uploading…'));
     try {
@@ -115,6 +118,9 @@ async function showOne(main, id, signal) {
       h('a', {href: `#/identify?dataset=${encodeURIComponent(id)}`}, 'Identify with it'), ' · ',
       h('a', {href: `#/validate?dataset=${encodeURIComponent(id)}`}, 'Validate on it'), ' · ',
       h('a', {href: '#/datasets'}, 'All datasets')),
+    Object.keys(info.trueParameters || {}).length === 0 ? null :
+      h('p', {id: 'dataset-truth'}, 'True parameters: ', Object.entries(info.trueParameters).sort(([a], [b]) => a.localeCompare(b))
+        .map(([n, v]) => `${n} = ${fmt(num(v), 6)}`).join(', ')),
     plots);
   (info.inputNames || []).forEach((n, i) => plot(plots, {title: `input ${n}`, x: t, series: [{label: n, values: row(data.u, i)}]}));
   (info.outputNames || []).forEach((n, i) => plot(plots, {title: `output ${n}`, x: t, series: [{label: n, values: row(data.y, i), color: '#d1242f'}]}));

@@ -1,5 +1,5 @@
 // A finished job's result: the estimates' table (estimate, standard error,
-// 95 % interval), the correlation matrix, parameter traces per pass,
+// 95 % interval; truth and error when the dataset declares them), the correlation matrix, parameter traces per pass,
 // measured against modelled outputs, and the residual diagnostics with their
 // bands; a validation's measured against simulated outputs with fit %.
 import {api} from '../api.js';
@@ -9,9 +9,26 @@ import {color, plot} from '../plot.js';
 export async function showResult(el, job, result, model, signal) {
   clear(el);
   if (result.identification) return identification(el, job, result.identification, model, signal);
-  if (result.estimation) return estimation(el, job, result.estimation, model);
+  if (result.estimation) return estimation(el, job, result.estimation, model, signal);
   if (result.validation) return validation(el, result.validation, model);
   if (result.smoothing) return smoothing(el, result.smoothing, model);
+}
+
+// The true parameters the dataset declares (uploaded with them), by name.
+async function declaredTruth(datasetId, signal) {
+  if (!datasetId) return {};
+  const info = await api('GET', `/datasets/${encodeURIComponent(datasetId)}`, undefined, {signal}).catch(() => null);
+  return (info && info.trueParameters) || {};
+}
+
+// Truth and the error in standard errors, for the parameters the dataset
+// declares (as the CLI's result table with --truth).
+function truthColumns(names, truth, estimate, std) {
+  if (!names.some((n) => n in truth)) return [];
+  const value = (i) => (names[i] in truth ? num(truth[names[i]]) : NaN);
+  const sigmas = (i) => (estimate[i] - value(i)) / std[i];
+  return [['Truth', (i) => (names[i] in truth ? fmt(value(i), 5) : '–'), value],
+    ['Error (σ)', (i) => (Number.isFinite(sigmas(i)) ? sigmas(i).toFixed(2) : '–'), sigmas]];
 }
 
 // The parameters' estimates, a row each, with the unit the model declares.
@@ -62,12 +79,14 @@ async function identification(el, job, r, model, signal) {
   const names = r.paramNames || [];
   const mean = (r.thetaMean || []).map(num), std = (r.thetaStd || []).map(num), end = (r.theta || []).map(num);
   const spec = job.identification || {};
+  const truth = await declaredTruth(spec.datasetId, signal);
   el.append(h('h2', {}, 'Estimates'),
     resultTable(names, [
       ['Estimate', (i) => fmt(mean[i], 5), (i) => mean[i]],
       ['Std error', (i) => fmt(std[i], 3), (i) => std[i]],
       ['95 % interval', (i) => `${fmt(mean[i] - 1.96 * std[i], 4)} … ${fmt(mean[i] + 1.96 * std[i], 4)}`],
-      ['End of last pass', (i) => fmt(end[i], 5)]], model),
+      ['End of last pass', (i) => fmt(end[i], 5)],
+      ...truthColumns(names, truth, mean, std)], model),
     h('p', {class: 'muted'}, 'Estimate: the mean over the last pass (the toolbox\'s); std error: √diag P at its end.'),
     (r.warnings || []).map((w) => h('p', {class: 'warn'}, w)),
     h('p', {}, h('a', {class: 'button', id: 'validate-link', href: `#/validate?job=${encodeURIComponent(job.id)}&model=${encodeURIComponent(spec.model)}&dataset=${encodeURIComponent(spec.datasetId)}`}, 'Validate this estimate')));
@@ -108,15 +127,17 @@ async function identification(el, job, r, model, signal) {
     }))));
 }
 
-function estimation(el, job, r, model) {
+async function estimation(el, job, r, model, signal) {
   const names = r.paramNames || [];
   const theta = (r.theta || []).map(num), std = (r.thetaStd || []).map(num);
   const spec = job.identification || {};
+  const truth = await declaredTruth(spec.datasetId, signal);
   el.append(h('h2', {}, 'Estimates'),
     resultTable(names, [
       ['Estimate', (i) => fmt(theta[i], 5), (i) => theta[i]],
       ['Std error', (i) => (r.fixed || [])[i] ? 'fixed' : fmt(std[i], 3), (i) => std[i]],
-      ['95 % interval', (i) => `${fmt((r.ciLower || [])[i], 4)} … ${fmt((r.ciUpper || [])[i], 4)}`]], model),
+      ['95 % interval', (i) => `${fmt((r.ciLower || [])[i], 4)} … ${fmt((r.ciUpper || [])[i], 4)}`],
+      ...truthColumns(names, truth, theta, std)], model),
     h('p', {class: 'muted'}, `${r.converged ? 'Converged' : 'Did not converge'} after ${num(r.iterations)} iterations (${r.termination || ''}); cost ${fmt(r.cost)}; gradient: ${r.gradient || ''}.`),
     (r.warnings || []).map((w) => h('p', {class: 'warn'}, w)),
     h('p', {}, h('a', {class: 'button', id: 'validate-link', href: `#/validate?job=${encodeURIComponent(job.id)}&model=${encodeURIComponent(spec.model)}&dataset=${encodeURIComponent(spec.datasetId)}`}, 'Validate this estimate')));
