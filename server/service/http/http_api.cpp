@@ -56,8 +56,18 @@ int http_status(StatusCode code) {
 // protobuf's printer with always_print_primitive_fields writes them.
 std::string to_json(const google::protobuf::Message& message) { return message_to_json(message); }
 
-long long micros_since(std::chrono::steady_clock::time_point began) {
-  return std::chrono::duration_cast<std::chrono::microseconds>(std::chrono::steady_clock::now() - began).count();
+// A result's JSON, written and kept for GETs to send; `when` ("job end",
+// "first GET") goes to the debug log with the time it took.
+std::shared_ptr<const std::string> keep_result_json(RenderedResults& kept, const std::string& tenant,
+                                                    const std::string& job_id, const v1::JobResult& result,
+                                                    const char* when) {
+  const auto began = std::chrono::steady_clock::now();
+  auto json = std::make_shared<const std::string>(to_json(result));
+  const auto us =
+      std::chrono::duration_cast<std::chrono::microseconds>(std::chrono::steady_clock::now() - began).count();
+  spdlog::debug("result JSON written job={} bytes={} us={} at=\"{}\"", job_id, json->size(), us, when);
+  kept.put(tenant, job_id, json);
+  return json;
 }
 
 // A result is mostly doubles: 8 bytes each encoded, at most 24 characters
@@ -238,14 +248,9 @@ class HttpApi::Routes {
         api_.rendered_results_->erase(tenant, id);
         return fail(res, job.status());
       }
-      const auto began = std::chrono::steady_clock::now();
       const auto result = job_result(api_.jobs_, tenant, id);
       if (!result.is_ok()) return fail(res, result.status());
-      auto json = std::make_shared<const std::string>(to_json(result.value()));
-      spdlog::debug("result JSON written job={} bytes={} us={} at=\"first GET\"", id, json->size(),
-                    micros_since(began));
-      api_.rendered_results_->put(tenant, id, json);
-      reply_kept_json(res, std::move(json));
+      reply_kept_json(res, keep_result_json(*api_.rendered_results_, tenant, id, result.value(), "first GET"));
     }));
     server.Get(R"(/api/v1/jobs/([^/]+)/events)", authed([this](const std::string& tenant, const Request& req,
                                                                Response& res) { job_events(tenant, req.matches[1].str(), res); }));
@@ -622,13 +627,9 @@ Result<int> HttpApi::serve(const HttpOptions& options, const SecurityConfig& sec
   // memory. Results whose JSON could not be kept are not written.
   jobs_.set_result_listener([kept = rendered_results_](const JobRecord& job, const std::string& encoded) {
     if (encoded.size() * kJsonBytesPerEncodedByte > kRenderedResultBytes) return;
-    const auto began = std::chrono::steady_clock::now();
     v1::JobResult result;
     if (!result.ParseFromString(encoded)) return;  // GetResult says so
-    auto json = std::make_shared<const std::string>(to_json(result));
-    spdlog::debug("result JSON written job={} bytes={} us={} at=\"job end\"", job.id, json->size(),
-                  micros_since(began));
-    kept->put(job.tenant, job.id, std::move(json));
+    keep_result_json(*kept, job.tenant, job.id, result, "job end");
   });
   thread_ = std::thread([server = server_.get()] { server->listen_after_bind(); });
   *description = std::string(tls ? (security.tls_client_ca.empty() ? "https" : "https, client certificates")
