@@ -36,14 +36,103 @@
 // measurements act during the integration).
 #include <Eigen/Cholesky>
 #include <Eigen/Core>
+#include <cmath>
 #include <string>
 #include <vector>
 
 #include "engine/filters/filter.hpp"
+#include "engine/filters/fixed_size.hpp"
 
 namespace riccati {
 
 namespace {
+
+// out = a b, for matrices of a few rows and columns: each coefficient a
+// sum kept in a register (Eigen's products, coefficient-wise or blocked,
+// and a column-wise accumulation through memory all cost more than the
+// arithmetic at these sizes).
+void multiply(const Eigen::MatrixXd& a, const Eigen::MatrixXd& b, Eigen::MatrixXd& out) {
+  const int rows = static_cast<int>(a.rows()), inner = static_cast<int>(a.cols()), cols = static_cast<int>(b.cols());
+  const double* __restrict A = a.data();
+  const double* __restrict B = b.data();
+  double* __restrict O = out.data();
+  for (int j = 0; j < cols; ++j) {
+    for (int i = 0; i < rows; ++i) {
+      double s = 0.0;
+      for (int k = 0; k < inner; ++k) s += A[i + k * rows] * B[k + j * inner];
+      O[i + j * rows] = s;
+    }
+  }
+}
+
+// The lower Cholesky factor of the symmetric n x n matrix a (column-major)
+// into l, its diagonal stored as reciprocals (so that solving multiplies);
+// false when a is not positive definite.
+bool cholesky(int n, const double* __restrict a, double* __restrict l) {
+  for (int j = 0; j < n; ++j) {
+    double d = a[j + j * n];
+    for (int k = 0; k < j; ++k) d -= l[j + k * n] * l[j + k * n];
+    if (!(d > 0.0)) return false;
+    const double r = 1.0 / std::sqrt(d);
+    l[j + j * n] = r;
+    for (int i = j + 1; i < n; ++i) {
+      double s = a[i + j * n];
+      for (int k = 0; k < j; ++k) s -= l[i + k * n] * l[j + k * n];
+      l[i + j * n] = s * r;
+    }
+  }
+  return true;
+}
+
+// b := (l l')^-1 b for the m columns of the n x m matrix b, l from
+// cholesky(); instantiated per n (fixed_size.hpp): the loops of a 3 x 3
+// solve are shorter than their branches.
+template <int NN>
+void cholesky_solve(int n_runtime, const double* __restrict l, double* __restrict b, int m) {
+  const int n = size_or<NN>(n_runtime);
+  for (int c = 0; c < m; ++c) {
+    double* x = b + c * n;
+    for (int i = 0; i < n; ++i) {  // l y = b
+      double s = x[i];
+      for (int k = 0; k < i; ++k) s -= l[i + k * n] * x[k];
+      x[i] = s * l[i + i * n];
+    }
+    for (int i = n - 1; i >= 0; --i) {  // l' x = y
+      double s = x[i];
+      for (int k = i + 1; k < n; ++k) s -= l[k + i * n] * x[k];
+      x[i] = s * l[i + i * n];
+    }
+  }
+}
+using CholeskySolveFn = void (*)(int, const double*, double*, int);
+
+// out(:, j) (+)= alpha sum_k a(:, k) b(k, j) for j < cols, with a n x inner
+// (column-major) and b(k, j) = b[k * row_stride + j * col_stride] (so that
+// b can be a transpose or a row). For n fixed at compile time the column
+// is summed in registers; the stores of a sum through memory otherwise
+// chain each term to the last.
+template <int NN>
+void product_columns(int n_runtime, int inner, int cols, const double* __restrict a, const double* __restrict b,
+                     int row_stride, int col_stride, double alpha, bool accumulate, double* __restrict out) {
+  const int n = size_or<NN>(n_runtime);
+  for (int j = 0; j < cols; ++j) {
+    double* o = out + j * n;
+    if constexpr (NN != kDynamicSize) {
+      double sum[NN] = {};
+      for (int k = 0; k < inner; ++k) {
+        const double c = b[k * row_stride + j * col_stride];
+        for (int i = 0; i < NN; ++i) sum[i] += a[i + k * NN] * c;
+      }
+      for (int i = 0; i < NN; ++i) o[i] = accumulate ? o[i] + alpha * sum[i] : alpha * sum[i];
+    } else {
+      for (int i = 0; i < n; ++i) {
+        double sum = 0.0;
+        for (int k = 0; k < inner; ++k) sum += a[i + k * n] * b[k * row_stride + j * col_stride];
+        o[i] = accumulate ? o[i] + alpha * sum : alpha * sum;
+      }
+    }
+  }
+}
 
 class OptimalFilter final : public Filter {
  public:
@@ -64,8 +153,7 @@ class OptimalFilter final : public Filter {
     C_ = Eigen::MatrixXd::Zero(L, N);  // the input rows stay zero
     VD_.resize(L, P);
     DVD_.resize(P, P);
-    DVD_llt_ = Eigen::LLT<Eigen::MatrixXd>(P);
-    DVr_.resize(P);
+    DVD_factor_.resize(P, P);
     KDVC_.resize(P, N);
     K_.resize(P, P);
     KDV_.resize(P, L);
@@ -73,9 +161,9 @@ class OptimalFilter final : public Filter {
     Vzeta_.resize(L);
     CtVzeta_.resize(N);
     Q_sym_.resize(N, N);
-    AtQ_.resize(N, N);
-    CQ_.resize(L, N);
-    V_tilde_CQ_.resize(L, N);
+    AtQ_cols_.resize(N, 2 * n_);
+    QCt_.resize(N, L);
+    QCtV_tilde_.resize(N, L);
     p_hat_ = Eigen::VectorXd::Zero(P);
     zeta_ = Eigen::VectorXd::Zero(L);
     u_now_.resize(nu);
@@ -83,7 +171,8 @@ class OptimalFilter final : public Filter {
     y_next_.resize(ny);
     y_now_.resize(ny);
     x_hat_Q_.resize(N + N * N);
-    identity_P_ = Eigen::MatrixXd::Identity(P, P);
+    derivatives_ = kernel_for<1, kMaxFixedSize>(N, []<int NN>() { return &OptimalFilter::derivatives_for<NN>; });
+    cholesky_solve_ = kernel_for<1, 6>(P, []<int NN>() -> CholeskySolveFn { return &cholesky_solve<NN>; });
     // Split-step update.
     V_tilde_ldlt_ = Eigen::LDLT<Eigen::MatrixXd>(L);
     L_factor_.resize(L, L);
@@ -169,7 +258,9 @@ class OptimalFilter final : public Filter {
   class Rhs final : public OdeRhs {
    public:
     explicit Rhs(OptimalFilter* filter) : filter_(filter) {}
-    Status eval(double t, const double* y, double* ydot) override { return filter_->derivatives(t, y, ydot); }
+    Status eval(double t, const double* y, double* ydot) override {
+      return (filter_->*(filter_->derivatives_))(t, y, ydot);
+    }
 
    private:
     OptimalFilter* filter_;
@@ -216,40 +307,66 @@ class OptimalFilter final : public Filter {
     r_.head(n_) = -f_.head(n_);
     r_.segment(n_, nu) = Eigen::Map<const Eigen::VectorXd>(u, nu);
     r_.tail(ny) = Eigen::Map<const Eigen::VectorXd>(y, ny) - f_.tail(ny);
-    VD_.noalias() = V_.lazyProduct(D_);
-    DVD_.noalias() = D_.transpose().lazyProduct(VD_);
-    DVD_llt_.compute(DVD_);
-    if (DVD_llt_.info() != Eigen::Success) {
+    // The products below are of a few rows and columns (L = 5, P = 3 for
+    // the manipulator): plain loops, column by column.
+    const int L = static_cast<int>(r_.size());
+    multiply(V_, D_, VD_);
+    for (int j = 0; j < P; ++j) {  // D'VD, symmetric: the lower triangle, mirrored
+      for (int i = j; i < P; ++i) DVD_(i, j) = DVD_(j, i) = D_.col(i).dot(VD_.col(j));
+    }
+    if (!cholesky(P, DVD_.data(), DVD_factor_.data())) {
       return failed_precondition(
           "D'VD is singular: the inputs and accelerations are not determined by the weighted equations (give "
           "the measured inputs, or outputs that see the accelerations, a positive weight in V)");
     }
-    DVr_.noalias() = VD_.transpose() * r_;
-    p_hat_ = DVD_llt_.solve(DVr_);
-    zeta_ = r_;
-    zeta_.noalias() -= D_ * p_hat_;
-    // C = d(f + F p)/dx with p held at p^; the input rows are constant.
-    auto C_motion = C_.topRows(n_);
-    auto C_output = C_.bottomRows(ny);
-    C_motion = df_dx_.topRows(n_);
-    C_output = df_dx_.bottomRows(ny);
-    for (int j = 0; j < P; ++j) {
-      const auto dF = dF_dx_.middleRows(j * Lp, Lp);
-      C_motion += p_hat_[j] * dF.topRows(n_);
-      C_output += p_hat_[j] * dF.bottomRows(ny);
+    // K D'V = (D'VD)^-1 (VD)' and K = (D'VD)^-1, by the Cholesky factor.
+    for (int l = 0; l < L; ++l) {
+      for (int i = 0; i < P; ++i) KDV_(i, l) = VD_(l, i);
     }
-    KDV_ = DVD_llt_.solve(VD_.transpose());
-    KDVC_.noalias() = KDV_.lazyProduct(C_);
-    K_ = DVD_llt_.solve(identity_P_);
-    V_tilde_ = V_;
-    V_tilde_.noalias() -= VD_.lazyProduct(KDV_);
+    cholesky_solve_(P, DVD_factor_.data(), KDV_.data(), L);
+    K_.setIdentity();
+    cholesky_solve_(P, DVD_factor_.data(), K_.data(), P);
+    // Each coefficient below is a sum kept in a register.
+    for (int i = 0; i < P; ++i) {  // p^ = K D'V r
+      double s = 0.0;
+      for (int l = 0; l < L; ++l) s += KDV_(i, l) * r_[l];
+      p_hat_[i] = s;
+    }
+    for (int l = 0; l < L; ++l) {  // zeta = r - D p^
+      double s = r_[l];
+      for (int j = 0; j < P; ++j) s -= D_(l, j) * p_hat_[j];
+      zeta_[l] = s;
+    }
+    // C = d(f + F p)/dx with p held at p^; the input rows are constant.
+    const int N = static_cast<int>(C_.cols());
+    for (int k = 0; k < N; ++k) {
+      const double* df = df_dx_.col(k).data();
+      const double* dF = dF_dx_.col(k).data();  // P blocks of Lp rows
+      double* c = C_.col(k).data();
+      for (int i = 0; i < Lp; ++i) {
+        double s = df[i];
+        for (int j = 0; j < P; ++j) s += p_hat_[j] * dF[j * Lp + i];
+        c[i < n_ ? i : i + nu] = s;  // rows of motion, then (after the inputs') of the outputs
+      }
+    }
+    multiply(KDV_, C_, KDVC_);
+    for (int j = 0; j < L; ++j) {  // V~ = V - VD K D'V
+      for (int i = 0; i < L; ++i) {
+        double s = V_(i, j);
+        for (int k = 0; k < P; ++k) s -= VD_(i, k) * KDV_(k, j);
+        V_tilde_(i, j) = s;
+      }
+    }
     return Status::ok();
   }
 
   // The right-hand side of [x^; vec Q] (eq 8 and 10; without their
-  // measurement terms in the split-step form).
-  Status derivatives(double t, const double* w, double* wdot) {
-    const int N = model_->nz(), nth = N - 2 * n_, nu = model_->nu();
+  // measurement terms in the split-step form), for N = nz fixed at compile
+  // time (fixed_size.hpp): its N x N loops are most of a step.
+  template <int NN>
+  Status derivatives_for(double t, const double* w, double* wdot) {
+    const int N = size_or<NN>(model_->nz()), nu = model_->nu(), L = static_cast<int>(r_.size());
+    const int n = n_;
     u_now_ = Eigen::Map<const Eigen::VectorXd>(hold_.at(t), u_now_.size());
     if (interpolating_) {
       const double a = (t - hold_.t0()) / (hold_.t1() - hold_.t0());
@@ -257,34 +374,65 @@ class OptimalFilter final : public Filter {
     } else {
       y_now_ = y_last_;
     }
-    const Eigen::Map<const Eigen::MatrixXd> Q(w + N, N, N);
-    if (!Eigen::Map<const Eigen::VectorXd>(w, N).allFinite() || !Q.allFinite()) {
+    const double* Q = w + N;
+    if (!Eigen::Map<const Eigen::VectorXd>(w, N + N * N).allFinite()) {
       // An explicit step past the stiffness limit blows up inside the step.
       return with_divergence_hint(failed_precondition("filter diverged: the estimate is not finite at t = " +
                                                       std::to_string(t) + " inside the step"));
     }
     RICCATI_RETURN_IF_ERROR(equations(t, w, u_now_.data(), y_now_.data()));
-    Q_sym_ = 0.5 * (Q + Q.transpose());  // Q is symmetric but for rounding inside a step
-    Eigen::Map<Eigen::VectorXd> xdot(wdot, N);
-    Eigen::Map<Eigen::MatrixXd> Qdot(wdot + N, N, N);
+    double* Qs = Q_sym_.data();  // Q is symmetric but for rounding inside a step
+    for (int j = 0; j < N; ++j) {
+      for (int i = 0; i < N; ++i) Qs[i + j * N] = 0.5 * (Q[i + j * N] + Q[j + i * N]);
+    }
+    double* xdot = wdot;
+    double* Qdot = wdot + N;
     // A x^ + B p^ = [v; a^; 0]
-    xdot.head(n_) = Eigen::Map<const Eigen::VectorXd>(w + n_, n_);
-    xdot.segment(n_, n_) = p_hat_.segment(nu, n_);
-    xdot.tail(nth).setZero();
-    // A~ Q: the rows of s take the rows of v of Q; the rows of v take
-    // -(K D'V C)_a Q; the rows of theta are zero.
-    AtQ_.topRows(n_) = Q_sym_.middleRows(n_, n_);
-    AtQ_.middleRows(n_, n_).noalias() = -KDVC_.bottomRows(n_).lazyProduct(Q_sym_);
-    AtQ_.bottomRows(nth).setZero();
-    Qdot = AtQ_ + AtQ_.transpose() + W_inv_;
-    Qdot.block(n_, n_, n_, n_) += K_.bottomRightCorner(n_, n_);  // B K B'
+    for (int i = 0; i < n; ++i) {
+      xdot[i] = w[n + i];
+      xdot[n + i] = p_hat_[nu + i];
+    }
+    for (int i = 2 * n; i < N; ++i) xdot[i] = 0.0;
+    // Q' = A~Q + (A~Q)' + W^-1 + B K B'. A~Q has 2n rows that are not zero:
+    // those of s take the rows of v of Q, those of v take -(K D'V C)_a Q.
+    // Its rows are kept as columns (Q is symmetric).
+    const double* W_inv = W_inv_.data();
+    for (int i = 0; i < N * N; ++i) Qdot[i] = W_inv[i];
+    for (int b = 0; b < n; ++b) {
+      for (int a = 0; a < n; ++a) Qdot[(n + a) + (n + b) * N] += K_(nu + a, nu + b);
+    }
+    double* rows = AtQ_cols_.data();
+    const int P = nu + n;
+    for (int a = 0; a < n; ++a) {
+      for (int i = 0; i < N; ++i) rows[i + a * N] = Qs[i + (n + a) * N];
+    }
+    // The rows of v: -Q (K D'V C)_a', column a of it -Q KDVC(nu + a, :)'.
+    product_columns<NN>(N, N, n, Qs, KDVC_.data() + nu, P, 1, -1.0, false, rows + n * N);
+    for (int r = 0; r < 2 * n; ++r) {
+      const double* row = rows + r * N;
+      for (int i = 0; i < N; ++i) {
+        Qdot[r + i * N] += row[i];
+        Qdot[i + r * N] += row[i];
+      }
+    }
     if (continuous_) {
-      Vzeta_.noalias() = V_ * zeta_;
-      CtVzeta_.noalias() = C_.transpose() * Vzeta_;
-      xdot.noalias() += Q_sym_ * CtVzeta_;
-      CQ_.noalias() = C_.lazyProduct(Q_sym_);
-      V_tilde_CQ_.noalias() = V_tilde_.lazyProduct(CQ_);
-      Qdot.noalias() -= CQ_.transpose().lazyProduct(V_tilde_CQ_);
+      // x^' += Q C'V zeta;  Q' -= Q C' V~ C Q, as (Q C') (Q C' V~)'.
+      for (int i = 0; i < L; ++i) {
+        double sum = 0.0;
+        for (int l = 0; l < L; ++l) sum += V_(i, l) * zeta_[l];
+        Vzeta_[i] = sum;
+      }
+      for (int k = 0; k < N; ++k) {
+        double sum = 0.0;
+        for (int l = 0; l < L; ++l) sum += C_(l, k) * Vzeta_[l];
+        CtVzeta_[k] = sum;
+      }
+      product_columns<NN>(N, N, 1, Qs, CtVzeta_.data(), 1, 0, 1.0, true, xdot);
+      double* QCt = QCt_.data();
+      double* QCtV = QCtV_tilde_.data();
+      product_columns<NN>(N, N, L, Qs, C_.data(), L, 1, 1.0, false, QCt);                   // Q C'
+      product_columns<NN>(N, L, L, QCt, V_tilde_.data(), 1, L, 1.0, false, QCtV);            // Q C' V~
+      product_columns<NN>(N, L, N, QCt, QCtV, N, 1, -1.0, true, Qdot);                       // -(Q C')(Q C' V~)'
     }
     return Status::ok();
   }
@@ -356,11 +504,14 @@ class OptimalFilter final : public Filter {
   double interval_ = 0.0;         // length of the prediction not yet followed by an update
   // Work space, sized once.
   std::vector<double> x_hat_Q_;  // [x^; vec Q]
-  Eigen::VectorXd f_, r_, DVr_, Vzeta_, CtVzeta_, Ut_r_, S_inv_Ut_r_;
-  Eigen::MatrixXd F_, df_dx_, dF_dx_, D_, C_, VD_, DVD_, KDV_, KDVC_, K_, V_tilde_, identity_P_;
-  Eigen::MatrixXd Q_sym_, AtQ_, CQ_, V_tilde_CQ_;
+  Eigen::VectorXd f_, r_, Vzeta_, CtVzeta_, Ut_r_, S_inv_Ut_r_;
+  Eigen::MatrixXd F_, df_dx_, dF_dx_, D_, C_, VD_, DVD_, DVD_factor_, KDV_, KDVC_, K_, V_tilde_;
+  Eigen::MatrixXd Q_sym_, AtQ_cols_, QCt_, QCtV_tilde_;
+  using Derivatives = Status (OptimalFilter::*)(double, const double*, double*);
+  Derivatives derivatives_ = nullptr;      // derivatives_for<nz>, or the general one
+  CholeskySolveFn cholesky_solve_ = nullptr;  // for P = nu + n
   Eigen::MatrixXd L_factor_, U_, Hm_, S_update_, HmQ_, Gt_, G_, I_GHm_, I_GHm_Q_, Q_new_;
-  Eigen::LLT<Eigen::MatrixXd> DVD_llt_, S_update_llt_, Q_llt_;
+  Eigen::LLT<Eigen::MatrixXd> S_update_llt_, Q_llt_;
   Eigen::LDLT<Eigen::MatrixXd> V_tilde_ldlt_;
 };
 
