@@ -25,9 +25,13 @@
 //     G = Q Hm' S^-1,  x^ += G y,  Q = (I - G Hm) Q (I - G Hm)' + G G'/dt,
 // which has the same continuous limit and is stable for any V.
 //
-// The matrices are small (N = 10 for the manipulator): their products are
-// evaluated coefficient by coefficient (lazyProduct), which at these sizes
-// costs far less than the blocked general product with its packing.
+// The matrices are small (N = 10, L = 5, P = 3 for the manipulator): the
+// products of equations 8-10 are plain loops whose sums stay in registers,
+// those of N x N instantiated per N (fixed_size.hpp), and D'VD is solved by
+// a Cholesky factorisation instantiated per P. At these sizes Eigen's
+// products (blocked, with packing, or coefficient-wise) and its triangular
+// solves cost several times the arithmetic (docs/benchmarks.md). The
+// split-step update, once a sample, keeps Eigen's coefficient-wise products.
 //
 // In the Filter interface, predict() integrates with the outputs held at the
 // last measurement; step() interpolates them up to the new one when the
