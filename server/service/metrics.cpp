@@ -63,7 +63,9 @@ class RpcInterceptorFactory final : public grpc::experimental::ServerInterceptor
  public:
   explicit RpcInterceptorFactory(Metrics& metrics) : metrics_(metrics) {}
   grpc::experimental::Interceptor* CreateServerInterceptor(grpc::experimental::ServerRpcInfo* info) override {
-    return new RpcInterceptor(metrics_, info->method() != nullptr ? info->method() : "");
+    const std::string method = info->method() != nullptr ? info->method() : "";
+    if (method == Metrics::kSessionStreamMethod) return nullptr;  // it counts itself
+    return new RpcInterceptor(metrics_, method);
   }
 
  private:

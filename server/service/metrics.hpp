@@ -1,7 +1,8 @@
 // Metrics for operators, in Prometheus text format on an HTTP port of their
 // own (--metrics-listen; prometheus-cpp keeps them, cpp-httplib serves them). What is counted, and where:
 //
-//   riccati_rpc_total{method,code}           every finished call (interceptor)
+//   riccati_rpc_total{method,code}           every finished call (interceptor; the session
+//                                            stream counts itself, see kSessionStreamMethod)
 //   riccati_measurements_total{outcome}      estimated / refused (sessions)
 //   riccati_measurement_seconds              filter step per measurement (histogram)
 //   riccati_sessions_open                    at scrape time
@@ -62,8 +63,13 @@ class Metrics {
   void job_ended(JobKind kind, JobState state, std::chrono::steady_clock::duration took);
   void rpc_finished(const std::string& method, int code);
 
-  // Counts every call the server finishes (add to the ServerBuilder).
+  // Counts every call the server finishes (add to the ServerBuilder), but
+  // the session stream's: an interceptor on a call runs on each of its
+  // messages, and on a stream of one measurement per message that cost 15 %
+  // of riccatid's CPU per message and 15 % of its round trip
+  // (docs/benchmarks.md). The stream calls rpc_finished() as it finishes.
   std::unique_ptr<grpc::experimental::ServerInterceptorFactoryInterface> interceptor_factory();
+  static constexpr const char* kSessionStreamMethod = "/riccati.v1.SessionService/Stream";
 
  private:
   class Scraped;

@@ -222,6 +222,7 @@ class SessionServiceImpl::StreamReactor final : public grpc::ServerBidiReactor<g
       service_.sessions_.save(*session_);
     }
     slot_ = StreamSlot();
+    service_.metrics_.rpc_finished(Metrics::kSessionStreamMethod, status.error_code());  // no interceptor counts it
     Finish(status);
   }
 
