@@ -593,7 +593,7 @@ int main(int argc, char** argv) {
       app.add_option("--model", model, "Workload: two_tank (EKF) or manipulator (optimal filter, case C)")
           ->check(CLI::IsMember({"two_tank", "manipulator"})),
       app.add_flag("--find-max", find_max,
-                   "On each server, raise the session count until a paced run is no longer sustained (all "
+                   "On each server, raise the session count (10, 20, ..., then in fifths of the last step) until a paced run is no longer sustained (all "
                    "answered, no error, p99 under one sample period); needs --rate"),
       app.add_option("--max-sessions", max_sessions, "--find-max: stop there"),
       app.add_option("--idle", idle,
@@ -665,17 +665,29 @@ int main(int argc, char** argv) {
       if (echo != nullptr) searched.emplace_back("echo", echo.get());
       std::vector<int> best(searched.size(), 0);
       for (std::size_t s = 0; s < searched.size(); ++s) {
-        for (int n : {10, 20, 30, 40, 50, 60, 70, 80, 90, 100, 120, 140, 160, 200, 240, 280, 320, 400, 500, 600, 800, 1000}) {
-          if (n > max_sessions) break;
+        const auto sustains = [&](int n) {
           Scenario level = sc;
           level.sessions = n;
           std::vector<Figures> runs;
           for (int rep = 0; rep < repeat; ++rep) runs.push_back(run(*searched[s].second, workload, level));
           const Summary r = median_of(runs);
           print_row(searched[s].first + " " + std::to_string(n), level, r);
-          if (!sustained(level, r)) break;
+          return sustained(level, r);
+        };
+        // Coarse levels, then fifths of the gap between the last level
+        // sustained and the first not (a ratio of 0.8 needs the count to a
+        // few sessions, not to ten).
+        int failed_at = 0;
+        for (int n : {10, 20, 30, 40, 50, 60, 70, 80, 90, 100, 120, 140, 160, 200, 240, 280, 320, 400, 500, 600, 800, 1000}) {
+          if (n > max_sessions) break;
+          if (!sustains(n)) {
+            failed_at = n;
+            break;
+          }
           best[s] = n;
         }
+        const int step = std::max(1, (failed_at - best[s]) / 5);
+        for (int n = best[s] + step; failed_at > 0 && n < failed_at && sustains(n); n += step) best[s] = n;
         std::printf("  %s sustains %d sessions (%.0f measurements/s)\n", searched[s].first.c_str(), best[s],
                     best[s] * sc.rate);
       }
