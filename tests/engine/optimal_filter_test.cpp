@@ -555,6 +555,71 @@ TEST_P(CaseC, ARestoredFilterContinuesBitForBit) {
   }
 }
 
+// The manipulator with three more parameters that enter no equation: 13
+// states and parameters, past kMaxFixedSize (12), so its filter runs the
+// general kernels where the manipulator's runs those instantiated for 10.
+// The same equations as models/flexible_manipulator.
+struct PaddedManipulator {
+  static constexpr int ndof = 2;
+  static constexpr double kFrictionVelocity = 0.05;
+  static constexpr ModelSpec<4, 9, 1, 2> spec{
+      .name = "padded_manipulator",
+      .states = {"s1", "s2", "v1", "v2"},
+      .params = {"c1", "c2", "k", "b", "J1", "J2", "unused1", "unused2", "unused3"},
+      .inputs = {"T"},
+      .outputs = {"s1", "s2"},
+      .theta_default = {0.004, 0.003, 5.8, 0.012, 0.0045, 0.0028, 1.0, 1.0, 1.0},
+  };
+  template <typename T>
+  void equations_of_motion(const T* s, const T* v, const T* theta, double /*t*/, auto& eom) const {
+    using namespace riccati::math;
+    const T coupling = theta[2] * (s[0] - s[1]) + theta[3] * (v[0] - v[1]);
+    eom.M(0, 0) = theta[4];
+    eom.M(1, 1) = theta[5];
+    eom.h(0) = coupling + theta[0] * sat(v[0] / kFrictionVelocity);
+    eom.h(1) = -coupling + theta[1] * sat(v[1] / kFrictionVelocity);
+    eom.H(1, 0) = 1.0;
+  }
+  template <typename T>
+  void measurement(const T* s, const T* /*v*/, const T* /*theta*/, double /*t*/, auto& y) const {
+    y.g(0) = s[0];
+    y.g(1) = s[1];
+  }
+};
+
+// The general kernels (nz > 12) against those instantiated per size: the
+// three parameters that enter no equation add exact zeros to every sum, and
+// their covariance with the rest stays exactly zero, so the manipulator's
+// ten estimates and their covariance must come out the same.
+TEST_P(CaseC, TheGeneralKernelsGiveWhatTheFixedSizeOnesGive) {
+  const Weights w;
+  auto padded_model = Model::create(detail::Plugin<PaddedManipulator>::entry(RICCATI_MODEL_ABI_VERSION), nullptr,
+                                    "padded_manipulator (in-process)");
+  ASSERT_TRUE(padded_model.is_ok()) << padded_model.status().to_string();
+  ASSERT_GT(padded_model.value()->nz(), 12);
+  Weights padded = w;
+  padded.W = vec({1e4, 1e4, 1e4, 1e4, 1e10, 1e10, 1e10, 1e10, 1e10, 1e10, 1e6, 1e6, 1e6});
+  padded.R0 = vec({1e12, 1e12, 1e12, 1e12, 1e1, 1e2, 5e-4, 1e1, 5e3, 5e3, 1, 1, 1});
+  padded.z0 = vec({0, 0, 0, 0, .001, .001, 6.5, .01, .005, .0025, 1, 1, 1});
+  const int count = 800;  // 2 s
+  auto fixed = make_filter(manipulator(), optimal_settings(w, GetParam())).value();
+  auto general = make_filter(padded_model.value(), optimal_settings(padded, GetParam())).value();
+  const Trajectory a = run(*fixed, manipulator_data(), w.z0, w.R0.cwiseInverse().asDiagonal(), count);
+  const Trajectory b = run(*general, manipulator_data(), padded.z0, padded.R0.cwiseInverse().asDiagonal(), count);
+  ASSERT_EQ(a.z.size(), static_cast<std::size_t>(count));
+  ASSERT_EQ(b.z.size(), a.z.size());
+  Trajectory b_head;
+  for (std::size_t k = 0; k < b.z.size(); ++k) {
+    b_head.z.push_back(b.z[k].head(10));
+    b_head.P.push_back(b.P[k].topLeftCorner(10, 10));
+    EXPECT_EQ(b.P[k].topRightCorner(10, 3).cwiseAbs().maxCoeff(), 0.0) << "sample " << k;
+  }
+  const Gap g = gap(b_head, a, 4);
+  EXPECT_LT(g.z, 1e-13);
+  EXPECT_LT(g.P, 1e-13);
+  EXPECT_GT(std::abs(a.z.back()[6] - w.z0[6]), 0.1);  // and the filter did move
+}
+
 TEST(OptimalFilter, PredictNeedsAMeasurementFirst) {
   const Weights w;
   auto filter = make_filter(manipulator(), optimal_settings(w, OptimalForm::kContinuous)).value();
