@@ -196,7 +196,10 @@ TEST_F(DistributedTest, ThreeInstancesRunThirtyJobsOnceEachThroughAKillDashNine)
   // before the freeze: the store is read only once none of inst-0's
   // connections (by their application_name) is running a statement, and
   // none is in a transaction (a commit sent but not yet read), else inst-0
-  // is thawed and looked at again.
+  // is thawed and looked at again. A statement can stay active while inst-0
+  // is frozen (waiting on a row lock that another of its connections holds
+  // in a transaction it cannot finish frozen): that too is a thaw and a new
+  // look, not a failure.
   auto inst0_connections = [&](const std::string& states) {
     return schema.exec("SELECT count(*) FROM pg_stat_activity WHERE application_name = 'inst-0' AND state IN (" +
                        states + ")")[0][0]
@@ -206,10 +209,11 @@ TEST_F(DistributedTest, ThreeInstancesRunThirtyJobsOnceEachThroughAKillDashNine)
   const auto give_up = std::chrono::steady_clock::now() + std::chrono::minutes(1);
   while (killed_job.empty() && std::chrono::steady_clock::now() < give_up) {
     cluster.daemon(0).freeze();
-    ASSERT_TRUE(testing::wait_until([&] { return inst0_connections("'active'") == 0; }, std::chrono::seconds(30),
-                                    "the statements inst-0 sent before it froze have run",
-                                    std::chrono::milliseconds(1)));
-    if (inst0_connections("'idle in transaction', 'idle in transaction (aborted)'") == 0) {
+    const bool settled = testing::wait_until([&] { return inst0_connections("'active'") == 0; },
+                                             std::chrono::seconds(2),
+                                             "the statements inst-0 sent before it froze have run",
+                                             std::chrono::milliseconds(1));
+    if (settled && inst0_connections("'idle in transaction', 'idle in transaction (aborted)'") == 0) {
       const pqxx::result r = schema.exec(
           "SELECT id FROM jobs WHERE owner = 'inst-0' AND state = 'running' AND EXISTS "
           "(SELECT 1 FROM job_passes WHERE job_passes.job_id = jobs.id) LIMIT 1");
