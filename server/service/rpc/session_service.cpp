@@ -2,6 +2,7 @@
 
 #include <spdlog/spdlog.h>
 
+#include <array>
 #include <atomic>
 #include <optional>
 
@@ -71,13 +72,23 @@ v1::MeasurementResult* reused_result(v1::StreamResponse& response, int index) {
 
 }  // namespace
 
+// A stream is a pipeline of three stages that overlap: gRPC reads the next
+// message while one thread filters the last, and writes the response before
+// it. With measurements batched, each stage waiting for the one before it
+// left the filter idle a third of the time (a read's and a write's wake-ups
+// per batch). The stages hand messages over in two small rings, so what a
+// stream holds stays bounded: a client that does not read its responses
+// fills the outbox, the filter stops, the inbox fills, and reads stop
+// (back-pressure). mu_ guards the stage flags and the rings' counts; the
+// messages themselves are touched outside it by the one stage that owns
+// them at the time (only one thread filters at a time: `processing_`).
 class SessionServiceImpl::StreamReactor final : public grpc::ServerBidiReactor<grpc::ByteBuffer, grpc::ByteBuffer> {
  public:
   StreamReactor(SessionServiceImpl& service, grpc::CallbackServerContext* context)
       : service_(service), tenant_(service.auth_.tenant(*context)) {
     Result<StreamSlot> slot = service_.slots_.acquire(tenant_, "stream");
     if (!slot.is_ok()) {
-      finish(to_grpc(slot.status()));
+      end(to_grpc(slot.status()));
       return;
     }
     slot_ = std::move(slot.value());
@@ -88,75 +99,37 @@ class SessionServiceImpl::StreamReactor final : public grpc::ServerBidiReactor<g
     }
     spdlog::debug("stream opened registered={}", registered_);
     if (!registered_) {
-      finish({grpc::StatusCode::UNAVAILABLE,
-              "riccatid is shutting down; open the stream again on another instance, or on this one after it "
-              "restarts"});
+      end({grpc::StatusCode::UNAVAILABLE,
+           "riccatid is shutting down; open the stream again on another instance, or on this one after it restarts"});
       return;
     }
-    StartRead(&received_);
+    pump();
   }
 
   void OnReadDone(bool ok) override {
-    if (!ok) return finish(grpc::Status::OK);  // the client is done sending (or gone)
-    ++messages_;
-    if (!grpc::SerializationTraits<v1::StreamRequest>::Deserialize(&received_, &request_).ok()) {
-      return finish(to_grpc(invalid_argument("message " + std::to_string(messages_) +
-                                             " of the stream is not a StreamRequest (its bytes do not parse): "
-                                             "the stream ends here")));
+    {
+      std::lock_guard lock(mu_);
+      reading_ = false;
+      if (ok) {
+        inbox_.push().Swap(&received_);
+      } else {
+        client_done_ = true;  // the client is done sending (or gone): finish once all it sent is answered
+      }
     }
-    if (session_ == nullptr) return open();
-    if (!request_.has_batch()) return finish(to_grpc(invalid_argument("after StreamOpen, only measurement batches")));
-    const auto& measurements = request_.batch().measurements();
-    if (measurements.size() > service_.limits_.max_batch) {
-      return finish(to_grpc(limit_reached("max_batch", service_.limits_.max_batch,
-                                          "a message holds " + std::to_string(measurements.size()) + " measurements")));
-    }
-    int answered = 0;
-    auto began = std::chrono::steady_clock::now();
-    for (const auto& m : measurements) {
-      // A batch is thousands of steps: it stops between two once the call
-      // is cancelled (deadline, client gone) or riccatid is shutting down.
-      // The measurements left are not answered; the session keeps its time.
-      if (stopping_.load(std::memory_order_relaxed)) break;
-      // One result per measurement, even past a divergence: those after it
-      // get the divergence as their error, and the stream ends once this
-      // response is written.
-      v1::MeasurementResult* result = reused_result(response_, answered++);
-      diverged_ = session_->process(m, full_covariance_, result);
-      const auto done = std::chrono::steady_clock::now();  // one clock read a step: its end is the next one's start
-      service_.metrics_.measurement(result->has_estimate(), done - began);
-      began = done;
-    }
-    while (response_.results_size() > answered) response_.mutable_results()->RemoveLast();  // kept for reuse
-    service_.sessions_.after_batch(*session_);  // hands a snapshot to the writer when one is due
-    bool own_buffer = false;
-    sent_.Clear();  // the last response's bytes, written by now: serializing asks for an empty buffer
-    const grpc::Status serialized =
-        grpc::SerializationTraits<v1::StreamResponse>::Serialize(response_, &sent_, &own_buffer);
-    if (!serialized.ok()) return finish(serialized);
-    std::lock_guard lock(mu_);
-    if (finished_) return;  // drained meanwhile: the status is on its way
-    writing_ = true;
-    StartWrite(&sent_);
+    pump();
   }
 
   void OnWriteDone(bool ok) override {
-    std::optional<grpc::Status> pending;
     {
       std::lock_guard lock(mu_);
       writing_ = false;
-      pending.swap(pending_finish_);
+      outbox_.pop();
+      if (!ok && !end_) end_ = grpc::Status::OK;  // the client went away
     }
-    if (pending) return finish(*pending);
-    if (!ok) return finish(grpc::Status::OK);  // the client went away
-    if (!diverged_.is_ok()) return finish(to_grpc(diverged_));
-    StartRead(&received_);
+    pump();
   }
 
-  void OnCancel() override {
-    stopping_ = true;
-    finish({grpc::StatusCode::CANCELLED, "stream cancelled"});
-  }
+  void OnCancel() override { end({grpc::StatusCode::CANCELLED, "stream cancelled"}); }
 
   void OnDone() override {
     spdlog::debug("stream done session={}", session_ != nullptr ? session_->id() : "");
@@ -174,45 +147,165 @@ class SessionServiceImpl::StreamReactor final : public grpc::ServerBidiReactor<g
       std::lock_guard lock(mu_);
       if (session_ == nullptr || session_->id() != session_id) return;
     }
-    stopping_ = true;
-    finish({grpc::StatusCode::FAILED_PRECONDITION,
-            "session " + session_id + " was closed (CloseSession): its stream ends; create a new session"});
+    end({grpc::StatusCode::FAILED_PRECONDITION,
+         "session " + session_id + " was closed (CloseSession): its stream ends; create a new session"});
   }
 
   void drain() {
-    stopping_ = true;
-    finish({grpc::StatusCode::UNAVAILABLE,
-            "riccatid is shutting down; the session is stored: open the stream again, on this or another instance "
-            "(GetSession gives its time t: send the measurements after t)"});
+    end({grpc::StatusCode::UNAVAILABLE,
+         "riccatid is shutting down; the session is stored: open the stream again, on this or another instance "
+         "(GetSession gives its time t: send the measurements after t)"});
   }
 
  private:
-  void open() {
-    if (!request_.has_open()) return finish(to_grpc(invalid_argument("the first message of a stream must be StreamOpen")));
-    full_covariance_ = request_.open().full_covariance();
-    auto found = service_.sessions_.get(tenant_, request_.open().session_id());
-    if (!found.is_ok()) return finish(to_grpc(found.status()));
-    const Status attached = found.value()->attach();
-    if (!attached.is_ok()) return finish(to_grpc(attached));
+  // A ring of N message buffers; push() and pop() only move its counts, so
+  // that the buffer a stage works on stays where it is.
+  template <int N>
+  struct Ring {
+    std::array<grpc::ByteBuffer, N> slots;
+    int head = 0, count = 0;
+    bool full() const { return count == N; }
+    bool empty() const { return count == 0; }
+    grpc::ByteBuffer& front() { return slots[head]; }
+    grpc::ByteBuffer& back_free() { return slots[(head + count) % N]; }  // the next push()'s slot
+    grpc::ByteBuffer& push() { return slots[(head + count++) % N]; }
+    void pop() {
+      slots[head].Clear();
+      head = (head + 1) % N;
+      --count;
+    }
+  };
+  // Messages read and not yet filtered, responses not yet written (the one
+  // being written included). Two each: enough to keep the three stages
+  // busy, and a bound on what a stream holds.
+  static constexpr int kInbox = 2, kOutbox = 2;
+
+  // Ends the stream from outside the pipeline (cancelled, drained, the
+  // session closed): the batch being filtered stops at its next step, the
+  // write in flight completes, and what is queued is dropped.
+  void end(const grpc::Status& status) {
+    stopping_ = true;
     {
       std::lock_guard lock(mu_);
-      if (finished_) {  // drained meanwhile
-        found.value()->detach();
-        return;
-      }
-      session_ = found.value();
+      if (!end_) end_ = status;
     }
-    StartRead(&received_);
+    pump();
   }
 
-  // Finishes once; while a write is in flight, when it completes.
-  void finish(const grpc::Status& status) {
-    std::lock_guard lock(mu_);
-    if (finished_) return;
-    if (writing_) {
-      if (!pending_finish_) pending_finish_ = status;
+  // Moves the pipeline on, from whichever thread a reaction runs on: finish
+  // when there is nothing left to do, write the next response, read the
+  // next message while the inbox has room, and filter the next message
+  // while the outbox has room (one thread at a time). Every stage's start
+  // happens outside mu_, as gRPC may run a reaction inline.
+  void pump() {
+    std::unique_lock lock(mu_);
+    while (!finished_) {
+      const bool ending = end_ || last_;
+      if (!processing_ && !writing_ &&
+          (end_ || ((last_ || (client_done_ && inbox_.empty())) && outbox_.empty()))) {
+        finish_locked(end_ ? *end_ : last_ ? *last_ : grpc::Status::OK);
+        return;
+      }
+      if (!writing_ && !end_ && !outbox_.empty()) {
+        writing_ = true;
+        grpc::ByteBuffer* response = &outbox_.front();
+        lock.unlock();
+        StartWrite(response);
+        lock.lock();
+        continue;
+      }
+      if (!reading_ && !ending && !client_done_ && !inbox_.full()) {
+        reading_ = true;
+        lock.unlock();
+        StartRead(&received_);
+        lock.lock();
+        continue;
+      }
+      if (!processing_ && !ending && !inbox_.empty() && !outbox_.full()) {
+        processing_ = true;
+        request_bytes_.Swap(&inbox_.front());
+        inbox_.pop();
+        lock.unlock();
+        // The outbox's free slot is this thread's until it is pushed: only
+        // the filtering stage pushes, and only one thread filters.
+        const Handled handled = handle(request_bytes_, outbox_.back_free());
+        lock.lock();
+        processing_ = false;
+        if (handled.responded) outbox_.push();
+        if (handled.last && !last_) last_ = handled.last;
+        continue;
+      }
       return;
     }
+  }
+
+  struct Handled {
+    bool responded = false;             // a response is in the outbox's free slot
+    std::optional<grpc::Status> last;  // the stream ends with this once its responses are written
+  };
+
+  // Filters one message: StreamOpen attaches the session, a batch is
+  // answered with one result per measurement.
+  Handled handle(grpc::ByteBuffer& bytes, grpc::ByteBuffer& response_bytes) {
+    ++messages_;
+    const bool parsed = grpc::SerializationTraits<v1::StreamRequest>::Deserialize(&bytes, &request_).ok();
+    if (!parsed) {
+      return {false, to_grpc(invalid_argument("message " + std::to_string(messages_) +
+                                              " of the stream is not a StreamRequest (its bytes do not parse): "
+                                              "the stream ends here"))};
+    }
+    if (session_ == nullptr) return {false, open()};
+    if (!request_.has_batch()) return {false, to_grpc(invalid_argument("after StreamOpen, only measurement batches"))};
+    const auto& measurements = request_.batch().measurements();
+    if (measurements.size() > service_.limits_.max_batch) {
+      return {false, to_grpc(limit_reached("max_batch", service_.limits_.max_batch,
+                                           "a message holds " + std::to_string(measurements.size()) +
+                                               " measurements"))};
+    }
+    int answered = 0;
+    Status diverged;
+    auto began = std::chrono::steady_clock::now();
+    for (const auto& m : measurements) {
+      // A batch is thousands of steps: it stops between two once the call
+      // is cancelled (deadline, client gone) or riccatid is shutting down.
+      // The measurements left are not answered; the session keeps its time.
+      if (stopping_.load(std::memory_order_relaxed)) break;
+      // One result per measurement, even past a divergence: those after it
+      // get the divergence as their error, and the stream ends once this
+      // response is written.
+      v1::MeasurementResult* result = reused_result(response_, answered++);
+      diverged = session_->process(m, full_covariance_, result);
+      const auto done = std::chrono::steady_clock::now();  // one clock read a step: its end is the next one's start
+      service_.metrics_.measurement(result->has_estimate(), done - began);
+      began = done;
+    }
+    while (response_.results_size() > answered) response_.mutable_results()->RemoveLast();  // kept for reuse
+    service_.sessions_.after_batch(*session_);  // hands a snapshot to the writer when one is due
+    bool own_buffer = false;
+    response_bytes.Clear();
+    const grpc::Status serialized =
+        grpc::SerializationTraits<v1::StreamResponse>::Serialize(response_, &response_bytes, &own_buffer);
+    if (!serialized.ok()) return {false, serialized};
+    Handled handled{true, std::nullopt};
+    if (!diverged.is_ok()) handled.last = to_grpc(diverged);
+    return handled;
+  }
+
+  // The first message: attaches the session it names to this stream.
+  std::optional<grpc::Status> open() {
+    if (!request_.has_open()) return to_grpc(invalid_argument("the first message of a stream must be StreamOpen"));
+    full_covariance_ = request_.open().full_covariance();
+    auto found = service_.sessions_.get(tenant_, request_.open().session_id());
+    if (!found.is_ok()) return to_grpc(found.status());
+    const Status attached = found.value()->attach();
+    if (!attached.is_ok()) return to_grpc(attached);
+    std::lock_guard lock(mu_);  // end_if_on() reads it from another thread
+    session_ = found.value();
+    return std::nullopt;
+  }
+
+  // Finishes, once: nothing is being filtered or written by now.
+  void finish_locked(const grpc::Status& status) {
     finished_ = true;
     // Detached (and its snapshot handed to the writer) before the client
     // hears the status, so that a client that reconnects at once finds the
@@ -232,16 +325,23 @@ class SessionServiceImpl::StreamReactor final : public grpc::ServerBidiReactor<g
   bool registered_ = false;
   std::shared_ptr<Session> session_;
   bool full_covariance_ = false;
-  grpc::ByteBuffer received_, sent_;  // the messages as bytes (parsed and written here)
-  int messages_ = 0;                  // received so far, for the error that names one
+  // The filtering stage's own: the message it parses, and the response it
+  // fills (both reused, so a steady stream does not allocate per message).
+  grpc::ByteBuffer request_bytes_;
+  int messages_ = 0;  // received so far, for the error that names one
   v1::StreamRequest request_;
   v1::StreamResponse response_;
-  Status diverged_;
-  std::mutex mu_;  // finish() may come from drain() on another thread
-  bool writing_ = false;
+
+  std::mutex mu_;
+  grpc::ByteBuffer received_;  // the read in flight fills it
+  Ring<kInbox> inbox_;
+  Ring<kOutbox> outbox_;
+  bool reading_ = false, processing_ = false, writing_ = false;
+  bool client_done_ = false;               // the client finished sending
+  std::optional<grpc::Status> last_;       // the pipeline's own end (an error, a divergence): after its responses
+  std::optional<grpc::Status> end_;        // an end from outside: after the write in flight
   bool finished_ = false;
-  std::atomic<bool> stopping_{false};  // set from other threads: OnCancel, drain()
-  std::optional<grpc::Status> pending_finish_;
+  std::atomic<bool> stopping_{false};  // read between filter steps
 };
 
 grpc::Status SessionServiceImpl::CloseSession(grpc::ServerContext* context, const v1::CloseSessionRequest* request,

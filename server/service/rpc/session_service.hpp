@@ -19,9 +19,10 @@
 namespace riccati::service {
 
 // Stream uses gRPC's callback API (a reactor per stream): no thread is held
-// by an idle stream, a response is written before the next message is read
-// (back-pressure: a client that does not read its responses stops being
-// read, so its memory on the server stays bounded), and drain() can end
+// by an idle stream, reading, filtering and writing overlap with at most two
+// messages queued between them (back-pressure: a client that does not read
+// its responses stops being read, so its memory on the server stays
+// bounded), and drain() can end
 // every stream at once with UNAVAILABLE when the daemon stops. Its messages
 // arrive as bytes and are parsed here (gRPC's raw callback method): a frame
 // that is not a StreamRequest ends the stream with INVALID_ARGUMENT naming
