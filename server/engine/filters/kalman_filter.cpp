@@ -11,7 +11,8 @@ KalmanFilter::KalmanFilter(ModelPtr model, FilterSettings settings) : Filter(std
   K_ = Eigen::MatrixXd::Zero(nz, ny);
   KT_.resize(ny, nz);
   S_innovation_.resize(ny);
-  S_llt_ = Eigen::LLT<Eigen::MatrixXd>(ny);
+  S_factor_.resize(ny, ny);
+  S_solve_ = cholesky_solve_for(static_cast<int>(ny));
   VtCt_.resize(ny, nz);
   Vte_.resize(ny);
   inverse_eigenvalues_.resize(ny);
@@ -28,15 +29,15 @@ Status KalmanFilter::gain_and_nis(const Eigen::MatrixXd& C) {
   KT_ = C.transpose();
   S_innovation_ = innovation_;
   if (settings_.inversion == GainInversion::kCholesky) {
-    S_llt_.compute(S_);
-    if (S_llt_.info() != Eigen::Success) {
+    const int ny = static_cast<int>(S_.rows());
+    if (!cholesky(ny, S_.data(), S_factor_.data())) {
       return failed_precondition(
           "innovation covariance S is not positive definite at t = " + std::to_string(t_) +
           " (R has zero variances and the prediction is exact?): give R positive variances or use the "
           "pseudo-inverse gain");
     }
-    S_llt_.solveInPlace(KT_);
-    S_llt_.solveInPlace(S_innovation_);
+    S_solve_(ny, S_factor_.data(), KT_.data(), static_cast<int>(KT_.cols()));
+    S_solve_(ny, S_factor_.data(), S_innovation_.data(), 1);
   } else {
     // Minimum-norm solution: S^+ = V D^+ V^T, eigenvalues below n eps max|d|
     // taken as zero (the rank threshold of Eigen's COD and of MATLAB's pinv).

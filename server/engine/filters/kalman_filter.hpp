@@ -4,10 +4,10 @@
 // to filters/.
 #pragma once
 
-#include <Eigen/Cholesky>
 #include <Eigen/Eigenvalues>
 
 #include "engine/filters/filter.hpp"
+#include "engine/filters/small_cholesky.hpp"
 
 namespace riccati {
 
@@ -26,7 +26,8 @@ class KalmanFilter : public Filter {
   // pseudo-inverse from S's eigen decomposition, S being symmetric).
   Eigen::MatrixXd KT_, VtCt_, V_;
   Eigen::VectorXd S_innovation_, Vte_, inverse_eigenvalues_;
-  Eigen::LLT<Eigen::MatrixXd> S_llt_;
+  Eigen::MatrixXd S_factor_;  // S's Cholesky factor (small_cholesky.hpp)
+  CholeskySolveFn S_solve_ = nullptr;
   // S = Q T Q^T (tridiagonal T), T = Z D Z^T, so S = V D V^T with V = Q Z: Eigen's
   // SelfAdjointEigenSolver in its steps, to pass the workspace it would allocate.
   Eigen::Tridiagonalization<Eigen::MatrixXd> S_tridiagonal_;
