@@ -260,6 +260,24 @@ def test_a_stream_frame_that_does_not_parse_ends_the_stream_naming_it(daemon):
         batch.measurements.add(t=0, u=[1e-5, 1e-5], y=[0.5, 0.5])
         responses = list(sessions.Stream(iter([opening, sessions_pb2.StreamRequest(batch=batch)]), timeout=30))
         assert [r.WhichOneof("outcome") for r in responses[0].results] == ["estimate"]
+        # Batches sent ahead of the bad frame, without waiting for their
+        # answers, are all answered, in order, before the stream ends: riccatid
+        # reads ahead while it filters, and writes what it filtered first.
+        frames = [opening.SerializeToString()]
+        for k in range(1, 4):
+            batch = sessions_pb2.MeasurementBatch()
+            for j in range(64):
+                batch.measurements.add(t=k * 100 + j, u=[1e-5, 1e-5], y=[0.5, 0.5])
+            frames.append(sessions_pb2.StreamRequest(batch=batch).SerializeToString())
+        frames.append(junk)
+        answered = []
+        with pytest.raises(grpc.RpcError) as e:
+            for frame in raw(iter(frames), timeout=30):
+                answered.append(sessions_pb2.StreamResponse.FromString(frame))
+        assert e.value.code() == grpc.StatusCode.INVALID_ARGUMENT, e.value.details()
+        assert "message 5 of the stream is not a StreamRequest" in e.value.details()
+        assert [[r.estimate.t for r in a.results] for a in answered] == [
+            [k * 100 + j for j in range(64)] for k in range(1, 4)]
 
 
 def test_a_retried_request_gets_the_object_the_first_made(daemon, two_tank_csv):
