@@ -48,7 +48,10 @@
 
 #include "bench_process.hpp"
 #include "engine/data/dataset.hpp"
+#include "engine/estimation/online_runner.hpp"
+#include "engine/models/plugin_loader.hpp"
 #include "riccati/v1/sessions.grpc.pb.h"
+#include "service/run_settings.hpp"
 #include "support/requests.hpp"
 
 namespace {
@@ -476,6 +479,38 @@ v1::Estimate first_estimate(const std::string& address, const Workload& workload
   return response.results_size() > 0 ? response.results(0).estimate() : v1::Estimate{};
 }
 
+// What the filter step alone allows: the session's filter, made from the
+// same CreateSessionRequest by riccatid's own conversion, advanced over the
+// workload's measurements in this process for `seconds` (nothing else
+// runs meanwhile: the servers are idle between runs). Measurements per
+// second; 0 if the filter cannot be made.
+double filter_alone_rate(const Workload& workload, double seconds) {
+  auto model = load_model_plugin(std::string(RICCATI_TEST_PLUGIN_DIR) + "/" + workload.session.model() + ".so");
+  if (!model.is_ok()) return 0.0;
+  const v1::CreateSessionRequest& request = workload.session;
+  auto settings = service::from_proto(request.filter(), *model.value());
+  auto initial = settings.is_ok() ? service::initial_estimate_from_proto(request.initial_state(), request.theta0(),
+                                                                         request.p0(), request.filter(), *model.value())
+                                  : Result<InitialEstimate>(settings.status());
+  if (!initial.is_ok()) return 0.0;
+  auto runner = OnlineRunner::create(model.value(), settings.value(), std::move(initial.value()));
+  if (!runner.is_ok()) return 0.0;
+  const Dataset& d = workload.data;
+  const Clock::time_point start = Clock::now();
+  const auto end = start + std::chrono::duration_cast<Clock::duration>(std::chrono::duration<double>(seconds));
+  std::int64_t steps = 0;
+  for (Clock::time_point now = start; now < end; now = Clock::now()) {
+    for (int i = 0; i < 256; ++i, ++steps) {  // a clock read every 256 steps
+      const Eigen::Index k = static_cast<Eigen::Index>(steps % d.size());
+      const double t = d.t[k] + static_cast<double>(steps / d.size()) * workload.lap_seconds;
+      const Status advanced = runner.value().advance(t, {d.u.col(k).data(), static_cast<std::size_t>(d.u.rows())},
+                                                     {d.y.col(k).data(), static_cast<std::size_t>(d.y.rows())});
+      if (!advanced.is_ok()) return 0.0;
+    }
+  }
+  return static_cast<double>(steps) / std::chrono::duration<double>(Clock::now() - start).count();
+}
+
 std::string describe(const Scenario& sc) {
   char text[160];
   if (sc.rate > 0) {
@@ -724,7 +759,13 @@ int main(int argc, char** argv) {
       continue;
     }
     std::vector<std::vector<Figures>> runs(servers.size() + 1);  // per server, the echo last
+    std::vector<double> alone;  // closed loop: the filter step alone, once a repeat
     for (int rep = 0; rep < repeat; ++rep) {
+      if (sc.rate <= 0) {
+        alone.push_back(filter_alone_rate(workload, sc.seconds - sc.warmup));
+        std::printf("  %-10s %10s %10.0f   (the session's filter in this process, no server)\n", "filter", "",
+                    alone.back());
+      }
       for (std::size_t s = 0; s < servers.size(); ++s) {
         runs[s].push_back(run(*servers[s].second, workload, sc));
         print_row(servers[s].first, sc, summarize(runs[s].back()));
@@ -751,6 +792,12 @@ int main(int argc, char** argv) {
       const Summary& e = medians.back();
       std::printf("  ratio riccati/echo: throughput %.2f, p50 %.2f, p99 %.2f\n", r.rate / e.rate, r.p50 / e.p50,
                   r.p99 / e.p99);
+    }
+    if (!alone.empty()) {
+      std::sort(alone.begin(), alone.end());
+      const double a = alone[alone.size() / 2];
+      if (repeat > 1) std::printf("  filter alone, median: %.0f measurements/s\n", a);
+      std::printf("  ratio riccati/filter alone: throughput %.2f\n", a > 0 ? r.rate / a : 0.0);
     }
     if (sc.rate > 0) std::printf("  sustained (p99 < %.0f us, all answered): %s\n", 1e6 / sc.rate, sustained(sc, r) ? "yes" : "no");
   }
