@@ -759,9 +759,9 @@ int main(int argc, char** argv) {
       continue;
     }
     std::vector<std::vector<Figures>> runs(servers.size() + 1);  // per server, the echo last
-    std::vector<double> alone;  // closed loop: the filter step alone, once a repeat
+    std::vector<double> alone;  // closed loop, batched: the filter step alone, once a repeat
     for (int rep = 0; rep < repeat; ++rep) {
-      if (sc.rate <= 0) {
+      if (sc.rate <= 0 && sc.batch > 1) {  // one measurement a message is bound by the round trip instead
         alone.push_back(filter_alone_rate(workload, sc.seconds - sc.warmup));
         std::printf("  %-10s %10s %10.0f   (the session's filter in this process, no server)\n", "filter", "",
                     alone.back());

@@ -78,7 +78,8 @@ v1::MeasurementResult* reused_result(v1::StreamResponse& response, int index) {
 // message while one thread filters the last, and writes the response before
 // it. With measurements batched, each stage waiting for the one before it
 // left the filter idle a third of the time (a read's and a write's wake-ups
-// per batch). The stages hand messages over in two small rings, so what a
+// per batch); a stream of single measurements still goes one message at a
+// time, which answers each soonest (kReadAheadBytes). The stages hand messages over in two small rings, so what a
 // stream holds stays bounded: a client that does not read its responses
 // fills the outbox, the filter stops, the inbox fills, and reads stop
 // (back-pressure). mu_ guards the stage flags and the rings' counts; the
@@ -181,6 +182,12 @@ class SessionServiceImpl::StreamReactor final : public grpc::ServerBidiReactor<g
   // being written included). Two each: enough to keep the three stages
   // busy, and a bound on what a stream holds.
   static constexpr int kInbox = 2, kOutbox = 2;
+  // A message larger than this (about 20 measurements of a small model)
+  // takes long enough to filter that reading the next one beside it pays.
+  // After a smaller one the next read waits until the stream is idle, as a
+  // read beside the write cost streams of one measurement a message latency
+  // (400 Hz sessions: p50 +15 %, docs/benchmarks.md).
+  static constexpr std::size_t kReadAheadBytes = 1024;
 
   // Ends the stream from outside the pipeline (cancelled, drained, the
   // session closed): the batch being filtered stops at its next step, the
@@ -196,8 +203,9 @@ class SessionServiceImpl::StreamReactor final : public grpc::ServerBidiReactor<g
 
   // Moves the pipeline on, from whichever thread a reaction runs on: finish
   // when there is nothing left to do, write the next response, read the
-  // next message while the inbox has room, and filter the next message
-  // while the outbox has room (one thread at a time). Every stage's start
+  // next message while the inbox has room (for small messages only once
+  // idle: kReadAheadBytes), and filter the next message while the outbox
+  // has room (one thread at a time). Every stage's start
   // happens outside mu_, as gRPC may run a reaction inline.
   void pump() {
     std::unique_lock lock(mu_);
@@ -216,7 +224,8 @@ class SessionServiceImpl::StreamReactor final : public grpc::ServerBidiReactor<g
         lock.lock();
         continue;
       }
-      if (!reading_ && !ending && !client_done_ && !inbox_.full()) {
+      const bool idle = !processing_ && !writing_ && inbox_.empty();
+      if (!reading_ && !ending && !client_done_ && !inbox_.full() && (read_ahead_ || idle)) {
         reading_ = true;
         lock.unlock();
         StartRead(&received_);
@@ -225,6 +234,7 @@ class SessionServiceImpl::StreamReactor final : public grpc::ServerBidiReactor<g
       }
       if (!processing_ && !ending && !inbox_.empty() && !outbox_.full()) {
         processing_ = true;
+        read_ahead_ = inbox_.front().Length() > kReadAheadBytes;
         request_bytes_.Swap(&inbox_.front());
         inbox_.pop();
         lock.unlock();
@@ -357,6 +367,7 @@ class SessionServiceImpl::StreamReactor final : public grpc::ServerBidiReactor<g
   Ring<kInbox> inbox_;
   Ring<kOutbox> outbox_;
   bool reading_ = false, processing_ = false, writing_ = false;
+  bool read_ahead_ = false;  // the last message filtered was large: read beside filtering and writing
   bool client_done_ = false;               // the client finished sending
   std::optional<grpc::Status> last_;       // the pipeline's own end (an error, a divergence): after its responses
   std::optional<grpc::Status> end_;        // an end from outside: after the write in flight
