@@ -35,6 +35,7 @@
 #include <unistd.h>
 
 #include <algorithm>
+#include <array>
 #include <atomic>
 #include <chrono>
 #include <condition_variable>
@@ -589,6 +590,46 @@ bool sustained(const Scenario& sc, const Summary& s) {
   return s.errors == 0 && s.rate >= 0.99 * offered && s.p99 < 1e6 / sc.rate;
 }
 
+// --find-max on one server: coarse levels of sessions (10, 20, ..., 1000)
+// until one is not sustained, then fifths of the gap between the last level
+// sustained and the first not (a ratio of 0.8 needs the count to a few
+// sessions, not to ten).
+class LevelSearch {
+ public:
+  explicit LevelSearch(int max_sessions) : max_(max_sessions) {}
+  bool done() const { return done_ || next_level() > max_; }
+  int next() const { return next_level(); }
+  int best() const { return best_; }
+  void record(bool sustained) {
+    const int n = next_level();
+    if (sustained) {
+      best_ = n;
+      if (step_ == 0) {
+        done_ = ++coarse_ == kCoarse.size();
+      } else {
+        done_ = n + step_ >= failed_at_;
+      }
+      return;
+    }
+    if (step_ != 0) {  // refining: the first level not sustained ends it
+      done_ = true;
+      return;
+    }
+    failed_at_ = n;
+    step_ = std::max(1, (failed_at_ - best_) / 5);
+    done_ = best_ + step_ >= failed_at_;
+  }
+
+ private:
+  static constexpr std::array<int, 22> kCoarse = {10,  20,  30,  40,  50,  60,  70,  80,  90,  100, 120,
+                                                  140, 160, 200, 240, 280, 320, 400, 500, 600, 800, 1000};
+  int next_level() const { return step_ == 0 ? kCoarse[std::min(coarse_, kCoarse.size() - 1)] : best_ + step_; }
+  int max_;
+  std::size_t coarse_ = 0;
+  int best_ = 0, failed_at_ = 0, step_ = 0;  // step_ != 0: refining
+  bool done_ = false;
+};
+
 // A riccatid for the bench: its own data directory, the built-in plugins,
 // production's snapshot interval, and limits raised for the bench alone.
 std::unique_ptr<bench::ServerProcess> start_riccatid(const std::string& binary, const std::filesystem::path& dir,
@@ -698,31 +739,26 @@ int main(int argc, char** argv) {
       std::vector<std::pair<std::string, const bench::ServerProcess*>> searched;
       for (const auto& [name, process] : servers) searched.emplace_back(name, process.get());
       if (echo != nullptr) searched.emplace_back("echo", echo.get());
-      std::vector<int> best(searched.size(), 0);
-      for (std::size_t s = 0; s < searched.size(); ++s) {
-        const auto sustains = [&](int n) {
+      // The servers' searches take turns, a level each, so that a machine
+      // that slows down for a while slows all of them alike.
+      std::vector<LevelSearch> searches(searched.size(), LevelSearch(max_sessions));
+      for (bool any = true; any;) {
+        any = false;
+        for (std::size_t s = 0; s < searched.size(); ++s) {
+          if (searches[s].done()) continue;
+          any = true;
           Scenario level = sc;
-          level.sessions = n;
+          level.sessions = searches[s].next();
           std::vector<Figures> runs;
           for (int rep = 0; rep < repeat; ++rep) runs.push_back(run(*searched[s].second, workload, level));
           const Summary r = median_of(runs);
-          print_row(searched[s].first + " " + std::to_string(n), level, r);
-          return sustained(level, r);
-        };
-        // Coarse levels, then fifths of the gap between the last level
-        // sustained and the first not (a ratio of 0.8 needs the count to a
-        // few sessions, not to ten).
-        int failed_at = 0;
-        for (int n : {10, 20, 30, 40, 50, 60, 70, 80, 90, 100, 120, 140, 160, 200, 240, 280, 320, 400, 500, 600, 800, 1000}) {
-          if (n > max_sessions) break;
-          if (!sustains(n)) {
-            failed_at = n;
-            break;
-          }
-          best[s] = n;
+          print_row(searched[s].first + " " + std::to_string(level.sessions), level, r);
+          searches[s].record(sustained(level, r));
         }
-        const int step = std::max(1, (failed_at - best[s]) / 5);
-        for (int n = best[s] + step; failed_at > 0 && n < failed_at && sustains(n); n += step) best[s] = n;
+      }
+      std::vector<int> best;
+      for (std::size_t s = 0; s < searched.size(); ++s) {
+        best.push_back(searches[s].best());
         std::printf("  %s sustains %d sessions (%.0f measurements/s)\n", searched[s].first.c_str(), best[s],
                     best[s] * sc.rate);
       }
