@@ -79,10 +79,10 @@ v1::MeasurementResult* reused_result(v1::StreamResponse& response, int index) {
 // it. With measurements batched, each stage waiting for the one before it
 // left the filter idle a third of the time (a read's and a write's wake-ups
 // per batch); a stream of single measurements still goes one message at a
-// time, which answers each soonest (kReadAheadBytes). The stages hand messages over in two small rings, so what a
-// stream holds stays bounded: a client that does not read its responses
-// fills the outbox, the filter stops, the inbox fills, and reads stop
-// (back-pressure). mu_ guards the stage flags and the rings' counts; the
+// time, which answers each soonest (kReadAheadBytes). The stages hand
+// messages over in two small rings, so what a stream holds stays bounded: a
+// client that does not read its responses fills the outbox, the filter
+// stops, the inbox fills, and reads stop (back-pressure). mu_ guards the stage flags and the rings' counts; the
 // messages themselves are touched outside it by the one stage that owns
 // them at the time (only one thread filters at a time: `processing_`).
 class SessionServiceImpl::StreamReactor final : public grpc::ServerBidiReactor<grpc::ByteBuffer, grpc::ByteBuffer> {
@@ -205,8 +205,8 @@ class SessionServiceImpl::StreamReactor final : public grpc::ServerBidiReactor<g
   // when there is nothing left to do, write the next response, read the
   // next message while the inbox has room (for small messages only once
   // idle: kReadAheadBytes), and filter the next message while the outbox
-  // has room (one thread at a time). Every stage's start
-  // happens outside mu_, as gRPC may run a reaction inline.
+  // has room (one thread at a time). Every stage starts outside mu_, as
+  // gRPC may run a reaction inline.
   void pump() {
     std::unique_lock lock(mu_);
     while (!finished_) {
@@ -237,10 +237,11 @@ class SessionServiceImpl::StreamReactor final : public grpc::ServerBidiReactor<g
         read_ahead_ = inbox_.front().Length() > kReadAheadBytes;
         request_bytes_.Swap(&inbox_.front());
         inbox_.pop();
-        lock.unlock();
         // The outbox's free slot is this thread's until it is pushed: only
         // the filtering stage pushes, and only one thread filters.
-        const Handled handled = handle(request_bytes_, outbox_.back_free());
+        grpc::ByteBuffer& response_bytes = outbox_.back_free();
+        lock.unlock();
+        const Handled handled = handle(request_bytes_, response_bytes);
         lock.lock();
         processing_ = false;
         if (handled.responded) outbox_.push();
