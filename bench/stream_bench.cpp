@@ -481,21 +481,19 @@ v1::Estimate first_estimate(const std::string& address, const Workload& workload
 }
 
 // What the filter step alone allows: the session's filter, made from the
-// same CreateSessionRequest by riccatid's own conversion, advanced over the
-// workload's measurements in this process for `seconds` (nothing else
-// runs meanwhile: the servers are idle between runs). Measurements per
-// second; 0 if the filter cannot be made.
+// same CreateSessionRequest as riccatid makes it (online_runner_from_proto),
+// advanced over the workload's measurements in this process for `seconds`
+// (nothing else runs meanwhile: the servers are idle between runs).
+// Measurements per second; 0, with the reason on stderr, if it fails.
 double filter_alone_rate(const Workload& workload, double seconds) {
+  const auto failed = [](const Status& status) {
+    std::fprintf(stderr, "stream_bench: the filter alone: %s\n", status.to_string().c_str());
+    return 0.0;
+  };
   auto model = load_model_plugin(std::string(RICCATI_TEST_PLUGIN_DIR) + "/" + workload.session.model() + ".so");
-  if (!model.is_ok()) return 0.0;
-  const v1::CreateSessionRequest& request = workload.session;
-  auto settings = service::from_proto(request.filter(), *model.value());
-  auto initial = settings.is_ok() ? service::initial_estimate_from_proto(request.initial_state(), request.theta0(),
-                                                                         request.p0(), request.filter(), *model.value())
-                                  : Result<InitialEstimate>(settings.status());
-  if (!initial.is_ok()) return 0.0;
-  auto runner = OnlineRunner::create(model.value(), settings.value(), std::move(initial.value()));
-  if (!runner.is_ok()) return 0.0;
+  if (!model.is_ok()) return failed(model.status());
+  auto runner = service::online_runner_from_proto(model.value(), workload.session);
+  if (!runner.is_ok()) return failed(runner.status());
   const Dataset& d = workload.data;
   const Clock::time_point start = Clock::now();
   const auto end = start + std::chrono::duration_cast<Clock::duration>(std::chrono::duration<double>(seconds));
@@ -506,7 +504,7 @@ double filter_alone_rate(const Workload& workload, double seconds) {
       const double t = d.t[k] + static_cast<double>(steps / d.size()) * workload.lap_seconds;
       const Status advanced = runner.value().advance(t, {d.u.col(k).data(), static_cast<std::size_t>(d.u.rows())},
                                                      {d.y.col(k).data(), static_cast<std::size_t>(d.y.rows())});
-      if (!advanced.is_ok()) return 0.0;
+      if (!advanced.is_ok()) return failed(advanced);
     }
   }
   return static_cast<double>(steps) / std::chrono::duration<double>(Clock::now() - start).count();

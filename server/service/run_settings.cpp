@@ -156,4 +156,12 @@ Result<InitialEstimate> initial_estimate_from_proto(const v1::InitialState& init
   return out;
 }
 
+Result<OnlineRunner> online_runner_from_proto(const ModelPtr& model, const v1::CreateSessionRequest& request) {
+  RICCATI_ASSIGN_OR_RETURN(const FilterSettings settings, from_proto(request.filter(), *model));
+  RICCATI_ASSIGN_OR_RETURN(InitialEstimate initial,
+                           initial_estimate_from_proto(request.initial_state(), request.theta0(), request.p0(),
+                                                       request.filter(), *model));
+  return OnlineRunner::create(model, settings, std::move(initial));
+}
+
 }  // namespace riccati::service

@@ -10,6 +10,7 @@
 #include "engine/integrators/integrator.hpp"
 #include "engine/models/model.hpp"
 #include "riccati/v1/common.pb.h"
+#include "riccati/v1/sessions.pb.h"
 
 namespace riccati::service {
 
@@ -26,5 +27,10 @@ Result<InitialEstimate> initial_estimate_from_proto(const v1::InitialState& init
                                                     const google::protobuf::RepeatedField<double>& theta0,
                                                     const v1::Covariance& p0, const v1::FilterSettings& filter,
                                                     const Model& model);
+
+// The filter a session runs (CreateSession): the request's filter settings
+// and initial estimate for `model`. Sessions are made here, and so is the
+// stream bench's figure of the filter alone.
+Result<OnlineRunner> online_runner_from_proto(const ModelPtr& model, const v1::CreateSessionRequest& request);
 
 }  // namespace riccati::service

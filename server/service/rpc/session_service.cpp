@@ -82,9 +82,10 @@ v1::MeasurementResult* reused_result(v1::StreamResponse& response, int index) {
 // time, which answers each soonest (kReadAheadBytes). The stages hand
 // messages over in two small rings, so what a stream holds stays bounded: a
 // client that does not read its responses fills the outbox, the filter
-// stops, the inbox fills, and reads stop (back-pressure). mu_ guards the stage flags and the rings' counts; the
-// messages themselves are touched outside it by the one stage that owns
-// them at the time (only one thread filters at a time: `processing_`).
+// stops, the inbox fills, and reads stop (back-pressure). mu_ guards the
+// stage flags and the rings' counts; the messages themselves are touched
+// outside it by the one stage that owns them at the time (only one thread
+// filters at a time: `processing_`).
 class SessionServiceImpl::StreamReactor final : public grpc::ServerBidiReactor<grpc::ByteBuffer, grpc::ByteBuffer> {
  public:
   StreamReactor(SessionServiceImpl& service, grpc::CallbackServerContext* context)
@@ -171,7 +172,11 @@ class SessionServiceImpl::StreamReactor final : public grpc::ServerBidiReactor<g
     bool empty() const { return count == 0; }
     grpc::ByteBuffer& front() { return slots[head]; }
     grpc::ByteBuffer& back_free() { return slots[(head + count) % N]; }  // the next push()'s slot
-    grpc::ByteBuffer& push() { return slots[(head + count++) % N]; }
+    grpc::ByteBuffer& push() {
+      grpc::ByteBuffer& slot = back_free();
+      ++count;
+      return slot;
+    }
     void pop() {
       slots[head].Clear();
       head = (head + 1) % N;

@@ -107,11 +107,7 @@ Result<std::shared_ptr<Session>> SessionManager::build(std::string id, const std
   const ModelPtr& model = resolved.model;
   v1::CreateSessionRequest pinned = request;
   pinned.set_model(resolved.reference);
-  RICCATI_ASSIGN_OR_RETURN(const FilterSettings settings, from_proto(request.filter(), *model));
-  RICCATI_ASSIGN_OR_RETURN(InitialEstimate initial,
-                           initial_estimate_from_proto(request.initial_state(), request.theta0(), request.p0(),
-                                                       request.filter(), *model));
-  RICCATI_ASSIGN_OR_RETURN(OnlineRunner runner, OnlineRunner::create(model, settings, std::move(initial)));
+  RICCATI_ASSIGN_OR_RETURN(OnlineRunner runner, online_runner_from_proto(model, request));
   runner.set_max_time_step(static_cast<double>(limits_.max_time_step_s));
   return std::make_shared<Session>(std::move(id), tenant, pinned, created_ms, std::move(runner));
 }
