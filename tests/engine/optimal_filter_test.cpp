@@ -555,6 +555,36 @@ TEST_P(CaseC, ARestoredFilterContinuesBitForBit) {
   }
 }
 
+// A retuning mid-run takes effect at the next step: the retuned filter
+// continues bit for bit as a new filter with the new weights restored from
+// its state. (The continuous form reuses the update's evaluation of eq 9 at
+// the first stage of the next prediction; new weights must void it.)
+TEST_P(CaseC, ARetuningTakesEffectAtTheNextStep) {
+  const Weights w;
+  Weights retuned = w;
+  retuned.V = vec({1e5, 1e5, 1e3, 1e7, 1e7});
+  const Dataset& d = manipulator_data();
+  auto original = make_filter(manipulator(), optimal_settings(w, GetParam())).value();
+  auto fresh = make_filter(manipulator(), optimal_settings(retuned, GetParam())).value();
+  ASSERT_TRUE(original->reset(d.t[0], w.z0, w.R0.cwiseInverse().asDiagonal()).is_ok());
+  ASSERT_TRUE(original->update(d.y.col(0).data(), d.u.col(0).data()).is_ok());
+  constexpr Eigen::Index kCut = 100, kEnd = 200;
+  for (Eigen::Index k = 1; k <= kCut; ++k) {
+    ASSERT_TRUE(original->step(d.t[k], d.u.col(k - 1).data(), d.u.col(k).data(), d.y.col(k).data()).is_ok());
+  }
+  ASSERT_TRUE(original->retune(optimal_settings(retuned, GetParam())).is_ok());
+  ASSERT_TRUE(
+      fresh->restore(original->time(), original->state(), original->covariance(), original->carried_state())
+          .is_ok());
+  for (Eigen::Index k = kCut + 1; k < kEnd; ++k) {
+    ASSERT_TRUE(original->step(d.t[k], d.u.col(k - 1).data(), d.u.col(k).data(), d.y.col(k).data()).is_ok());
+    ASSERT_TRUE(fresh->step(d.t[k], d.u.col(k - 1).data(), d.u.col(k).data(), d.y.col(k).data()).is_ok());
+    ASSERT_TRUE((original->state().array() == fresh->state().array()).all()) << "sample " << k;
+    ASSERT_TRUE((original->covariance().array() == fresh->covariance().array()).all()) << "sample " << k;
+    ASSERT_TRUE((original->estimated_inputs().array() == fresh->estimated_inputs().array()).all());
+  }
+}
+
 // The manipulator with three more parameters that enter no equation: 13
 // states and parameters, past kMaxFixedSize (12), so its filter runs the
 // general kernels where the manipulator's runs those instantiated for 10.

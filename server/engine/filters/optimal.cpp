@@ -40,7 +40,9 @@
 // measurements act during the integration).
 #include <Eigen/Cholesky>
 #include <Eigen/Core>
+#include <bit>
 #include <cmath>
+#include <cstdint>
 #include <string>
 #include <vector>
 
@@ -121,7 +123,7 @@ class OptimalFilter final : public Filter {
     VD_.resize(L, P);
     DVD_.resize(P, P);
     DVD_factor_.resize(P, P);
-    KDVC_.resize(P, N);
+    KDVC_ = Eigen::MatrixXd::Zero(P, N);  // the input rows stay zero (not used)
     K_.resize(P, P);
     KDV_.resize(P, L);
     V_tilde_.resize(L, L);
@@ -138,6 +140,7 @@ class OptimalFilter final : public Filter {
     y_next_.resize(ny);
     y_now_.resize(ny);
     x_hat_Q_.resize(N + N * N);
+    evaluated_at_.resize(1 + N + nu + ny);
     derivatives_ = kernel_for<1, kMaxFixedSize>(N, []<int NN>() { return &OptimalFilter::derivatives_for<NN>; });
     cholesky_solve_ = cholesky_solve_for(P);
     // Split-step update.
@@ -170,6 +173,7 @@ class OptimalFilter final : public Filter {
   void noise_changed() override {
     const int N = model_->nz();
     V_ = settings_.optimal.V;
+    evaluated_ = false;  // equations() depends on V
     W_inv_ = settings_.optimal.W.llt().solve(Eigen::MatrixXd::Identity(N, N));
     W_inv_ = 0.5 * (W_inv_ + W_inv_.transpose());
   }
@@ -209,6 +213,7 @@ class OptimalFilter final : public Filter {
 
  protected:
   void restarted() override {
+    evaluated_ = false;
     has_measurement_ = false;
     interval_ = 0.0;
   }
@@ -268,6 +273,7 @@ class OptimalFilter final : public Filter {
                                                                   const double* y) {
     const int nu = model_->nu(), ny = model_->ny(), nx = model_->nx();
     const int P = nu + n_, Lp = n_ + ny;
+    if (already_evaluated(t, x, u, y)) return Status::ok();
     RICCATI_RETURN_IF_ERROR(
         model_->mechanical(t, x, x + nx, f_.data(), F_.data(), df_dx_.data(), dF_dx_.data()));
     // Rows: n equations of motion, nu measured inputs, ny measured outputs.
@@ -318,15 +324,58 @@ class OptimalFilter final : public Filter {
         c[i < n_ ? i : i + nu] = s;  // rows of motion, then (after the inputs') of the outputs
       }
     }
-    multiply(KDV_, C_, KDVC_);
-    for (int j = 0; j < L; ++j) {  // V~ = V - VD K D'V
-      for (int i = 0; i < L; ++i) {
-        double s = V_(i, j);
-        for (int k = 0; k < P; ++k) s -= VD_(i, k) * KDV_(k, j);
-        V_tilde_(i, j) = s;
+    // K D'V C, the rows of the accelerations only: eq 8 uses no other. The
+    // input rows of C are zero.
+    for (int k = 0; k < N; ++k) {
+      const double* c = C_.col(k).data();
+      for (int a = nu; a < P; ++a) {
+        double s = 0.0;
+        for (int l = 0; l < n_; ++l) s += KDV_(a, l) * c[l];
+        for (int l = n_ + nu; l < L; ++l) s += KDV_(a, l) * c[l];
+        KDVC_(a, k) = s;
       }
     }
+    for (int j = 0; j < L; ++j) {  // V~ = V - VD K D'V, symmetric: the lower triangle, mirrored
+      for (int i = j; i < L; ++i) {
+        double s = V_(i, j);
+        for (int k = 0; k < P; ++k) s -= VD_(i, k) * KDV_(k, j);
+        V_tilde_(i, j) = V_tilde_(j, i) = s;
+      }
+    }
+    evaluated_ = true;
     return Status::ok();
+  }
+
+  // Whether equations() last ran at exactly (t, x, u, y), bit for bit, and
+  // succeeded: then its results stand. In the continuous form the first
+  // stage of a prediction is where the update before it evaluated (the
+  // estimate, the held input and the last measurement at the same time):
+  // one evaluation in five of an RK4 step. (The split-step form's update
+  // moves the estimate, so no evaluation repeats there.) Otherwise records
+  // (t, x, u, y) for the next call, as not yet evaluated.
+  bool already_evaluated(double t, const double* x, const double* u, const double* y) {
+    if (!continuous_) return false;
+    const int N = static_cast<int>(C_.cols()), nu = model_->nu(), ny = model_->ny();
+    std::uint64_t* key = evaluated_at_.data();
+    const auto same = [](const std::uint64_t* a, const double* b, int n) {
+      for (int i = 0; i < n; ++i) {
+        if (a[i] != std::bit_cast<std::uint64_t>(b[i])) return false;
+      }
+      return true;
+    };
+    if (evaluated_ && same(key, &t, 1) && same(key + 1, x, N) && same(key + 1 + N, u, nu) &&
+        same(key + 1 + N + nu, y, ny)) {
+      return true;
+    }
+    evaluated_ = false;
+    const auto record = [](std::uint64_t* a, const double* b, int n) {
+      for (int i = 0; i < n; ++i) a[i] = std::bit_cast<std::uint64_t>(b[i]);
+    };
+    record(key, &t, 1);
+    record(key + 1, x, N);
+    record(key + 1 + N, u, nu);
+    record(key + 1 + N + nu, y, ny);
+    return false;
   }
 
   // The right-hand side of [x^; vec Q] (eq 8 and 10; without their
@@ -473,6 +522,8 @@ class OptimalFilter final : public Filter {
   double interval_ = 0.0;         // length of the prediction not yet followed by an update
   // Work space, sized once.
   std::vector<double> x_hat_Q_;  // [x^; vec Q]
+  std::vector<std::uint64_t> evaluated_at_;  // the bits of [t; x; u; y] at the last equations()
+  bool evaluated_ = false;                   // equations() succeeded there: its results stand
   Eigen::VectorXd f_, r_, Vzeta_, CtVzeta_, Ut_r_, S_inv_Ut_r_;
   Eigen::MatrixXd F_, df_dx_, dF_dx_, D_, C_, VD_, DVD_, DVD_factor_, KDV_, KDVC_, K_, V_tilde_;
   Eigen::MatrixXd Q_sym_, AtQ_cols_, QCt_, QCtV_tilde_;
