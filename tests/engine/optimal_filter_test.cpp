@@ -525,19 +525,39 @@ TEST(OptimalFilter, RefusesModelsWithoutAMechanicalFormAndBadWeights) {
   EXPECT_NE(st.message().find("D'VD"), std::string::npos) << st.message();
 }
 
+// Starts `filter` at the record's first sample and steps it to sample `to`.
+void start_and_step(Filter& filter, const Weights& w, Eigen::Index to) {
+  const Dataset& d = manipulator_data();
+  ASSERT_TRUE(filter.reset(d.t[0], w.z0, w.R0.cwiseInverse().asDiagonal()).is_ok());
+  ASSERT_TRUE(filter.update(d.y.col(0).data(), d.u.col(0).data()).is_ok());
+  for (Eigen::Index k = 1; k <= to; ++k) {
+    ASSERT_TRUE(filter.step(d.t[k], d.u.col(k - 1).data(), d.u.col(k).data(), d.y.col(k).data()).is_ok());
+  }
+}
+
+// Steps both filters through samples [from, to) of the record and requires
+// the same estimate, covariance, estimated inputs and NIS after each, bit
+// for bit.
+void expect_the_same_steps(Filter& a, Filter& b, Eigen::Index from, Eigen::Index to) {
+  const Dataset& d = manipulator_data();
+  for (Eigen::Index k = from; k < to; ++k) {
+    ASSERT_TRUE(a.step(d.t[k], d.u.col(k - 1).data(), d.u.col(k).data(), d.y.col(k).data()).is_ok());
+    ASSERT_TRUE(b.step(d.t[k], d.u.col(k - 1).data(), d.u.col(k).data(), d.y.col(k).data()).is_ok());
+    ASSERT_TRUE((a.state().array() == b.state().array()).all()) << "sample " << k;
+    ASSERT_TRUE((a.covariance().array() == b.covariance().array()).all()) << "sample " << k;
+    ASSERT_TRUE((a.estimated_inputs().array() == b.estimated_inputs().array()).all()) << "sample " << k;
+    ASSERT_EQ(a.nis(), b.nis()) << "sample " << k;
+  }
+}
+
 // What a session snapshot keeps: a new filter restored from time(), state(),
 // covariance() and carried_state() mid-run continues bit for bit.
 TEST_P(CaseC, ARestoredFilterContinuesBitForBit) {
   const Weights w;
-  const Dataset& d = manipulator_data();
   auto original = make_filter(manipulator(), optimal_settings(w, GetParam())).value();
   auto restored = make_filter(manipulator(), optimal_settings(w, GetParam())).value();
-  ASSERT_TRUE(original->reset(d.t[0], w.z0, w.R0.cwiseInverse().asDiagonal()).is_ok());
-  ASSERT_TRUE(original->update(d.y.col(0).data(), d.u.col(0).data()).is_ok());
   constexpr Eigen::Index kCut = 100, kEnd = 300;
-  for (Eigen::Index k = 1; k <= kCut; ++k) {
-    ASSERT_TRUE(original->step(d.t[k], d.u.col(k - 1).data(), d.u.col(k).data(), d.y.col(k).data()).is_ok());
-  }
+  ASSERT_NO_FATAL_FAILURE(start_and_step(*original, w, kCut));
   EXPECT_EQ(restored->restore(0.0, w.z0, w.R0.asDiagonal(), Eigen::VectorXd(1)).code(), StatusCode::kInvalidArgument)
       << "a carried state of the wrong size";
   EXPECT_EQ(restored->restore(0.0, w.z0.head(4), w.R0.asDiagonal(), {}).code(), StatusCode::kInvalidArgument);
@@ -545,14 +565,7 @@ TEST_P(CaseC, ARestoredFilterContinuesBitForBit) {
                   ->restore(original->time(), original->state(), original->covariance(),
                             original->carried_state())
                   .is_ok());
-  for (Eigen::Index k = kCut + 1; k < kEnd; ++k) {
-    ASSERT_TRUE(original->step(d.t[k], d.u.col(k - 1).data(), d.u.col(k).data(), d.y.col(k).data()).is_ok());
-    ASSERT_TRUE(restored->step(d.t[k], d.u.col(k - 1).data(), d.u.col(k).data(), d.y.col(k).data()).is_ok());
-    ASSERT_TRUE((original->state().array() == restored->state().array()).all()) << "sample " << k;
-    ASSERT_TRUE((original->covariance().array() == restored->covariance().array()).all()) << "sample " << k;
-    ASSERT_TRUE((original->estimated_inputs().array() == restored->estimated_inputs().array()).all());
-    ASSERT_EQ(original->nis(), restored->nis());
-  }
+  expect_the_same_steps(*original, *restored, kCut + 1, kEnd);
 }
 
 // A retuning mid-run takes effect at the next step: the retuned filter
@@ -563,26 +576,15 @@ TEST_P(CaseC, ARetuningTakesEffectAtTheNextStep) {
   const Weights w;
   Weights retuned = w;
   retuned.V = vec({1e5, 1e5, 1e3, 1e7, 1e7});
-  const Dataset& d = manipulator_data();
   auto original = make_filter(manipulator(), optimal_settings(w, GetParam())).value();
   auto fresh = make_filter(manipulator(), optimal_settings(retuned, GetParam())).value();
-  ASSERT_TRUE(original->reset(d.t[0], w.z0, w.R0.cwiseInverse().asDiagonal()).is_ok());
-  ASSERT_TRUE(original->update(d.y.col(0).data(), d.u.col(0).data()).is_ok());
   constexpr Eigen::Index kCut = 100, kEnd = 200;
-  for (Eigen::Index k = 1; k <= kCut; ++k) {
-    ASSERT_TRUE(original->step(d.t[k], d.u.col(k - 1).data(), d.u.col(k).data(), d.y.col(k).data()).is_ok());
-  }
+  ASSERT_NO_FATAL_FAILURE(start_and_step(*original, w, kCut));
   ASSERT_TRUE(original->retune(optimal_settings(retuned, GetParam())).is_ok());
   ASSERT_TRUE(
       fresh->restore(original->time(), original->state(), original->covariance(), original->carried_state())
           .is_ok());
-  for (Eigen::Index k = kCut + 1; k < kEnd; ++k) {
-    ASSERT_TRUE(original->step(d.t[k], d.u.col(k - 1).data(), d.u.col(k).data(), d.y.col(k).data()).is_ok());
-    ASSERT_TRUE(fresh->step(d.t[k], d.u.col(k - 1).data(), d.u.col(k).data(), d.y.col(k).data()).is_ok());
-    ASSERT_TRUE((original->state().array() == fresh->state().array()).all()) << "sample " << k;
-    ASSERT_TRUE((original->covariance().array() == fresh->covariance().array()).all()) << "sample " << k;
-    ASSERT_TRUE((original->estimated_inputs().array() == fresh->estimated_inputs().array()).all());
-  }
+  expect_the_same_steps(*original, *fresh, kCut + 1, kEnd);
 }
 
 // The manipulator with three more parameters that enter no equation: 13
