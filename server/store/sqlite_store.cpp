@@ -184,7 +184,7 @@ struct FinalizeStmt {
 // A prepared statement with positional binding (1-based, in call order).
 class Statement {
  public:
-  Statement(sqlite3* db, const char* sql) : db_(db) {
+  Statement(sqlite3* db, const char* sql) {
     sqlite3_stmt* raw = nullptr;
     rc_ = sqlite3_prepare_v2(db, sql, -1, &raw, nullptr);
     stmt_.reset(raw);
@@ -238,7 +238,6 @@ class Statement {
   double column_real(int i) const { return sqlite3_column_double(stmt_.get(), i); }
 
  private:
-  sqlite3* db_;
   void bound(int rc) {
     if (rc != SQLITE_OK && bind_rc_ == SQLITE_OK && rc_ == SQLITE_OK) bind_rc_ = rc;
   }

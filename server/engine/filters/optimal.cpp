@@ -49,6 +49,7 @@
 #include "engine/filters/filter.hpp"
 #include "engine/filters/fixed_size.hpp"
 #include "engine/filters/small_cholesky.hpp"
+#include "engine/scalar_loops.hpp"
 
 namespace riccati {
 
@@ -60,8 +61,7 @@ namespace {
 // arithmetic at these sizes). Not vectorised: loops of 3 to 5 run faster
 // scalar than through the vectoriser's set-up and remainders (measured:
 // this and equations() scalar took the step from 5.5 to 4.9 us).
-__attribute__((optimize("no-tree-vectorize"))) void multiply(const Eigen::MatrixXd& a, const Eigen::MatrixXd& b,
-                                                             Eigen::MatrixXd& out) {
+RICCATI_SCALAR_LOOPS void multiply(const Eigen::MatrixXd& a, const Eigen::MatrixXd& b, Eigen::MatrixXd& out) {
   const int rows = static_cast<int>(a.rows()), inner = static_cast<int>(a.cols()), cols = static_cast<int>(b.cols());
   const double* __restrict A = a.data();
   const double* __restrict B = b.data();
@@ -269,8 +269,7 @@ class OptimalFilter final : public Filter {
   // Equation 9 at (t, x) with the measurement [u; y]: D, r, p^, zeta, C,
   // the Cholesky factor of D'VD and what eq. 8 needs of K. Scalar, as
   // multiply() (its innermost loops run over L or P: a few each).
-  __attribute__((optimize("no-tree-vectorize"))) Status equations(double t, const double* x, const double* u,
-                                                                  const double* y) {
+  RICCATI_SCALAR_LOOPS Status equations(double t, const double* x, const double* u, const double* y) {
     const int nu = model_->nu(), ny = model_->ny(), nx = model_->nx();
     const int P = nu + n_, Lp = n_ + ny;
     if (already_evaluated(t, x, u, y)) return Status::ok();

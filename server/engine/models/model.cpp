@@ -9,6 +9,8 @@
 #include <string>
 #include <vector>
 
+#include "engine/scalar_loops.hpp"
+
 namespace riccati {
 
 namespace {
@@ -83,8 +85,7 @@ bool all_finite(const double* v, std::size_t n) {
 // does, each pair waits for its two stores to complete (a store-forwarding
 // stall), which costs more than the tests: 27 -> 23-25 ns per two-tank
 // Jacobian call.
-__attribute__((noinline, optimize("no-tree-vectorize"))) bool all_finite_stored_singly(const double* v,
-                                                                                      std::size_t n) {
+__attribute__((noinline)) RICCATI_SCALAR_LOOPS bool all_finite_stored_singly(const double* v, std::size_t n) {
   std::uint64_t carried = 0;
   for (std::size_t i = 0; i < n; ++i) carried |= carry_of_non_finite(v[i]);
   return (carried >> 63) == 0;
