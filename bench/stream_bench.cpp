@@ -546,22 +546,27 @@ Summary summarize(const Figures& f) {
           f.pacer_behind_us};
 }
 
+// The median of `v` (the mean of the middle two for an even count; 0 if empty).
+double median(std::vector<double> v) {
+  std::sort(v.begin(), v.end());
+  if (v.empty()) return 0.0;
+  return v.size() % 2 == 1 ? v[v.size() / 2] : (v[v.size() / 2 - 1] + v[v.size() / 2]) / 2;
+}
+
 // Each figure's median over repeated runs, on its own.
 Summary median_of(const std::vector<Figures>& runs) {
   std::vector<Summary> all;
   for (const Figures& f : runs) all.push_back(summarize(f));
-  const auto median = [&](double Summary::*field) {
+  const auto median_field = [&](double Summary::*field) {
     std::vector<double> v;
     for (const Summary& s : all) v.push_back(s.*field);
-    std::sort(v.begin(), v.end());
-    if (v.empty()) return 0.0;
-    return v.size() % 2 == 1 ? v[v.size() / 2] : (v[v.size() / 2 - 1] + v[v.size() / 2]) / 2;
+    return median(std::move(v));
   };
   Summary m;
   for (double Summary::*field : {&Summary::rate, &Summary::p50, &Summary::p99, &Summary::max, &Summary::stalls, &Summary::stalls_pacer_on_time,
                                  &Summary::errors, &Summary::client_cores, &Summary::client_us, &Summary::server_cores,
                                  &Summary::server_us, &Summary::pacer_behind}) {
-    m.*field = median(field);
+    m.*field = median_field(field);
   }
   return m;
 }
@@ -828,8 +833,7 @@ int main(int argc, char** argv) {
                   r.p99 / e.p99);
     }
     if (!alone.empty()) {
-      std::sort(alone.begin(), alone.end());
-      const double a = alone[alone.size() / 2];
+      const double a = median(alone);
       if (repeat > 1) std::printf("  filter alone, median: %.0f measurements/s\n", a);
       std::printf("  ratio riccati/filter alone: throughput %.2f\n", a > 0 ? r.rate / a : 0.0);
     }
