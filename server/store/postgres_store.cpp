@@ -750,23 +750,34 @@ class PostgresStore final : public Store {
                                      });
   }
 
-  Status put_session_snapshot(const std::string& tenant, const std::string& session_id, const std::string& owner,
-                              std::int64_t lease_ms, const std::string& snapshot) override {
-    // An upsert that sets values: safe to send again on a new connection.
-    return run<pqxx::nontransaction>("storing the snapshot of session " + session_id, true, [&](auto& tx) -> Status {
-      const pqxx::result r = tx.exec_params(
-          "INSERT INTO session_snapshots (session_id, tenant, snapshot, updated_ms, owner, lease_until_ms) VALUES "
-          "($1, $2, $3::bytea, " RICCATI_PG_NOW_MS ", $4, " RICCATI_PG_NOW_MS " + $5) ON CONFLICT (session_id) DO "
-          "UPDATE SET snapshot = excluded.snapshot, updated_ms = excluded.updated_ms, owner = excluded.owner, "
-          "lease_until_ms = excluded.lease_until_ms WHERE session_snapshots.tenant = excluded.tenant AND "
-          "(session_snapshots.owner = excluded.owner OR session_snapshots.lease_until_ms <= excluded.updated_ms)",
-          session_id, tenant, pqxx::binarystring(snapshot), owner, lease_ms);
-      if (r.affected_rows() > 0) return Status::ok();
-      // Why not: another tenant's id (reads as missing), or another owner's.
-      const pqxx::result held =
-          tx.exec_params("SELECT tenant FROM session_snapshots WHERE session_id = $1", session_id);
-      if (held.empty() || held[0][0].as<std::string>() != tenant) return not_found("no session " + session_id);
-      return session_lease_lost(session_id, owner);
+  Result<std::vector<Status>> put_session_snapshots(const std::string& owner, std::int64_t lease_ms,
+                                                    const std::vector<SessionSnapshotWrite>& batch) override {
+    const std::string doing = batch.size() == 1 ? "storing the snapshot of session " + std::string(batch[0].session_id)
+                                                : "storing " + std::to_string(batch.size()) + " session snapshots";
+    // Upserts that set values, in one transaction: safe to send again on a
+    // new connection.
+    return run<pqxx::work>(doing, true, [&](auto& tx) -> Result<std::vector<Status>> {
+      std::vector<Status> stored;
+      stored.reserve(batch.size());
+      for (const SessionSnapshotWrite& s : batch) {
+        const std::string id(s.session_id), tenant(s.tenant);
+        const pqxx::result r = tx.exec_params(
+            "INSERT INTO session_snapshots (session_id, tenant, snapshot, updated_ms, owner, lease_until_ms) VALUES "
+            "($1, $2, $3::bytea, " RICCATI_PG_NOW_MS ", $4, " RICCATI_PG_NOW_MS " + $5) ON CONFLICT (session_id) DO "
+            "UPDATE SET snapshot = excluded.snapshot, updated_ms = excluded.updated_ms, owner = excluded.owner, "
+            "lease_until_ms = excluded.lease_until_ms WHERE session_snapshots.tenant = excluded.tenant AND "
+            "(session_snapshots.owner = excluded.owner OR session_snapshots.lease_until_ms <= excluded.updated_ms)",
+            id, tenant, pqxx::binarystring(s.snapshot.data(), s.snapshot.size()), owner, lease_ms);
+        if (r.affected_rows() > 0) {
+          stored.push_back(Status::ok());
+          continue;
+        }
+        // Why not: another tenant's id (reads as missing), or another owner's.
+        const pqxx::result held = tx.exec_params("SELECT tenant FROM session_snapshots WHERE session_id = $1", id);
+        stored.push_back(held.empty() || held[0][0].as<std::string>() != tenant ? not_found("no session " + id)
+                                                                                : session_lease_lost(id, owner));
+      }
+      return stored;
     });
   }
 

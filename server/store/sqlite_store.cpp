@@ -14,6 +14,7 @@
 #include <memory>
 #include <mutex>
 #include <string>
+#include <string_view>
 #include <vector>
 
 #include "store/store.hpp"
@@ -193,11 +194,11 @@ class Statement {
 
   // A value SQLite refuses (SQLITE_TOOBIG: over its 1 GB limit) would stay
   // NULL and fail as a NOT NULL constraint; step() returns the refusal instead.
-  Statement& text(const std::string& v) {
+  Statement& text(std::string_view v) {
     bound(sqlite3_bind_text64(stmt_.get(), ++index_, v.data(), v.size(), SQLITE_TRANSIENT, SQLITE_UTF8));
     return *this;
   }
-  Statement& blob(const std::string& v) {
+  Statement& blob(std::string_view v) {
     bound(sqlite3_bind_blob64(stmt_.get(), ++index_, v.data(), v.size(), SQLITE_TRANSIENT));
     return *this;
   }
@@ -215,6 +216,14 @@ class Statement {
   Statement& real(double v) {
     sqlite3_bind_double(stmt_.get(), ++index_, v);
     return *this;
+  }
+
+  // Ready to run again, with new values bound from the first.
+  void reset() {
+    sqlite3_reset(stmt_.get());
+    sqlite3_clear_bindings(stmt_.get());
+    index_ = 0;
+    bind_rc_ = SQLITE_OK;
   }
 
   // SQLITE_ROW, SQLITE_DONE or an error code (a failed bind's, unrun).
@@ -703,27 +712,44 @@ class SqliteStore final : public Store {
 
   // Sessions: as for jobs, one process uses a SQLite store and holds mu_
   // for each call; the transactions make each one all or nothing.
-  Status put_session_snapshot(const std::string& tenant, const std::string& session_id, const std::string& owner,
-                              std::int64_t lease_ms, const std::string& snapshot) override {
+  Result<std::vector<Status>> put_session_snapshots(const std::string& owner, std::int64_t lease_ms,
+                                                    const std::vector<SessionSnapshotWrite>& batch) override {
     std::lock_guard lock(mu_);
-    const std::string doing = "storing the snapshot of session " + session_id;
-    return in_transaction(doing, [&]() -> Status {
+    const std::string doing = batch.size() == 1 ? "storing the snapshot of session " + std::string(batch[0].session_id)
+                                                : "storing " + std::to_string(batch.size()) + " session snapshots";
+    return in_transaction(doing, [&]() -> Result<std::vector<Status>> {
       const std::int64_t now = wall_clock_ms();
       Statement q(db_.get(), "SELECT tenant, owner, lease_until_ms FROM session_snapshots WHERE session_id = ?");
-      q.text(session_id);
-      const int rc = q.step();
-      if (rc == SQLITE_ROW) {
-        if (q.column_text(0) != tenant) return not_found("no session " + session_id);  // another tenant's id
-        if (q.column_text(1) != owner && q.column_int(2) > now) return session_lease_lost(session_id, owner);
-      } else if (rc != SQLITE_DONE) {
-        return error(doing);
-      }
       Statement w(db_.get(),
                   "INSERT INTO session_snapshots (session_id, tenant, snapshot, updated_ms, owner, lease_until_ms) "
                   "VALUES (?, ?, ?, ?, ?, ?) ON CONFLICT (session_id) DO UPDATE SET snapshot = excluded.snapshot, "
                   "updated_ms = excluded.updated_ms, owner = excluded.owner, lease_until_ms = excluded.lease_until_ms");
-      w.text(session_id).text(tenant).blob(snapshot).integer(now).text(owner).integer(now + lease_ms);
-      return done(w, doing);
+      std::vector<Status> stored;
+      stored.reserve(batch.size());
+      for (const SessionSnapshotWrite& s : batch) {
+        const std::string id(s.session_id);
+        const std::string storing = "storing the snapshot of session " + id;
+        q.reset();
+        q.text(s.session_id);
+        const int rc = q.step();
+        if (rc == SQLITE_ROW) {
+          if (q.column_text(0) != s.tenant) {  // another tenant's id
+            stored.push_back(not_found("no session " + id));
+            continue;
+          }
+          if (q.column_text(1) != owner && q.column_int(2) > now) {
+            stored.push_back(session_lease_lost(id, owner));
+            continue;
+          }
+        } else if (rc != SQLITE_DONE) {
+          return error(storing);
+        }
+        w.reset();
+        w.text(s.session_id).text(s.tenant).blob(s.snapshot).integer(now).text(owner).integer(now + lease_ms);
+        RICCATI_RETURN_IF_ERROR(done(w, storing));
+        stored.push_back(Status::ok());
+      }
+      return stored;
     });
   }
 

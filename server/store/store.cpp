@@ -107,6 +107,13 @@ Status session_held_elsewhere(const std::string& id, const std::string& holder, 
               " s more): open its stream there, or here once that instance has stopped"};
 }
 
+Status Store::put_session_snapshot(const std::string& tenant, const std::string& session_id, const std::string& owner,
+                                   std::int64_t lease_ms, const std::string& snapshot) {
+  const std::vector<SessionSnapshotWrite> one = {{tenant, session_id, snapshot}};
+  RICCATI_ASSIGN_OR_RETURN(const std::vector<Status> stored, put_session_snapshots(owner, lease_ms, one));
+  return stored.front();
+}
+
 Result<std::string> named_object(const std::string& request_id, const std::string& stored_kind,
                                  const std::string& object_id, const std::string& kind) {
   if (stored_kind != kind) {

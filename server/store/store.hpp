@@ -21,6 +21,7 @@
 #include <memory>
 #include <optional>
 #include <string>
+#include <string_view>
 #include <vector>
 
 #include "engine/data/dataset.hpp"
@@ -76,6 +77,14 @@ Status session_lease_lost(const std::string& id, const std::string& owner);
 // FAILED_PRECONDITION: session `id` is held by instance `holder` for
 // `remaining_ms` more (claim_session_snapshot).
 Status session_held_elsewhere(const std::string& id, const std::string& holder, std::int64_t remaining_ms);
+
+// A snapshot to store, as put_session_snapshots takes it: views of the
+// caller's strings, which outlive the call.
+struct SessionSnapshotWrite {
+  std::string_view tenant;
+  std::string_view session_id;
+  std::string_view snapshot;
+};
 
 // A stored session snapshot, as list_session_snapshots gives it.
 struct SessionSnapshotRecord {
@@ -252,9 +261,15 @@ class Store {
   // `owner` for `lease_ms` from now. ABORTED (session_lease_lost) if another
   // owner holds it under a live lease; NOT_FOUND if the id is another
   // tenant's. A lease_ms of 0 stores it released.
-  virtual Status put_session_snapshot(const std::string& tenant, const std::string& session_id,
-                                      const std::string& owner, std::int64_t lease_ms,
-                                      const std::string& snapshot) = 0;
+  Status put_session_snapshot(const std::string& tenant, const std::string& session_id, const std::string& owner,
+                              std::int64_t lease_ms, const std::string& snapshot);
+  // Stores each snapshot as put_session_snapshot does, all in one
+  // transaction: one commit (one sync to disk) for the many sessions whose
+  // snapshots fell due together. One status a snapshot, in order: ok,
+  // ABORTED or NOT_FOUND as above for that one alone, the others stored; an
+  // error, and nothing stored, if the transaction failed.
+  virtual Result<std::vector<Status>> put_session_snapshots(const std::string& owner, std::int64_t lease_ms,
+                                                            const std::vector<SessionSnapshotWrite>& batch) = 0;
   // Takes the session over: `owner` holds it for `lease_ms` from now and
   // gets its snapshot. NOT_FOUND if there is none (or it is another
   // tenant's); FAILED_PRECONDITION naming the holder if another owner's

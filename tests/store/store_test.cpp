@@ -682,6 +682,38 @@ TEST_P(StoreTest, ASessionSnapshotIsHeldByOneInstanceUnderALease) {
   EXPECT_EQ(store->delete_session_snapshot("t", "ses-1", "a").code(), StatusCode::kNotFound);
 }
 
+// The snapshots that fall due together are stored in one transaction, each
+// judged alone: another instance's session and another tenant's id are
+// refused as put_session_snapshot refuses them, and the rest are stored.
+TEST_P(StoreTest, SessionSnapshotsAreStoredTogetherEachJudgedAlone) {
+  auto store = open();
+  ASSERT_TRUE(store->put_session_snapshot("t", "ses-held", "b", 60000, "b's").is_ok());
+  ASSERT_TRUE(store->put_session_snapshot("u", "ses-other", "a", 60000, "u's").is_ok());
+  ASSERT_TRUE(store->put_session_snapshot("t", "ses-old", "a", 60000, "old").is_ok());
+  const std::string binary("\x00new\xff", 5);
+  const std::vector<SessionSnapshotWrite> batch = {{"t", "ses-new", binary},
+                                                   {"t", "ses-held", "a's"},
+                                                   {"t", "ses-other", "t's"},
+                                                   {"t", "ses-old", "replaced"}};
+  const auto stored = store->put_session_snapshots("a", 60000, batch);
+  ASSERT_TRUE(stored.is_ok()) << stored.status().to_string();
+  ASSERT_EQ(stored.value().size(), 4u);
+  EXPECT_TRUE(stored.value()[0].is_ok()) << stored.value()[0].to_string();
+  EXPECT_EQ(stored.value()[1].code(), StatusCode::kAborted) << stored.value()[1].to_string();
+  EXPECT_NE(stored.value()[1].message().find("session ses-held is no longer held by a"), std::string::npos);
+  EXPECT_EQ(stored.value()[2].code(), StatusCode::kNotFound) << stored.value()[2].to_string();
+  EXPECT_EQ(stored.value()[2].message(), "no session ses-other");
+  EXPECT_TRUE(stored.value()[3].is_ok()) << stored.value()[3].to_string();
+
+  EXPECT_EQ(store->claim_session_snapshot("t", "ses-new", "a", 60000).value(), binary);
+  EXPECT_EQ(store->claim_session_snapshot("t", "ses-old", "a", 60000).value(), "replaced");
+  EXPECT_EQ(store->claim_session_snapshot("t", "ses-held", "b", 60000).value(), "b's") << "b's, untouched";
+  EXPECT_EQ(store->claim_session_snapshot("u", "ses-other", "a", 60000).value(), "u's") << "u's, untouched";
+  const auto none = store->put_session_snapshots("a", 60000, {});
+  ASSERT_TRUE(none.is_ok());
+  EXPECT_TRUE(none.value().empty());
+}
+
 TEST_P(StoreTest, AnExpiredOrReleasedSessionLeaseIsTakenOverAndItsOldOwnerRefused) {
   auto store = open();
   ASSERT_TRUE(store->put_session_snapshot("t", "ses-1", "a", 1, "a's").is_ok());  // a 1 ms lease: "a" died

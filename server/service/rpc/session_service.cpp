@@ -1,6 +1,5 @@
 #include "service/rpc/session_service.hpp"
 
-#include <google/protobuf/arena.h>
 #include <spdlog/spdlog.h>
 
 #include <array>
@@ -9,6 +8,7 @@
 #include <optional>
 
 #include "service/convert.hpp"
+#include "service/rpc/message_arena.hpp"
 
 namespace riccati::service {
 
@@ -266,14 +266,11 @@ class SessionServiceImpl::StreamReactor final : public grpc::ServerBidiReactor<g
   // answered with one result per measurement.
   Handled handle(grpc::ByteBuffer& bytes, grpc::ByteBuffer& response_bytes) {
     ++messages_;
-    // Parsed into the arena, emptied after each message: parsing into a
-    // reused message would still free and allocate its batch (a oneof
-    // member) and every measurement in it, three allocations a measurement.
-    struct ResetAfter {
-      google::protobuf::Arena& arena;
-      ~ResetAfter() { arena.Reset(); }
-    } reset_after{arena_};
-    v1::StreamRequest& request = *google::protobuf::Arena::CreateMessage<v1::StreamRequest>(&arena_);
+    struct TrimAfter {
+      MessageArena& arena;
+      ~TrimAfter() { arena.trim(); }
+    } trim_after{arena_};
+    v1::StreamRequest& request = arena_.fresh<v1::StreamRequest>();
     const bool parsed = grpc::SerializationTraits<v1::StreamRequest>::Deserialize(&bytes, &request).ok();
     if (!parsed) {
       return {false, to_grpc(invalid_argument("message " + std::to_string(messages_) +
@@ -356,16 +353,7 @@ class SessionServiceImpl::StreamReactor final : public grpc::ServerBidiReactor<g
   // batches up to about a hundred measurements does not allocate).
   grpc::ByteBuffer request_bytes_;
   int messages_ = 0;  // received so far, for the error that names one
-  static constexpr std::size_t kArenaBlock = 16 * 1024;
-  static google::protobuf::ArenaOptions arena_options(char* initial_block) {
-    google::protobuf::ArenaOptions options;
-    options.initial_block = initial_block;
-    options.initial_block_size = kArenaBlock;
-    options.start_block_size = kArenaBlock;  // a larger batch, or the filter on another thread: few blocks
-    return options;
-  }
-  std::unique_ptr<char[]> arena_block_ = std::make_unique<char[]>(kArenaBlock);
-  google::protobuf::Arena arena_{arena_options(arena_block_.get())};
+  MessageArena arena_;
   v1::StreamResponse response_;
 
   std::mutex mu_;

@@ -297,14 +297,21 @@ void SessionManager::forget(Session& session) {
 
 void SessionManager::writer_loop() {
   const auto renew_every = std::max<std::chrono::milliseconds>(options_.lease / 3, std::chrono::milliseconds(100));
+  // At most one transaction in a quarter of the snapshot interval: the
+  // snapshots falling due meanwhile gather, so that the commits a second
+  // do not grow with the number of sessions.
+  const auto gather = options_.snapshot_interval / 4;
   auto next_renewal = std::chrono::steady_clock::now() + renew_every;
+  auto next_write = std::chrono::steady_clock::now();
   std::unique_lock lock(writer_mu_);
   for (;;) {
     writer_cv_.wait_until(lock, next_renewal, [&] { return writer_stopping_ || !pending_.empty(); });
+    if (!pending_.empty()) writer_cv_.wait_until(lock, next_write, [&] { return writer_stopping_; });
     if (writer_stopping_) return;  // shutdown() stores what is pending
     std::map<std::string, Pending> batch;
     batch.swap(pending_);
     lock.unlock();
+    if (!batch.empty()) next_write = std::chrono::steady_clock::now() + gather;
     const bool stored = write(batch);
     if (std::chrono::steady_clock::now() >= next_renewal) {
       auto renewed = store_->renew_session_leases(options_.instance_id, options_.lease.count());
@@ -322,24 +329,34 @@ void SessionManager::counted(const Status& stored) const {
 }
 
 bool SessionManager::write(std::map<std::string, Pending>& batch) {
-  bool all = true;
-  std::lock_guard io(io_mu_);
-  for (auto& [id, snapshot] : batch) {
-    const Status stored =
-        store_->put_session_snapshot(snapshot.tenant, id, options_.instance_id, options_.lease.count(), snapshot.bytes);
-    counted(stored);
-    if (stored.is_ok()) continue;
-    if (stored.code() == StatusCode::kAborted) {
-      lost(id, stored);
-      continue;
-    }
-    spdlog::warn("session snapshot not stored id={} error=\"{}\"", id, stored.message());
-    if (stored.code() == StatusCode::kNotFound) continue;  // another tenant's id: never ours to store
-    all = false;
+  if (batch.empty()) return true;
+  // One transaction for all (see writer_loop).
+  std::vector<SessionSnapshotWrite> writes;
+  writes.reserve(batch.size());
+  for (const auto& [id, snapshot] : batch) writes.push_back({snapshot.tenant, id, snapshot.bytes});
+  Result<std::vector<Status>> stored = [&] {
+    std::lock_guard io(io_mu_);
+    return store_->put_session_snapshots(options_.instance_id, options_.lease.count(), writes);
+  }();
+  if (!stored.is_ok()) {
+    spdlog::warn("session snapshots not stored count={} error=\"{}\"", batch.size(), stored.status().message());
     std::lock_guard lock(writer_mu_);
-    pending_.try_emplace(id, std::move(snapshot));  // unless a newer one came meanwhile
+    for (auto& [id, snapshot] : batch) {
+      counted(stored.status());
+      pending_.try_emplace(id, std::move(snapshot));  // unless a newer one came meanwhile
+    }
+    return false;
   }
-  return all;
+  auto outcome = stored.value().begin();
+  for (const auto& [id, snapshot] : batch) {
+    const Status& one = *outcome++;
+    counted(one);
+    if (one.code() == StatusCode::kAborted) lost(id, one);
+    if (one.code() == StatusCode::kNotFound) {  // another tenant's id: never ours to store
+      spdlog::warn("session snapshot not stored id={} error=\"{}\"", id, one.message());
+    }
+  }
+  return true;
 }
 
 void SessionManager::lost(const std::string& id, const Status& why) {

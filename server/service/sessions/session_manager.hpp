@@ -17,7 +17,9 @@
 // streams on. A live instance keeps its sessions: another refuses them with
 // FAILED_PRECONDITION naming it. Streams never wait on the database: they
 // hand the encoded snapshot to a writer thread, which keeps only the latest
-// per session.
+// per session and stores what gathered in one transaction, at most one in a
+// quarter of the snapshot interval (a commit syncs the disk: a commit a
+// snapshot would cost more than the sessions' filters).
 #pragma once
 
 #include "service/limits.hpp"
