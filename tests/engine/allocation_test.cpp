@@ -1,7 +1,6 @@
 // No filter of any kind allocates memory per measurement: after the first
-// steps have sized its work space, a step runs without a call to malloc. Counted by
-// interposing malloc, calloc and realloc for this test binary (they forward
-// to glibc's own), per thread, so nothing else in the process interferes.
+// steps have sized its work space, a step runs without a call to malloc
+// (counted per thread: support/counted_malloc.hpp).
 #include <gtest/gtest.h>
 
 #include <cstddef>
@@ -12,31 +11,7 @@
 #include "engine/estimation/online_runner.hpp"
 #include "engine/estimation/smoother.hpp"
 #include "engine/models/plugin_loader.hpp"
-
-extern "C" {
-void* __libc_malloc(std::size_t size);
-void* __libc_calloc(std::size_t count, std::size_t size);
-void* __libc_realloc(void* p, std::size_t size);
-}
-
-namespace {
-thread_local std::size_t allocations = 0;
-}  // namespace
-
-extern "C" {
-void* malloc(std::size_t size) {
-  ++allocations;
-  return __libc_malloc(size);
-}
-void* calloc(std::size_t count, std::size_t size) {
-  ++allocations;
-  return __libc_calloc(count, size);
-}
-void* realloc(void* p, std::size_t size) {
-  ++allocations;
-  return __libc_realloc(p, size);
-}
-}
+#include "support/counted_malloc.hpp"
 
 namespace riccati {
 namespace {
@@ -122,9 +97,9 @@ TEST_P(NoAllocation, PerMeasurement) {
                            {d.y.col(k).data(), static_cast<std::size_t>(d.y.rows())});
   };
   for (Eigen::Index k = 0; k < 2; ++k) ASSERT_TRUE(advance(k).is_ok());
-  const std::size_t before = allocations;
+  const std::size_t before = testing::allocations;
   for (Eigen::Index k = 2; k < 200; ++k) ASSERT_TRUE(advance(k).is_ok());
-  EXPECT_EQ(allocations - before, 0u) << "allocations in 198 measurements of " << c.name;
+  EXPECT_EQ(testing::allocations - before, 0u) << "allocations in 198 measurements of " << c.name;
 }
 
 INSTANTIATE_TEST_SUITE_P(EveryFilterKind, NoAllocation, ::testing::ValuesIn(cases()),
@@ -145,9 +120,9 @@ TEST(NoAllocation, PerSmoothedSample) {
     s.initial = c.initial;
     auto allocations_to_smooth = [&](Eigen::Index samples) {
       s.end_sample = samples;
-      const std::size_t before = allocations;
+      const std::size_t before = testing::allocations;
       const auto r = smooth(registry.find(c.model), d, s);
-      const std::size_t count = allocations - before;
+      const std::size_t count = testing::allocations - before;
       EXPECT_TRUE(r.is_ok()) << r.status().to_string();
       return count;
     };
@@ -172,9 +147,9 @@ TEST(NoAllocation, PerIdentifiedSample) {
     s.passes = 2;
     auto allocations_to_identify = [&](Eigen::Index samples) {
       s.end_sample = samples;
-      const std::size_t before = allocations;
+      const std::size_t before = testing::allocations;
       const auto r = identify(registry.find(c.model), d, s);
-      const std::size_t count = allocations - before;
+      const std::size_t count = testing::allocations - before;
       EXPECT_TRUE(r.is_ok()) << c.name << ": " << r.status().to_string();
       return count;
     };

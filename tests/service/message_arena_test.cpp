@@ -1,8 +1,7 @@
 // The stream's message arena allocates nothing per message once it has
 // parsed its first, even when the messages come on different threads, as
 // gRPC's callbacks do; and it keeps no more than its first block between
-// messages. Counted by interposing malloc and free for this test binary,
-// per thread, as allocation_test does.
+// messages (counted per thread: support/counted_malloc.hpp).
 #include "service/rpc/message_arena.hpp"
 
 #include <gtest/gtest.h>
@@ -13,37 +12,7 @@
 #include <thread>
 
 #include "riccati/v1/sessions.pb.h"
-
-extern "C" {
-void* __libc_malloc(std::size_t size);
-void* __libc_calloc(std::size_t count, std::size_t size);
-void* __libc_realloc(void* p, std::size_t size);
-void __libc_free(void* p);
-}
-
-namespace {
-thread_local std::size_t allocations = 0;
-thread_local std::size_t frees = 0;
-}  // namespace
-
-extern "C" {
-void* malloc(std::size_t size) {
-  ++allocations;
-  return __libc_malloc(size);
-}
-void* calloc(std::size_t count, std::size_t size) {
-  ++allocations;
-  return __libc_calloc(count, size);
-}
-void* realloc(void* p, std::size_t size) {
-  ++allocations;
-  return __libc_realloc(p, size);
-}
-void free(void* p) {
-  if (p != nullptr) ++frees;
-  __libc_free(p);
-}
-}
+#include "support/counted_malloc.hpp"
 
 namespace riccati {
 namespace {
@@ -63,22 +32,22 @@ std::string batch_bytes(int count) {
 }
 
 // Parses `bytes` into a fresh message, then trims the arena as the stream
-// does after each message; the allocations this made on this thread.
+// does after each message; the testing::allocations this made on this thread.
 std::size_t parse(MessageArena& arena, const std::string& bytes, int expected) {
-  const std::size_t before = allocations;
+  const std::size_t before = testing::allocations;
   v1::StreamRequest& request = arena.fresh<v1::StreamRequest>();
   EXPECT_TRUE(request.ParseFromString(bytes));
   EXPECT_EQ(request.batch().measurements_size(), expected);
   arena.trim();
-  return allocations - before;
+  return testing::allocations - before;
 }
 
-// The blocks `trim()` frees after parsing `bytes`.
+// The blocks `trim()` testing::frees after parsing `bytes`.
 std::size_t freed_by_trim(MessageArena& arena, const std::string& bytes) {
   EXPECT_TRUE(arena.fresh<v1::StreamRequest>().ParseFromString(bytes));
-  const std::size_t before = frees;
+  const std::size_t before = testing::frees;
   arena.trim();
-  return frees - before;
+  return testing::frees - before;
 }
 
 TEST(MessageArena, OneThreadParsesWithoutAllocating) {
