@@ -330,7 +330,8 @@ void SessionManager::counted(const Status& stored) const {
 
 bool SessionManager::write(std::map<std::string, Pending>& batch) {
   if (batch.empty()) return true;
-  // One transaction for all (see writer_loop).
+  // One transaction for all (see writer_loop), in the ids' order (the
+  // map's): two instances' batches lock shared rows in the same order.
   std::vector<SessionSnapshotWrite> writes;
   writes.reserve(batch.size());
   for (const auto& [id, snapshot] : batch) writes.push_back({snapshot.tenant, id, snapshot.bytes});
