@@ -3,6 +3,7 @@
 // that the commits (each a sync to disk) do not grow with the sessions.
 #include <gtest/gtest.h>
 #include <sqlite3.h>
+#include <unistd.h>
 
 #include <chrono>
 #include <filesystem>
