@@ -3,6 +3,7 @@
 // and resident memory are read from /proc, the generator's from getrusage.
 #pragma once
 
+#include <sched.h>
 #include <signal.h>
 #include <sys/resource.h>
 #include <sys/wait.h>
@@ -30,9 +31,10 @@ inline double own_cpu_seconds() {
 class ServerProcess {
  public:
   // Runs `argv` with "--port-file <dir>/port" appended (and, when
-  // `http_port` is set, "--http-port-file <dir>/http-port"), and waits for
-  // the port it listens on.
-  ServerProcess(std::vector<std::string> argv, const std::filesystem::path& dir, bool http_port = false) {
+  // `http_port` is set, "--http-port-file <dir>/http-port"), on the CPUs
+  // `cpus` alone when it names any, and waits for the port it listens on.
+  ServerProcess(std::vector<std::string> argv, const std::filesystem::path& dir, bool http_port = false,
+                const std::vector<int>& cpus = {}) {
     std::filesystem::create_directories(dir);
     const auto port_file = dir / "port", http_port_file = dir / "http-port";
     std::filesystem::remove(port_file);
@@ -41,6 +43,15 @@ class ServerProcess {
     if (http_port) argv.insert(argv.end(), {"--http-port-file", http_port_file.string()});
     pid_ = fork();
     if (pid_ == 0) {
+      if (!cpus.empty()) {
+        cpu_set_t set;
+        CPU_ZERO(&set);
+        for (int cpu : cpus) CPU_SET(cpu, &set);
+        if (sched_setaffinity(0, sizeof set, &set) != 0) {
+          std::perror("the server's CPUs (sched_setaffinity)");
+          _exit(126);
+        }
+      }
       std::vector<char*> args;
       for (auto& a : argv) args.push_back(a.data());
       args.push_back(nullptr);

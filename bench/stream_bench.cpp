@@ -7,6 +7,7 @@
 //   build/bin/stream_bench --model manipulator --rate 400 --find-max
 //   build/bin/stream_bench --model manipulator --sessions 20 --rate 400 --idle 10000
 //   build/bin/stream_bench --baseline path/to/an/older/riccatid   # before and after, in one run
+//   build/bin/stream_bench --model manipulator --rate 400 --find-max --server-cpus 1   # servers on one core
 //
 // riccatid (SQLite in a temporary directory, the built-in plugins, session
 // snapshots every second as in production, limits raised for the bench) and
@@ -636,7 +637,8 @@ class LevelSearch {
 // A riccatid for the bench: its own data directory, the built-in plugins,
 // production's snapshot interval, and limits raised for the bench alone.
 std::unique_ptr<bench::ServerProcess> start_riccatid(const std::string& binary, const std::filesystem::path& dir,
-                                                     const std::vector<std::string>& extra_flags) {
+                                                     const std::vector<std::string>& extra_flags,
+                                                     const std::vector<int>& cpus) {
   std::vector<std::string> argv = {binary,
                                    "--listen", "127.0.0.1:0",
                                    "--data-dir", dir.string(),
@@ -647,7 +649,7 @@ std::unique_ptr<bench::ServerProcess> start_riccatid(const std::string& binary, 
                                    "--max-streams", "100000",
                                    "--max-tenant-streams", "100000"};
   argv.insert(argv.end(), extra_flags.begin(), extra_flags.end());
-  auto process = std::make_unique<bench::ServerProcess>(argv, dir);
+  auto process = std::make_unique<bench::ServerProcess>(argv, dir, false, cpus);
   if (!process->running()) std::fprintf(stderr, "stream_bench: %s did not start\n", binary.c_str());
   return process;
 }
@@ -689,6 +691,12 @@ int main(int argc, char** argv) {
       ->allow_extra_args(false);
   app.add_option("--repeat", repeat, "Runs of each scenario on each server, alternating; the medians are printed")
       ->check(CLI::PositiveNumber);
+  std::vector<int> server_cpus;
+  app.add_option("--server-cpus", server_cpus,
+                 "Run every server on these CPUs alone (e.g. --server-cpus 1), so that the load generator, which "
+                 "may still use any, does not take their time")
+      ->delimiter(',')
+      ->check(CLI::NonNegativeNumber);
   CLI11_PARSE(app, argc, argv);
   absl::SetMutexDeadlockDetectionMode(absl::OnDeadlockCycle::kIgnore);  // as riccatid does: Debian's Abseil has its debug checks on
   const bool custom_given = std::any_of(options.begin(), options.end(), [](CLI::Option* o) { return o->count() > 0; });
@@ -700,13 +708,15 @@ int main(int argc, char** argv) {
   const std::filesystem::path work =
       std::filesystem::temp_directory_path() / ("riccati-bench-" + std::to_string(::getpid()));
   std::vector<std::pair<std::string, std::unique_ptr<bench::ServerProcess>>> servers;  // name, process
-  servers.emplace_back("riccati", start_riccatid(riccatid, work / "riccati", daemon_flags));
-  if (!baseline.empty()) servers.emplace_back("baseline", start_riccatid(baseline, work / "baseline", daemon_flags));
+  servers.emplace_back("riccati", start_riccatid(riccatid, work / "riccati", daemon_flags, server_cpus));
+  if (!baseline.empty()) {
+    servers.emplace_back("baseline", start_riccatid(baseline, work / "baseline", daemon_flags, server_cpus));
+  }
   std::unique_ptr<bench::ServerProcess> echo;
   if (!no_echo && idle == 0) {
     echo = std::make_unique<bench::ServerProcess>(
         std::vector<std::string>{echo_binary, "--listen", "127.0.0.1:0", "--estimates-dir", work.string()},
-        work / "echo");
+        work / "echo", false, server_cpus);
     if (!echo->running()) std::fprintf(stderr, "stream_bench: %s did not start\n", echo_binary.c_str());
   }
   for (const auto& [name, process] : servers) {
