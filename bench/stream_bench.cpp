@@ -696,7 +696,7 @@ int main(int argc, char** argv) {
                  "Run every server on these CPUs alone (e.g. --server-cpus 1), so that the load generator, which "
                  "may still use any, does not take their time")
       ->delimiter(',')
-      ->check(CLI::NonNegativeNumber);
+      ->check(CLI::Range(0, CPU_SETSIZE - 1));  // CPU_SET is undefined past its set
   CLI11_PARSE(app, argc, argv);
   absl::SetMutexDeadlockDetectionMode(absl::OnDeadlockCycle::kIgnore);  // as riccatid does: Debian's Abseil has its debug checks on
   const bool custom_given = std::any_of(options.begin(), options.end(), [](CLI::Option* o) { return o->count() > 0; });
