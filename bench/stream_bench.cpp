@@ -52,6 +52,7 @@
 #include "engine/data/dataset.hpp"
 #include "engine/estimation/online_runner.hpp"
 #include "engine/models/plugin_loader.hpp"
+#include "hand_written_two_tank_ekf.hpp"
 #include "riccati/v1/sessions.grpc.pb.h"
 #include "service/run_settings.hpp"
 #include "support/requests.hpp"
@@ -481,20 +482,12 @@ v1::Estimate first_estimate(const std::string& address, const Workload& workload
   return response.results_size() > 0 ? response.results(0).estimate() : v1::Estimate{};
 }
 
-// What the filter step alone allows: the session's filter, made from the
-// same CreateSessionRequest as riccatid makes it (online_runner_from_proto),
-// advanced over the workload's measurements in this process for `seconds`
-// (nothing else runs meanwhile: the servers are idle between runs).
-// Measurements per second; 0, with the reason on stderr, if it fails.
-double filter_alone_rate(const Workload& workload, double seconds) {
-  const auto failed = [](const Status& status) {
-    std::fprintf(stderr, "stream_bench: the filter alone: %s\n", status.to_string().c_str());
-    return 0.0;
-  };
-  auto model = load_model_plugin(std::string(RICCATI_TEST_PLUGIN_DIR) + "/" + workload.session.model() + ".so");
-  if (!model.is_ok()) return failed(model.status());
-  auto runner = service::online_runner_from_proto(model.value(), workload.session);
-  if (!runner.is_ok()) return failed(runner.status());
+// Times `step(t, u, y)` over the workload's measurements (wrapping around,
+// the time stamps a lap later each time) for `seconds`, nothing else running
+// (the servers are idle between runs). Measurements per second; 0, with the
+// reason on stderr, if a step fails.
+template <typename Step>
+double steps_per_second(const Workload& workload, double seconds, const char* what, Step&& step) {
   const Dataset& d = workload.data;
   const Clock::time_point start = Clock::now();
   const auto end = start + std::chrono::duration_cast<Clock::duration>(std::chrono::duration<double>(seconds));
@@ -503,12 +496,63 @@ double filter_alone_rate(const Workload& workload, double seconds) {
     for (int i = 0; i < 256; ++i, ++steps) {  // a clock read every 256 steps
       const Eigen::Index k = static_cast<Eigen::Index>(steps % d.size());
       const double t = d.t[k] + static_cast<double>(steps / d.size()) * workload.lap_seconds;
-      const Status advanced = runner.value().advance(t, {d.u.col(k).data(), static_cast<std::size_t>(d.u.rows())},
-                                                     {d.y.col(k).data(), static_cast<std::size_t>(d.y.rows())});
-      if (!advanced.is_ok()) return failed(advanced);
+      const Status stepped = step(t, d.u.col(k).data(), d.y.col(k).data());
+      if (!stepped.is_ok()) {
+        std::fprintf(stderr, "stream_bench: %s: %s\n", what, stepped.to_string().c_str());
+        return 0.0;
+      }
     }
   }
   return static_cast<double>(steps) / std::chrono::duration<double>(Clock::now() - start).count();
+}
+
+// What the filter step alone allows: the session's filter, made from the
+// same CreateSessionRequest as riccatid makes it (online_runner_from_proto),
+// advanced over the workload's measurements in this process.
+double filter_alone_rate(const Workload& workload, double seconds) {
+  auto model = load_model_plugin(std::string(RICCATI_TEST_PLUGIN_DIR) + "/" + workload.session.model() + ".so");
+  auto runner = model.is_ok() ? service::online_runner_from_proto(model.value(), workload.session)
+                              : Result<OnlineRunner>(model.status());
+  if (!runner.is_ok()) {
+    std::fprintf(stderr, "stream_bench: the filter alone: %s\n", runner.status().to_string().c_str());
+    return 0.0;
+  }
+  const auto nu = static_cast<std::size_t>(workload.data.u.rows()), ny = static_cast<std::size_t>(workload.data.y.rows());
+  return steps_per_second(workload, seconds, "the filter alone", [&](double t, const double* u, const double* y) {
+    return runner.value().advance(t, {u, nu}, {y, ny});
+  });
+}
+
+// The most a single two-tank stream could carry with the hand-written CD-EKF
+// of engine_bench (the engine's algorithm for this one model, no plugin, no
+// checks) and a transport that cost nothing: the ceiling the batched
+// scenario's ratios are judged against. The session's own start: x from the
+// first measurement, the model's default theta, the request's P0 and R.
+double hand_written_rate(const Workload& workload, double seconds) {
+  auto model = load_model_plugin(std::string(RICCATI_TEST_PLUGIN_DIR) + "/two_tank.so");
+  if (!model.is_ok()) {
+    std::fprintf(stderr, "stream_bench: the hand-written filter: %s\n", model.status().to_string().c_str());
+    return 0.0;
+  }
+  const auto& p0 = workload.session.p0().diagonal().values();
+  const auto& r = workload.session.filter().r().diagonal().values();
+  bench::HandWrittenTwoTankEkf ekf;
+  ekf.R = Eigen::Vector2d(r[0], r[1]).asDiagonal();
+  bool started = false;
+  double t_last = 0.0, u_last[2] = {0.0, 0.0};
+  return steps_per_second(workload, seconds, "the hand-written filter", [&](double t, const double* u, const double* y) {
+    if (!started) {
+      ekf.z << y[0], y[1], model.value()->theta_default();
+      ekf.P = Eigen::Map<const bench::HandWrittenTwoTankEkf::Vec6>(p0.data()).asDiagonal();
+      started = true;
+    } else {
+      ekf.predict_structured(t - t_last, u_last);
+    }
+    ekf.update(y);
+    t_last = t;
+    std::copy(u, u + 2, u_last);
+    return Status::ok();
+  });
 }
 
 std::string describe(const Scenario& sc) {
@@ -809,11 +853,17 @@ int main(int argc, char** argv) {
     }
     std::vector<std::vector<Figures>> runs(servers.size() + 1);  // per server, the echo last
     std::vector<double> alone;  // closed loop, batched: the filter step alone, once a repeat
+    std::vector<double> hand_written;  // the same with the hand-written filter (two_tank only)
     for (int rep = 0; rep < repeat; ++rep) {
       if (sc.rate <= 0 && sc.batch > 1) {  // one measurement a message is bound by the round trip instead
         alone.push_back(filter_alone_rate(workload, sc.seconds - sc.warmup));
         std::printf("  %-10s %10s %10.0f   (the session's filter in this process, no server)\n", "filter", "",
                     alone.back());
+        if (workload.name == "two_tank") {
+          hand_written.push_back(hand_written_rate(workload, sc.seconds - sc.warmup));
+          std::printf("  %-10s %10s %10.0f   (engine_bench's hand-written CD-EKF in this process, no server)\n",
+                      "by hand", "", hand_written.back());
+        }
       }
       for (std::size_t s = 0; s < servers.size(); ++s) {
         runs[s].push_back(run(*servers[s].second, workload, sc));
@@ -846,6 +896,13 @@ int main(int argc, char** argv) {
       const double a = median(alone);
       if (repeat > 1) std::printf("  filter alone, median: %.0f measurements/s\n", a);
       std::printf("  ratio riccati/filter alone: throughput %.2f\n", a > 0 ? r.rate / a : 0.0);
+    }
+    if (!hand_written.empty() && echo != nullptr) {
+      // A single stream's steps run one after another, so this is the most
+      // any server with a filter this fast could reach against the echo.
+      const double h = median(hand_written);
+      std::printf("  ratio hand-written filter alone/echo: throughput %.2f (the ceiling of riccati/echo)\n",
+                  medians.back().rate > 0 ? h / medians.back().rate : 0.0);
     }
     if (sc.rate > 0) std::printf("  sustained (p99 < %.0f us, all answered): %s\n", 1e6 / sc.rate, sustained(sc, r) ? "yes" : "no");
   }
