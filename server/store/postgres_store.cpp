@@ -142,11 +142,27 @@ const std::vector<const char*> kMigrations = {
     R"sql(
     ALTER TABLE datasets ADD COLUMN true_parameters TEXT NOT NULL DEFAULT '';
     )sql",
+    // 10: one lease row per instance, renewed for all the sessions it holds
+    // at once (RICCATI_PG_SESSION_LEASE_UNTIL): renewing each session's row
+    // rewrote every snapshot's row. The partial index counts an owner's
+    // held sessions.
+    R"sql(
+    CREATE TABLE session_owner_leases (
+      owner TEXT PRIMARY KEY,
+      lease_until_ms BIGINT NOT NULL);
+    CREATE INDEX session_snapshots_held ON session_snapshots (owner) WHERE lease_until_ms > 0;
+    )sql",
 };
 
 // Leases are read against the database's clock, so that instances on hosts
 // whose clocks disagree still agree on when a lease has expired.
 #define RICCATI_PG_NOW_MS "(extract(epoch FROM clock_timestamp()) * 1000)::bigint"
+// When a session's lease ends: 0 once released; else its own term (from its
+// claim or last put) or its owner's renewed term, whichever is later.
+#define RICCATI_PG_SESSION_LEASE_UNTIL                                                                  \
+  "(CASE WHEN session_snapshots.lease_until_ms > 0 THEN GREATEST(session_snapshots.lease_until_ms, "  \
+  "coalesce((SELECT o.lease_until_ms FROM session_owner_leases o WHERE o.owner = session_snapshots.owner), 0)) " \
+  "ELSE 0 END)"
 
 // The advisory lock every riccatid takes while it migrates, so that
 // instances starting at once apply the migrations one after the other (the
@@ -766,7 +782,7 @@ class PostgresStore final : public Store {
             "($1, $2, $3::bytea, " RICCATI_PG_NOW_MS ", $4, " RICCATI_PG_NOW_MS " + $5) ON CONFLICT (session_id) DO "
             "UPDATE SET snapshot = excluded.snapshot, updated_ms = excluded.updated_ms, owner = excluded.owner, "
             "lease_until_ms = excluded.lease_until_ms WHERE session_snapshots.tenant = excluded.tenant AND "
-            "(session_snapshots.owner = excluded.owner OR session_snapshots.lease_until_ms <= excluded.updated_ms)",
+            "(session_snapshots.owner = excluded.owner OR " RICCATI_PG_SESSION_LEASE_UNTIL " <= excluded.updated_ms)",
             id, tenant, pqxx::binarystring(s.snapshot.data(), s.snapshot.size()), owner, lease_ms);
         if (r.affected_rows() > 0) {
           stored.push_back(Status::ok());
@@ -789,12 +805,12 @@ class PostgresStore final : public Store {
       for (int attempt = 0;; ++attempt) {
         const pqxx::result r = tx.exec_params(
             "UPDATE session_snapshots SET owner = $3, lease_until_ms = " RICCATI_PG_NOW_MS
-            " + $4 WHERE session_id = $1 AND tenant = $2 AND (owner = $3 OR lease_until_ms <= " RICCATI_PG_NOW_MS
-            ") RETURNING snapshot",
+            " + $4 WHERE session_id = $1 AND tenant = $2 AND (owner = $3 OR " RICCATI_PG_SESSION_LEASE_UNTIL
+            " <= " RICCATI_PG_NOW_MS ") RETURNING snapshot",
             session_id, tenant, owner, lease_ms);
         if (!r.empty()) return bytes_of(r[0][0]);
         const pqxx::result held = tx.exec_params(
-            "SELECT owner, lease_until_ms - " RICCATI_PG_NOW_MS
+            "SELECT owner, " RICCATI_PG_SESSION_LEASE_UNTIL " - " RICCATI_PG_NOW_MS
             " FROM session_snapshots WHERE session_id = $1 AND tenant = $2",
             session_id, tenant);
         if (held.empty()) return not_found("no session " + session_id);
@@ -808,22 +824,25 @@ class PostgresStore final : public Store {
   }
 
   Result<int> renew_session_leases(const std::string& owner, std::int64_t lease_ms) override {
+    // One row for all the owner's sessions; then how many it holds.
     return run<pqxx::nontransaction>("renewing the session leases of " + owner, true, [&](auto& tx) -> Result<int> {
+      tx.exec_params("INSERT INTO session_owner_leases (owner, lease_until_ms) VALUES ($1, " RICCATI_PG_NOW_MS
+                     " + $2) ON CONFLICT (owner) DO UPDATE SET lease_until_ms = excluded.lease_until_ms",
+                     owner, lease_ms);
       const pqxx::result r = tx.exec_params(
-          "UPDATE session_snapshots SET lease_until_ms = " RICCATI_PG_NOW_MS
-          " + $2 WHERE owner = $1 AND lease_until_ms > 0",
-          owner, lease_ms);
-      return static_cast<int>(r.affected_rows());
+          "SELECT count(*) FROM session_snapshots WHERE owner = $1 AND lease_until_ms > 0", owner);
+      return r[0][0].as<int>();
     });
   }
 
   Result<int> release_sessions(const std::string& owner) override {
-    return run<pqxx::nontransaction>(
+    return run<pqxx::work>(
         "releasing the sessions of " + (owner.empty() ? std::string("every instance") : owner), true,
         [&](auto& tx) -> Result<int> {
           const pqxx::result r = tx.exec_params(
               "UPDATE session_snapshots SET lease_until_ms = 0 WHERE lease_until_ms > 0 AND ($1 = '' OR owner = $1)",
               owner);
+          tx.exec_params("DELETE FROM session_owner_leases WHERE $1 = '' OR owner = $1", owner);
           return static_cast<int>(r.affected_rows());
         });
   }
@@ -832,8 +851,8 @@ class PostgresStore final : public Store {
                                  const std::string& owner) override {
     return run<pqxx::nontransaction>("deleting the snapshot of session " + session_id, false, [&](auto& tx) -> Status {
       const pqxx::result r = tx.exec_params(
-          "DELETE FROM session_snapshots WHERE session_id = $1 AND tenant = $2 AND (owner = $3 OR lease_until_ms <= " RICCATI_PG_NOW_MS
-          ")",
+          "DELETE FROM session_snapshots WHERE session_id = $1 AND tenant = $2 AND (owner = $3 OR "
+          RICCATI_PG_SESSION_LEASE_UNTIL " <= " RICCATI_PG_NOW_MS ")",
           session_id, tenant, owner);
       if (r.affected_rows() > 0) return Status::ok();
       const pqxx::result held = tx.exec_params(
@@ -847,7 +866,7 @@ class PostgresStore final : public Store {
     return run<pqxx::nontransaction>(
         "listing the session snapshots of " + tenant, true, [&](auto& tx) -> Result<std::vector<SessionSnapshotRecord>> {
           const pqxx::result r = tx.exec_params(
-              "SELECT session_id, CASE WHEN lease_until_ms > " RICCATI_PG_NOW_MS
+              "SELECT session_id, CASE WHEN " RICCATI_PG_SESSION_LEASE_UNTIL " > " RICCATI_PG_NOW_MS
               " THEN owner ELSE '' END, snapshot FROM session_snapshots WHERE tenant = $1 ORDER BY session_id",
               tenant);
           std::vector<SessionSnapshotRecord> records;
@@ -859,7 +878,7 @@ class PostgresStore final : public Store {
   Result<int> delete_abandoned_session_snapshots(std::int64_t idle_ms) override {
     return run<pqxx::nontransaction>("deleting abandoned session snapshots", true, [&](auto& tx) -> Result<int> {
       const pqxx::result r = tx.exec_params(
-          "DELETE FROM session_snapshots WHERE lease_until_ms <= " RICCATI_PG_NOW_MS
+          "DELETE FROM session_snapshots WHERE " RICCATI_PG_SESSION_LEASE_UNTIL " <= " RICCATI_PG_NOW_MS
           " AND updated_ms < " RICCATI_PG_NOW_MS " - $1",
           idle_ms);
       return static_cast<int>(r.affected_rows());

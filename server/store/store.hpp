@@ -278,8 +278,10 @@ class Store {
   virtual Result<std::string> claim_session_snapshot(const std::string& tenant, const std::string& session_id,
                                                      const std::string& owner, std::int64_t lease_ms) = 0;
   // Extends by `lease_ms` from now the leases `owner` holds and has not
-  // released (a released one is taken again by a claim or a put); returns
-  // how many.
+  // released (a released one is taken again by a claim or a put), and those
+  // it takes until then: one lease row for the owner, whatever the number of
+  // its sessions, so that a renewal does not rewrite every snapshot. Returns
+  // how many sessions it holds.
   virtual Result<int> renew_session_leases(const std::string& owner, std::int64_t lease_ms) = 0;
   // Ends the leases of `owner` now (every owner's when empty: a store that
   // one instance uses alone, at its start), so that any instance may claim

@@ -753,6 +753,26 @@ TEST_P(StoreTest, AnExpiredOrReleasedSessionLeaseIsTakenOverAndItsOldOwnerRefuse
   EXPECT_EQ(store->claim_session_snapshot("t", "ses-3", "b", 60000).status().code(), StatusCode::kFailedPrecondition);
 }
 
+// A renewal is the owner's, not each session's: it covers a session the
+// owner stores after it, until the owner stops renewing or releases.
+TEST_P(StoreTest, ASessionLeaseLastsAsLongAsItsOwnersRenewal) {
+  auto store = open();
+  EXPECT_EQ(store->renew_session_leases("a", 100).value(), 0);
+  ASSERT_TRUE(store->put_session_snapshot("t", "ses-1", "a", 1, "one").is_ok());  // its own term: 1 ms
+  ASSERT_TRUE(store->put_session_snapshot("t", "ses-2", "b", 1, "two").is_ok());  // b has renewed nothing
+  std::this_thread::sleep_for(std::chrono::milliseconds(20));
+  EXPECT_EQ(store->claim_session_snapshot("t", "ses-1", "c", 60000).status().code(), StatusCode::kFailedPrecondition)
+      << "a's renewal, 100 ms, holds it";
+  EXPECT_EQ(store->claim_session_snapshot("t", "ses-2", "c", 60000).value(), "two") << "b's own 1 ms are over";
+  EXPECT_EQ(store->renew_session_leases("a", 60000).value(), 1);
+  std::this_thread::sleep_for(std::chrono::milliseconds(150));
+  EXPECT_EQ(store->delete_abandoned_session_snapshots(0).value(), 0) << "held by a";
+  EXPECT_EQ(store->list_session_snapshots("t").value().front().holder, "a");
+  EXPECT_EQ(store->release_sessions("a").value(), 1);
+  EXPECT_EQ(store->list_session_snapshots("t").value().front().holder, "") << "released, renewal or not";
+  EXPECT_EQ(store->claim_session_snapshot("t", "ses-1", "c", 60000).value(), "one");
+}
+
 TEST_P(StoreTest, ConcurrentClaimsOfASessionHaveOneWinner) {
   auto store = open();
   ASSERT_TRUE(store->put_session_snapshot("t", "ses-1", "gone", 0, "snap").is_ok());  // stored released
@@ -834,7 +854,7 @@ TEST(PostgresStore, StoresOpeningAtOnceOnAnEmptyDatabaseAllSucceed) {
   for (int i = 0; i < kStores; ++i) ASSERT_TRUE(opened[i].is_ok()) << i << ": " << opened[i].status().to_string();
   const pqxx::result versions = schema.exec("SELECT version FROM riccati_schema_migrations ORDER BY version");
   // Each migration applied once, in order.
-  ASSERT_EQ(versions.size(), 9u);  // postgres_store.cpp's migrations
+  ASSERT_EQ(versions.size(), 10u);  // postgres_store.cpp's migrations
   for (int v = 0; v < static_cast<int>(versions.size()); ++v) EXPECT_EQ(versions[v][0].as<int>(), v + 1);
   // And they share one database: what one stores, another reads.
   ASSERT_TRUE(opened[0].value()->put_job_pass("t", "none", 1, "c").code() == StatusCode::kNotFound);
