@@ -137,10 +137,11 @@ const std::vector<const char*> kMigrations = {
     R"sql(
     ALTER TABLE datasets ADD COLUMN true_parameters TEXT NOT NULL DEFAULT '';
     )sql",
-    // 11: one lease row per instance, renewed for all the sessions it holds
-    // at once (kSessionLeaseUntil): renewing each session's row rewrote
-    // every snapshot, 10,000 of them every 5 s at 10,000 sessions. The
-    // partial index counts an owner's held sessions without their rows.
+    // 11: one lease row per instance, renewed for all the sessions it
+    // holds at once (RICCATI_SQLITE_SESSION_LEASE_UNTIL): renewing each
+    // session's row rewrote every snapshot, 10,000 of them every 5 s at
+    // 10,000 sessions. The partial index counts an owner's held sessions
+    // without their rows.
     R"sql(
     CREATE TABLE session_owner_leases (
       owner TEXT PRIMARY KEY,
