@@ -18,6 +18,7 @@ enum class StatusCode {
   kInvalidArgument = 3,
   kNotFound = 5,
   kAlreadyExists = 6,
+  kPermissionDenied = 7,    // e.g. an operator's call by a tenant
   kResourceExhausted = 8,
   kFailedPrecondition = 9,  // e.g. a filter that diverged
   kAborted = 10,            // e.g. a job whose lease another instance took

@@ -14,6 +14,7 @@
 #include <sstream>
 
 #include "engine/sha256.hpp"
+#include "service/files.hpp"
 
 namespace riccati::service {
 
@@ -24,14 +25,6 @@ namespace {
 bool is_public_method(std::string_view path) {
   return path.rfind("/grpc.health.v1.Health/", 0) == 0 ||
          path.rfind("/grpc.reflection.v1alpha.ServerReflection/", 0) == 0;
-}
-
-Result<std::string> read_file(const std::string& path, const char* what) {
-  std::ifstream in(path, std::ios::binary);
-  if (!in) return invalid_argument(std::string(what) + " " + path + " cannot be read");
-  std::ostringstream text;
-  text << in.rdbuf();
-  return text.str();
 }
 
 // What gRPC would refuse only when it binds, with "cannot listen on ...":
@@ -117,17 +110,19 @@ Result<TokenTable> TokenTable::load(const std::string& path) {
                                  ", not by riccatid's user or root, who could add a token for any tenant");
     }
   }
-  RICCATI_ASSIGN_OR_RETURN(const std::string text, read_file(path, "tokens file"));
+  RICCATI_ASSIGN_OR_RETURN(const std::string text, read_regular_file(path, "tokens file", kMaxTokensFileBytes));
   TokenTable table;
   std::istringstream lines(text);
   std::string line;
   for (int number = 1; std::getline(lines, line); ++number) {
     std::istringstream fields(line);
-    std::string tenant, digest, extra;
+    std::string tenant, digest, role, extra;
     if (!(fields >> tenant) || tenant[0] == '#') continue;
     const std::string where = "tokens file " + path + ", line " + std::to_string(number);
-    if (!(fields >> digest) || (fields >> extra)) {
-      return invalid_argument(where + ": expected \"<tenant> sha256:<hex digest>\"");
+    const bool has_role = static_cast<bool>(fields >> digest) && static_cast<bool>(fields >> role);
+    if (digest.empty() || (has_role && role != "operator") || (fields >> extra)) {
+      return invalid_argument(where + ": expected \"<tenant> sha256:<hex digest>\", and \" operator\" after it for an "
+                              "operator's token");
     }
     const bool well_formed = digest.size() == 7 + 64 && digest.rfind("sha256:", 0) == 0 &&
                              digest.find_first_not_of("0123456789abcdef", 7) == std::string::npos;
@@ -138,6 +133,7 @@ Result<TokenTable> TokenTable::load(const std::string& path) {
     if (!table.tenants_.emplace(digest, tenant).second) {
       return invalid_argument(where + ": this token is listed twice");
     }
+    if (has_role) table.operators_.insert(digest);
   }
   if (table.tenants_.empty()) return invalid_argument("tokens file " + path + " lists no token");
   return table;
@@ -148,6 +144,8 @@ std::optional<std::string> TokenTable::tenant_for(std::string_view token) const 
   if (it == tenants_.end()) return std::nullopt;
   return it->second;
 }
+
+bool TokenTable::is_operator(std::string_view token) const { return operators_.count(token_digest(token)) != 0; }
 
 Result<std::shared_ptr<const Authenticator>> Authenticator::create(const std::string& tokens_file) {
   auto auth = std::make_shared<Authenticator>();
@@ -167,6 +165,27 @@ Result<std::string> Authenticator::tenant_for_header(std::string_view authorizat
   auto tenant = tokens_->tenant_for(authorization.substr(kScheme.size()));
   if (!tenant) return Status(StatusCode::kUnauthenticated, "the bearer token is not valid");
   return *tenant;
+}
+
+bool Authenticator::is_operator_header(std::string_view authorization) const {
+  if (!tokens_) return true;  // one user, on loopback
+  constexpr std::string_view kScheme = "Bearer ";
+  if (authorization.size() <= kScheme.size() || authorization.substr(0, kScheme.size()) != kScheme) return false;
+  return tokens_->is_operator(authorization.substr(kScheme.size()));
+}
+
+bool Authenticator::is_operator(const grpc::ServerContextBase& context) const {
+  if (!tokens_) return true;
+  const auto& metadata = context.client_metadata();
+  const auto header = metadata.find("authorization");
+  return header != metadata.end() &&
+         is_operator_header(std::string_view(header->second.data(), header->second.size()));
+}
+
+Status operator_only(const char* what) {
+  return {StatusCode::kPermissionDenied,
+          std::string(what) + " is for an operator of riccatid: a token marked \"operator\" in the tokens file "
+                              "(\"<tenant> sha256:<digest> operator\"), or SIGHUP to riccatid on its host"};
 }
 
 std::string Authenticator::tenant(const grpc::ServerContextBase& context) const {
@@ -216,15 +235,15 @@ Result<std::shared_ptr<grpc::ServerCredentials>> server_credentials(const Securi
     if (config.tls_cert.empty() || config.tls_key.empty()) {
       return invalid_argument("TLS needs both tls_cert and tls_key");
     }
-    RICCATI_ASSIGN_OR_RETURN(const std::string cert, read_file(config.tls_cert, "TLS certificate"));
+    RICCATI_ASSIGN_OR_RETURN(const std::string cert, read_regular_file(config.tls_cert, "TLS certificate", kMaxConfigFileBytes));
     RICCATI_RETURN_IF_ERROR(check_private_key_mode(config.tls_key));
-    RICCATI_ASSIGN_OR_RETURN(const std::string key, read_file(config.tls_key, "TLS key"));
+    RICCATI_ASSIGN_OR_RETURN(const std::string key, read_regular_file(config.tls_key, "TLS key", kMaxConfigFileBytes));
     grpc::SslServerCredentialsOptions options(config.tls_client_ca.empty()
                                                   ? GRPC_SSL_DONT_REQUEST_CLIENT_CERTIFICATE
                                                   : GRPC_SSL_REQUEST_AND_REQUIRE_CLIENT_CERTIFICATE_AND_VERIFY);
     options.pem_key_cert_pairs.push_back({key, cert});
     if (!config.tls_client_ca.empty()) {
-      RICCATI_ASSIGN_OR_RETURN(options.pem_root_certs, read_file(config.tls_client_ca, "TLS client CA"));
+      RICCATI_ASSIGN_OR_RETURN(options.pem_root_certs, read_regular_file(config.tls_client_ca, "TLS client CA", kMaxConfigFileBytes));
     }
     RICCATI_RETURN_IF_ERROR(check_tls_files(config, cert, key, options.pem_root_certs));
     credentials = grpc::SslServerCredentials(options);

@@ -21,6 +21,7 @@
 #include <map>
 #include <memory>
 #include <optional>
+#include <set>
 #include <string>
 #include <string_view>
 
@@ -32,17 +33,21 @@ namespace riccati::service {
 inline constexpr std::string_view kDefaultTenant = "default";
 
 // The tokens file: one line per token, "<tenant> sha256:<hex digest of the
-// token>"; blank lines and lines starting with # are ignored. Only digests
-// are stored, so the file does not give the tokens away.
+// token>", and " operator" after it for a token that may also do what is
+// riccatid's operator's (ReloadModels); blank lines and lines starting with
+// # are ignored. Only digests are stored, so the file does not give the
+// tokens away.
 class TokenTable {
  public:
   static Result<TokenTable> load(const std::string& path);
   // The tenant a token belongs to.
   std::optional<std::string> tenant_for(std::string_view token) const;
+  bool is_operator(std::string_view token) const;
   std::size_t size() const { return tenants_.size(); }
 
  private:
   std::map<std::string, std::string> tenants_;  // digest ("sha256:...") -> tenant
+  std::set<std::string> operators_;             // digests of operators' tokens
 };
 
 // "sha256:<64 hex digits>" of the token, as the tokens file holds it.
@@ -64,10 +69,17 @@ class Authenticator {
   // The tenant of a call. Its token was checked by the processor before the
   // handler ran; a call without one gets "", which owns nothing.
   std::string tenant(const grpc::ServerContextBase& context) const;
+  // Whether the call's (or the header's) token is an operator's; without
+  // a tokens file, every caller is (one user, on loopback).
+  bool is_operator(const grpc::ServerContextBase& context) const;
+  bool is_operator_header(std::string_view authorization) const;
 
  private:
   std::optional<TokenTable> tokens_;
 };
+
+// PERMISSION_DENIED for a tenant's call to what is the operator's (`what`).
+Status operator_only(const char* what);
 
 // Refuses calls without a valid token (except health checks and reflection)
 // with UNAUTHENTICATED before they reach a handler.

@@ -10,6 +10,7 @@
 #include <limits>
 #include <thread>
 
+#include "service/files.hpp"
 #include "store/postgres_store.hpp"
 
 namespace riccati::service {
@@ -26,8 +27,9 @@ const LimitSpec* find_limit(const std::string& key) {
 }  // namespace
 
 Status load_config_file(const std::string& path, DaemonConfig* c) {
+  RICCATI_ASSIGN_OR_RETURN(const std::string text, read_regular_file(path, "config", kMaxConfigFileBytes));
   try {
-    const YAML::Node root = YAML::LoadFile(path);
+    const YAML::Node root = YAML::Load(text);
     if (!root.IsMap()) return invalid_argument("config " + path + ": expected a map of settings");
     for (const auto& entry : root) {
       const std::string key = entry.first.as<std::string>();

@@ -18,4 +18,10 @@ std::string new_id(std::string_view prefix) {
   return std::string(prefix) + "-" + digits;
 }
 
+Status check_client_string(std::string_view field, std::string_view value, std::size_t max_bytes) {
+  if (value.size() <= max_bytes) return Status::ok();
+  return invalid_argument(std::string(field) + " is " + std::to_string(value.size()) + " bytes long; it may be at most " +
+                          std::to_string(max_bytes));
+}
+
 }  // namespace riccati::service

@@ -35,6 +35,10 @@ struct Limits {
   std::int64_t max_tenant_streams = 256;               // long-lived calls open, one tenant
   std::int64_t max_tenant_models = 1000;               // stored text model revisions of one tenant
   std::int64_t max_tenant_model_bytes = 64ll << 20;    // their sources, bytes
+  std::int64_t max_stored_request_bytes = 1ll << 20;   // a job's spec or a session's request, as stored
+  std::int64_t max_tenant_uploads = 4;                 // uploads in flight, one tenant
+  std::int64_t upload_idle_seconds = 60;               // an upload that sends nothing for this long is ended
+  std::int64_t max_result_read_bytes = 512ll << 20;    // stored results being read at once, all tenants
 };
 
 struct LimitSpec {
@@ -80,6 +84,15 @@ inline constexpr LimitSpec kLimitSpecs[] = {
      "Most stored text model revisions of one tenant (every CreateModel is one; a deleted model's no longer count)"},
     {"max_tenant_model_bytes", &Limits::max_tenant_model_bytes,
      "All of a tenant's stored text model revisions (bytes of source; a deleted model's no longer count)"},
+    {"max_stored_request_bytes", &Limits::max_stored_request_bytes,
+     "Largest job spec or session request kept in the store (bytes, encoded): its settings, masks and names"},
+    {"max_tenant_uploads", &Limits::max_tenant_uploads,
+     "Most uploads in flight of one tenant (its share of max_uploads)"},
+    {"upload_idle_seconds", &Limits::upload_idle_seconds,
+     "An upload that sends no bytes for this long (s) is ended with DEADLINE_EXCEEDED, its room given back"},
+    {"max_result_read_bytes", &Limits::max_result_read_bytes,
+     "Stored results being read at once (GetResult, gRPC and HTTP), all tenants (bytes as stored; each takes 3 to 5 "
+     "times that while converted): a read waits for room, then is refused"},
 };
 
 // RESOURCE_EXHAUSTED: "limit <key> = <limit> reached: <what>".

@@ -90,14 +90,15 @@ class Metrics::Scraped final : public prometheus::Collectable {
       out.push_back(std::move(sessions));
     }
     if (store_ != nullptr) {
-      auto unfinished = store_->jobs_in_states({JobState::kQueued, JobState::kRunning});
+      auto unfinished = store_->count_unfinished_jobs("");
       if (unfinished.is_ok()) {
         prometheus::MetricFamily jobs{"riccati_jobs", "Jobs queued and running, in the store",
                                       prometheus::MetricType::Gauge, {}};
-        for (JobState state : {JobState::kQueued, JobState::kRunning}) {
+        for (auto [state, count] : {std::pair{JobState::kQueued, unfinished->queued},
+                                    std::pair{JobState::kRunning, unfinished->running}}) {
           prometheus::ClientMetric m;
           m.label.push_back({"state", job_state_name(state)});
-          for (const auto& job : unfinished.value()) m.gauge.value += job.state == state ? 1 : 0;
+          m.gauge.value = static_cast<double>(count);
           jobs.metric.push_back(m);
         }
         out.push_back(std::move(jobs));

@@ -152,6 +152,12 @@ const std::vector<const char*> kMigrations = {
       lease_until_ms BIGINT NOT NULL);
     CREATE INDEX session_snapshots_held ON session_snapshots (owner) WHERE lease_until_ms > 0;
     )sql",
+    // 11: the model each job's spec names, pinned (name@revision), so that
+    // a deleted text model's revisions can be purged once no queued or
+    // running job names them. Jobs stored before name none.
+    R"sql(
+    ALTER TABLE jobs ADD COLUMN model TEXT NOT NULL DEFAULT '';
+    )sql",
 };
 
 // Leases are read against the database's clock, so that instances on hosts
@@ -261,7 +267,7 @@ std::vector<std::string> strings_of(const pqxx::field& f) {
 
 constexpr const char* kJobColumns =
     "id, tenant, kind, state, spec, pass, passes, sample, samples, theta, error_code, error_message, created_ms, "
-    "started_ms, finished_ms, owner, lease_until_ms, cancel_requested, iteration, cost, attempts";
+    "started_ms, finished_ms, owner, lease_until_ms, cancel_requested, iteration, cost, attempts, model";
 
 JobRecord read_job(const pqxx::row& r) {
   JobRecord j;
@@ -286,6 +292,7 @@ JobRecord read_job(const pqxx::row& r) {
   j.iteration = r[18].as<int>();
   j.cost = r[19].as<double>();
   j.attempts = r[20].as<int>();
+  j.model = r[21].as<std::string>();
   return j;
 }
 
@@ -526,11 +533,11 @@ class PostgresStore final : public Store {
     return run<pqxx::nontransaction>("storing job " + j.id, false, [&](auto& tx) -> Status {
       tx.exec_params(std::string("INSERT INTO jobs (") + kJobColumns +
                          ") VALUES ($1, $2, $3, $4, $5::bytea, $6, $7, $8, $9, $10::bytea, $11, $12, $13, $14, $15, "
-                         "$16, $17, $18, $19, $20, $21)",
+                         "$16, $17, $18, $19, $20, $21, $22)",
                      j.id, j.tenant, job_kind_name(j.kind), job_state_name(j.state), pqxx::binarystring(j.spec), j.pass, j.passes,
                      j.sample, j.samples, to_bytea(j.theta.data(), j.theta.size()), j.error_code, j.error_message,
                      j.created_ms, j.started_ms, j.finished_ms, j.owner, j.lease_until_ms, j.cancel_requested,
-                     j.iteration, j.cost, j.attempts);
+                     j.iteration, j.cost, j.attempts, j.model);
       return Status::ok();
     });
   }
@@ -677,6 +684,18 @@ class PostgresStore final : public Store {
     });
   }
 
+  Result<std::int64_t> result_size(const std::string& tenant, const std::string& job_id) override {
+    return run<pqxx::nontransaction>("reading the size of the result of job " + job_id, true,
+                                     [&](auto& tx) -> Result<std::int64_t> {
+                                       const pqxx::result r = tx.exec_params(
+                                           "SELECT octet_length(result) FROM results WHERE tenant = $1 AND "
+                                           "job_id = $2",
+                                           tenant, job_id);
+                                       if (r.empty()) return not_found("no result for job " + job_id);
+                                       return r[0][0].as<std::int64_t>();
+                                     });
+  }
+
   Result<std::int64_t> result_bytes(const std::string& tenant) override {
     return run<pqxx::nontransaction>("reading the size of the results", true, [&](auto& tx) -> Result<std::int64_t> {
       const pqxx::result r =
@@ -728,6 +747,39 @@ class PostgresStore final : public Store {
       }
       if (r.empty()) return internal_error("request id " + request_id + " was neither stored nor found");
       return named_object(request_id, r[0][0].as<std::string>(), r[0][1].as<std::string>(), kind);
+    });
+  }
+
+  Result<std::optional<std::string>> find_request_id(const std::string& tenant, const std::string& request_id,
+                                                     const std::string& kind) override {
+    return run<pqxx::nontransaction>("reading request id " + request_id, true,
+                                     [&](auto& tx) -> Result<std::optional<std::string>> {
+                                       const pqxx::result r = tx.exec_params(
+                                           "SELECT kind, object_id FROM request_ids WHERE tenant = $1 AND "
+                                           "request_id = $2",
+                                           tenant, request_id);
+                                       if (r.empty()) return std::optional<std::string>();
+                                       RICCATI_ASSIGN_OR_RETURN(
+                                           std::string id, named_object(request_id, r[0][0].as<std::string>(),
+                                                                        r[0][1].as<std::string>(), kind));
+                                       return std::optional<std::string>(std::move(id));
+                                     });
+  }
+
+  Result<int> delete_request_ids(std::int64_t claimed_before_ms) override {
+    return run<pqxx::nontransaction>("deleting old request ids", true, [&](auto& tx) -> Result<int> {
+      const pqxx::result r = tx.exec_params("DELETE FROM request_ids WHERE created_ms < $1", claimed_before_ms);
+      return static_cast<int>(r.affected_rows());
+    });
+  }
+
+  Result<UnfinishedJobs> count_unfinished_jobs(const std::string& tenant) override {
+    return run<pqxx::nontransaction>("counting unfinished jobs", true, [&](auto& tx) -> Result<UnfinishedJobs> {
+      const pqxx::result r = tx.exec_params(
+          "SELECT COUNT(*) FILTER (WHERE state = 'queued'), COUNT(*) FILTER (WHERE state = 'running'), "
+          "COUNT(*) FILTER (WHERE tenant = $1) FROM jobs WHERE state IN ('queued', 'running')",
+          tenant);
+      return UnfinishedJobs{r[0][0].as<std::int64_t>(), r[0][1].as<std::int64_t>(), r[0][2].as<std::int64_t>()};
     });
   }
 
@@ -952,6 +1004,24 @@ class PostgresStore final : public Store {
           "UPDATE models SET deleted = true WHERE tenant = $1 AND name = $2 AND NOT deleted", tenant, name);
       if (r.affected_rows() == 0) return not_found("no model \"" + name + "\"");
       return Status::ok();
+    });
+  }
+
+  Result<int> purge_unused_models() override {
+    return run<pqxx::nontransaction>("purging deleted models", true, [&](auto& tx) -> Result<int> {
+      // The newest revision of a name stays, its source emptied, so that
+      // the name's next upload takes the next number (name@3 is one source).
+      constexpr const char* kNamedByAJob =
+          "SELECT 1 FROM jobs WHERE jobs.tenant = models.tenant AND jobs.state IN ('queued', 'running') AND "
+          "jobs.model = models.name || '@' || models.revision";
+      const pqxx::result deleted = tx.exec(
+          std::string("DELETE FROM models WHERE deleted AND NOT EXISTS (") + kNamedByAJob +
+          ") AND revision < (SELECT max(m.revision) FROM models m WHERE m.tenant = models.tenant AND m.name = "
+          "models.name)");
+      const pqxx::result emptied = tx.exec(std::string("UPDATE models SET source = ''::bytea WHERE deleted AND "
+                                                       "octet_length(source) > 0 AND NOT EXISTS (") +
+                                           kNamedByAJob + ")");
+      return static_cast<int>(deleted.affected_rows() + emptied.affected_rows());
     });
   }
 

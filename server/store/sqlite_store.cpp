@@ -148,6 +148,12 @@ const std::vector<const char*> kMigrations = {
       lease_until_ms INTEGER NOT NULL);
     CREATE INDEX session_snapshots_held ON session_snapshots (owner) WHERE lease_until_ms > 0;
     )sql",
+    // 12: the model each job's spec names, pinned (name@revision), so that
+    // a deleted text model's revisions can be purged once no queued or
+    // running job names them. Jobs stored before name none.
+    R"sql(
+    ALTER TABLE jobs ADD COLUMN model TEXT NOT NULL DEFAULT '';
+    )sql",
 };
 
 // When a session's lease ends: 0 once released; else its own term (from its
@@ -156,6 +162,12 @@ const std::vector<const char*> kMigrations = {
   "(CASE WHEN session_snapshots.lease_until_ms > 0 THEN max(session_snapshots.lease_until_ms, coalesce(" \
   "(SELECT o.lease_until_ms FROM session_owner_leases o WHERE o.owner = session_snapshots.owner), 0)) "   \
   "ELSE 0 END)"
+
+// A job that may still run names this revision of a model (its spec's
+// pinned name@revision): the revision is kept.
+#define RICCATI_MODEL_NAMED_BY_A_JOB                                                          \
+  "SELECT 1 FROM jobs WHERE jobs.tenant = models.tenant AND jobs.state IN ('queued', 'running') " \
+  "AND jobs.model = models.name || '@' || models.revision"
 
 // Names never contain the ASCII unit separator, so it can join them.
 constexpr char kSeparator = '\x1f';
@@ -279,7 +291,7 @@ JobState parse_state(const std::string& s) { return parse_job_state(s).value_or(
 
 constexpr const char* kJobColumns =
     "id, tenant, kind, state, spec, pass, passes, sample, samples, theta, error_code, error_message, created_ms, "
-    "started_ms, finished_ms, owner, lease_until_ms, cancel_requested, iteration, cost, attempts";
+    "started_ms, finished_ms, owner, lease_until_ms, cancel_requested, iteration, cost, attempts, model";
 
 std::int64_t wall_clock_ms() {
   return std::chrono::duration_cast<std::chrono::milliseconds>(std::chrono::system_clock::now().time_since_epoch())
@@ -309,6 +321,7 @@ JobRecord read_job(const Statement& s) {
   j.iteration = static_cast<int>(s.column_int(18));
   j.cost = s.column_double(19);
   j.attempts = static_cast<int>(s.column_int(20));
+  j.model = s.column_text(21);
   return j;
 }
 
@@ -337,6 +350,14 @@ DatasetRecord read_dataset(const Statement& s) {
 class SqliteStore final : public Store {
  public:
   SqliteStore(std::unique_ptr<sqlite3, CloseDb> db, std::string path) : db_(std::move(db)), path_(std::move(path)) {}
+  // The log is kept (SQLITE_FCNTL_PERSIST_WAL) but emptied as the connection
+  // closes: its frames, all copied into the database by then, would
+  // otherwise be read again at the next start in place of the database's
+  // pages (and hide damage to them from the integrity check).
+  ~SqliteStore() override {
+    std::lock_guard lock(mu_);
+    (void)sqlite3_exec(db_.get(), "PRAGMA journal_size_limit = 0", nullptr, nullptr, nullptr);
+  }
 
   void keep_reserve_at_start() {
     std::lock_guard lock(mu_);
@@ -368,7 +389,12 @@ class SqliteStore final : public Store {
 
   Status migrate() {
     std::lock_guard lock(mu_);
+    RICCATI_RETURN_IF_ERROR(use_incremental_vacuum());
     RICCATI_RETURN_IF_ERROR(exec("PRAGMA journal_mode = WAL"));
+    // The write-ahead log and its index stay when riccatid stops, so that a
+    // start on a full disk needs no new file (it read and deletes there).
+    int persist = 1;
+    sqlite3_file_control(db_.get(), "main", SQLITE_FCNTL_PERSIST_WAL, &persist);
     // FULL with WAL: every commit is synced before it is acknowledged, so an
     // accepted upload, job or result survives a kill -9 of the daemon (NORMAL
     // would already) and a power loss (NORMAL may lose the last commits).
@@ -400,6 +426,8 @@ class SqliteStore final : public Store {
 
   Status put_dataset(const DatasetRecord& r, const Dataset& data) override {
     std::lock_guard lock(mu_);
+    RICCATI_RETURN_IF_ERROR(room_for_new_data(
+        "storing dataset " + r.id, 8 * (data.t.size() + data.u.size() + data.y.size())));
     return in_transaction("storing dataset " + r.id, [&]() -> Status {
       Statement insert(db_.get(),
                        "INSERT INTO datasets (id, tenant, name, format, input_names, output_names, samples, t_start, "
@@ -479,13 +507,13 @@ class SqliteStore final : public Store {
   Status put_job(const JobRecord& j) override {
     std::lock_guard lock(mu_);
     Statement q(db_.get(), (std::string("INSERT INTO jobs (") + kJobColumns +
-                            ") VALUES (?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?)")
+                            ") VALUES (?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?)")
                                .c_str());
     q.text(j.id).text(j.tenant).text(job_kind_name(j.kind)).text(job_state_name(j.state)).blob(j.spec).integer(j.pass)
         .integer(j.passes).integer(j.sample).integer(j.samples).blob(to_blob(j.theta.data(), j.theta.size()))
         .integer(j.error_code).text(j.error_message).integer(j.created_ms).integer(j.started_ms)
         .integer(j.finished_ms).text(j.owner).integer(j.lease_until_ms).integer(j.cancel_requested ? 1 : 0)
-        .integer(j.iteration).real(j.cost).integer(j.attempts);
+        .integer(j.iteration).real(j.cost).integer(j.attempts).text(j.model);
     return done(q, "storing job " + j.id);
   }
 
@@ -503,6 +531,26 @@ class SqliteStore final : public Store {
     q.text(tenant).text(request_id);
     if (q.step() != SQLITE_ROW) return error("reading request id " + request_id);
     return named_object(request_id, q.column_text(0), q.column_text(1), kind);
+  }
+
+  Result<std::optional<std::string>> find_request_id(const std::string& tenant, const std::string& request_id,
+                                                     const std::string& kind) override {
+    std::lock_guard lock(mu_);
+    Statement q(db_.get(), "SELECT kind, object_id FROM request_ids WHERE tenant = ? AND request_id = ?");
+    q.text(tenant).text(request_id);
+    const int rc = q.step();
+    if (rc == SQLITE_DONE) return std::optional<std::string>();
+    if (rc != SQLITE_ROW) return error("reading request id " + request_id);
+    RICCATI_ASSIGN_OR_RETURN(std::string id, named_object(request_id, q.column_text(0), q.column_text(1), kind));
+    return std::optional<std::string>(std::move(id));
+  }
+
+  Result<int> delete_request_ids(std::int64_t claimed_before_ms) override {
+    std::lock_guard lock(mu_);
+    Statement q(db_.get(), "DELETE FROM request_ids WHERE created_ms < ?");
+    q.integer(claimed_before_ms);
+    RICCATI_RETURN_IF_ERROR(done(q, "deleting old request ids"));
+    return sqlite3_changes(db_.get());
   }
 
   Status update_job(const JobRecord& j) override {
@@ -544,6 +592,16 @@ class SqliteStore final : public Store {
     Statement q(db_.get(), sql.c_str());
     for (JobState s : states) q.text(job_state_name(s));
     return read_jobs(q, "listing unfinished jobs");
+  }
+
+  Result<UnfinishedJobs> count_unfinished_jobs(const std::string& tenant) override {
+    std::lock_guard lock(mu_);
+    Statement q(db_.get(),
+                "SELECT COALESCE(SUM(state = 'queued'), 0), COALESCE(SUM(state = 'running'), 0), "
+                "COALESCE(SUM(tenant = ?), 0) FROM jobs WHERE state IN ('queued', 'running')");
+    q.text(tenant);
+    if (q.step() != SQLITE_ROW) return error("counting unfinished jobs");
+    return UnfinishedJobs{q.column_int(0), q.column_int(1), q.column_int(2)};
   }
 
   // One process uses a SQLite store, and it holds mu_ for each of these:
@@ -593,6 +651,9 @@ class SqliteStore final : public Store {
 
   Status finish_job(const JobRecord& j, const std::string& owner, const std::string* result) override {
     std::lock_guard lock(mu_);
+    if (result != nullptr) {
+      RICCATI_RETURN_IF_ERROR(room_for_new_data("storing the result of job " + j.id, result->size()));
+    }
     return in_transaction("ending job " + j.id, [&]() -> Status {
       Statement q(db_.get(),
                   "UPDATE jobs SET state = ?, pass = ?, passes = ?, sample = ?, samples = ?, theta = ?, error_code = ?, "
@@ -653,13 +714,29 @@ class SqliteStore final : public Store {
 
   Result<int> delete_ended_jobs(std::int64_t finished_before_ms, std::int64_t keep_per_tenant) override {
     std::lock_guard lock(mu_);
-    Statement q(db_.get(),
-                "DELETE FROM jobs WHERE state IN " RICCATI_ENDED_STATES_SQL " AND (finished_ms < ? OR id IN (SELECT id FROM "
-                "(SELECT id, ROW_NUMBER() OVER (PARTITION BY tenant ORDER BY finished_ms DESC, id DESC) AS newer "
-                "FROM jobs WHERE state IN " RICCATI_ENDED_STATES_SQL ") WHERE newer > ?))");
-    q.integer(finished_before_ms).integer(keep_per_tenant);
-    RICCATI_RETURN_IF_ERROR(done(q, "deleting old jobs"));
-    return sqlite3_changes(db_.get());
+    int deleted = 0;
+    const Status stored = with_reserve([&]() -> Status {
+      Statement q(db_.get(),
+                  "DELETE FROM jobs WHERE state IN " RICCATI_ENDED_STATES_SQL " AND (finished_ms < ? OR id IN (SELECT id "
+                  "FROM (SELECT id, ROW_NUMBER() OVER (PARTITION BY tenant ORDER BY finished_ms DESC, id DESC) AS newer "
+                  "FROM jobs WHERE state IN " RICCATI_ENDED_STATES_SQL ") WHERE newer > ?))");
+      q.integer(finished_before_ms).integer(keep_per_tenant);
+      RICCATI_RETURN_IF_ERROR(done(q, "deleting old jobs"));
+      deleted = sqlite3_changes(db_.get());
+      return Status::ok();
+    });
+    if (!stored.is_ok()) return stored;
+    return deleted;
+  }
+
+  Result<std::int64_t> result_size(const std::string& tenant, const std::string& job_id) override {
+    std::lock_guard lock(mu_);
+    Statement q(db_.get(), "SELECT length(result) FROM results WHERE tenant = ? AND job_id = ?");
+    q.text(tenant).text(job_id);
+    const int rc = q.step();
+    if (rc == SQLITE_DONE) return not_found("no result for job " + job_id);
+    if (rc != SQLITE_ROW) return error("reading the size of the result of job " + job_id);
+    return q.column_int(0);
   }
 
   Result<std::int64_t> result_bytes(const std::string& tenant) override {
@@ -686,6 +763,7 @@ class SqliteStore final : public Store {
 
   Status put_result(const std::string& tenant, const std::string& job_id, const std::string& result) override {
     std::lock_guard lock(mu_);
+    RICCATI_RETURN_IF_ERROR(room_for_new_data("storing the result of job " + job_id, result.size()));
     // Through the job's row, so that a result belongs to its job's tenant.
     Statement q(db_.get(),
                 "INSERT INTO results (job_id, tenant, result) SELECT id, tenant, ? FROM jobs WHERE id = ? AND tenant = ?");
@@ -871,6 +949,7 @@ class SqliteStore final : public Store {
 
   Result<ModelRecord> put_model(const ModelRecord& record) override {
     std::lock_guard lock(mu_);
+    RICCATI_RETURN_IF_ERROR(room_for_new_data("storing model " + record.name, record.source.size()));
     // One statement, under the store's lock: the next revision cannot be taken twice.
     Statement q(db_.get(),
                 "INSERT INTO models (tenant, name, revision, source, sha256, created_ms, deleted) SELECT ?, ?, "
@@ -940,6 +1019,27 @@ class SqliteStore final : public Store {
       if (sqlite3_changes(db_.get()) == 0) return not_found("no model \"" + name + "\"");
       return Status::ok();
     });
+  }
+
+  Result<int> purge_unused_models() override {
+    std::lock_guard lock(mu_);
+    int purged = 0;
+    const Status stored = with_reserve([&]() -> Status {
+      // The newest revision of a name stays, its source emptied, so that
+      // the name's next upload takes the next number (name@3 is one source).
+      Statement q(db_.get(), "DELETE FROM models WHERE deleted = 1 AND NOT EXISTS (" RICCATI_MODEL_NAMED_BY_A_JOB
+                             ") AND revision < (SELECT max(m.revision) FROM models m WHERE m.tenant = models.tenant "
+                             "AND m.name = models.name)");
+      RICCATI_RETURN_IF_ERROR(done(q, "purging deleted models"));
+      purged = sqlite3_changes(db_.get());
+      Statement empty(db_.get(), "UPDATE models SET source = x'' WHERE deleted = 1 AND length(source) > 0 AND NOT "
+                                 "EXISTS (" RICCATI_MODEL_NAMED_BY_A_JOB ")");
+      RICCATI_RETURN_IF_ERROR(done(empty, "purging deleted models"));
+      purged += sqlite3_changes(db_.get());
+      return Status::ok();
+    });
+    if (!stored.is_ok()) return stored;
+    return purged;
   }
 
   Result<std::vector<ModelRevision>> list_model_revisions(const std::string& tenant) override {
@@ -1059,14 +1159,19 @@ class SqliteStore final : public Store {
 
   std::string reserve_path() const { return path_ + "-reserve"; }
 
-  // Makes the reserve if it is missing and there is room for it and as much
-  // again (so that making it does not itself fill the disk).
+  // Makes the reserve if it is missing and there is room for it and a
+  // margin (so that making it does not itself fill the disk: what is left
+  // takes new data, which waits for the reserve, room_for_new_data).
+  static constexpr std::uintmax_t kReserveMargin = 1 << 20;
   void keep_reserve() {
+    if (reserve_present()) {
+      reserve_made_ = true;
+      return;
+    }
     std::error_code ec;
-    if (std::filesystem::file_size(reserve_path(), ec) >= kReserveBytes && !ec) return;
     struct statvfs fs {};
     if (statvfs(std::filesystem::path(path_).parent_path().c_str(), &fs) != 0 ||
-        std::uintmax_t(fs.f_bavail) * fs.f_frsize < 2 * kReserveBytes) {
+        std::uintmax_t(fs.f_bavail) * fs.f_frsize < kReserveBytes + kReserveMargin) {
       return;
     }
     const int fd = ::open(reserve_path().c_str(), O_WRONLY | O_CREAT | O_CLOEXEC, 0600);
@@ -1077,6 +1182,7 @@ class SqliteStore final : public Store {
       std::filesystem::remove(reserve_path(), ec);
       return;
     }
+    reserve_made_ = true;
     spdlog::info("store reserve in place file={} bytes={}", reserve_path(), kReserveBytes);
   }
 
@@ -1086,7 +1192,7 @@ class SqliteStore final : public Store {
   Status with_reserve(Op&& op) {
     Status first = op();
     if (first.code() != StatusCode::kResourceExhausted) {
-      if (first.is_ok()) keep_reserve();
+      if (first.is_ok()) reclaim();
       return first;
     }
     std::error_code ec;
@@ -1094,7 +1200,9 @@ class SqliteStore final : public Store {
     spdlog::warn("store reserve given back to delete on a full disk file={} bytes={}", reserve_path(), kReserveBytes);
     room_needed_ = true;
     make_room();
-    return op();
+    Status second = op();
+    if (second.is_ok()) reclaim();
+    return second;
   }
 
   void make_room() {
@@ -1106,6 +1214,86 @@ class SqliteStore final : public Store {
     } else {
       spdlog::warn("store log checkpoint failed database={} error=\"{}\"", path_, sqlite3_errmsg(db_.get()));
     }
+  }
+
+  // Deleted rows' pages given back to the file system, not only to SQLite's
+  // free list (auto_vacuum = INCREMENTAL, and PRAGMA incremental_vacuum after
+  // each deletion): on a full disk, the room a deletion frees is room for the
+  // reserve again, and under a file size limit the database shrinks below it,
+  // so that the log's commits can be copied into it. Set before the first
+  // table of a new database; an older one is rebuilt (VACUUM) at start when
+  // the disk has room for a copy of it, else it stays as it was, logged.
+  Status use_incremental_vacuum() {
+    Statement mode(db_.get(), "PRAGMA auto_vacuum");
+    if (mode.step() != SQLITE_ROW) return error("reading auto_vacuum");
+    if (mode.column_int(0) == 2) return Status::ok();
+    Statement tables(db_.get(), "SELECT count(*) FROM sqlite_master");
+    if (tables.step() != SQLITE_ROW) return error("reading the schema");
+    if (tables.column_int(0) == 0) return exec("PRAGMA auto_vacuum = INCREMENTAL");
+    std::error_code ec;
+    const std::uintmax_t size = std::filesystem::file_size(path_, ec);
+    struct statvfs fs {};
+    if (ec || statvfs(std::filesystem::path(path_).parent_path().c_str(), &fs) != 0 ||
+        std::uintmax_t(fs.f_bavail) * fs.f_frsize < 2 * size + 2 * kReserveBytes) {
+      spdlog::warn("store not rebuilt for incremental vacuum (no room for a copy of it) database={}: deletions on a "
+                   "full disk free room inside the database, not on the disk",
+                   path_);
+      return Status::ok();
+    }
+    const auto started = std::chrono::steady_clock::now();
+    RICCATI_RETURN_IF_ERROR(exec("PRAGMA auto_vacuum = INCREMENTAL"));
+    RICCATI_RETURN_IF_ERROR(exec("VACUUM"));
+    spdlog::info("store rebuilt for incremental vacuum database={} bytes={} ms={}", path_, size,
+                 std::chrono::duration_cast<std::chrono::milliseconds>(std::chrono::steady_clock::now() - started).count());
+    return Status::ok();
+  }
+
+  // After a deletion: its free pages given back to the file system (the log
+  // then checkpointed and truncated, which is when the database file
+  // shrinks), and the reserve made again if it was used. Best effort: a
+  // deletion that was stored stays stored.
+  void reclaim() {
+    if (sqlite3_exec(db_.get(), "PRAGMA incremental_vacuum", nullptr, nullptr, nullptr) != SQLITE_OK) {
+      spdlog::warn("store incremental vacuum failed database={} error=\"{}\"", path_, sqlite3_errmsg(db_.get()));
+    }
+    if (reserve_made_ && !reserve_present()) {
+      room_needed_ = true;
+      make_room();
+      keep_reserve();
+    }
+  }
+
+  bool reserve_present() const {
+    std::error_code ec;
+    return std::filesystem::file_size(reserve_path(), ec) >= kReserveBytes && !ec;
+  }
+
+  // Before a write that stores new data (a dataset, a result, a model) of
+  // about `bytes`: once the reserve has been used, no new data is stored
+  // until it is made again, so that the room deletions free goes to the
+  // reserve first; and, with a reserve in place, the disk must have room for
+  // the data twice (its copy in the write-ahead log, then in the database
+  // when the log is copied into it) beside a margin. Otherwise the log fills
+  // the disk with commits that can never be copied into the database, and
+  // the reserve is too small for a deletion to get past them.
+  Status room_for_new_data(const std::string& doing, std::uintmax_t bytes) {
+    if (!reserve_made_) return Status::ok();  // a disk never had room for one; or a file size limit
+    if (!reserve_present()) keep_reserve();
+    std::string missing;
+    if (!reserve_present()) {
+      missing = "but the " + std::to_string(kReserveBytes >> 20) + " MiB it keeps for deletions";
+    } else {
+      struct statvfs fs {};
+      if (statvfs(std::filesystem::path(path_).parent_path().c_str(), &fs) == 0 &&
+          std::uintmax_t(fs.f_bavail) * fs.f_frsize < 2 * bytes + kReserveMargin) {
+        missing = "for " + std::to_string(bytes) + " bytes and their copy in the write-ahead log";
+      }
+    }
+    if (missing.empty()) return Status::ok();
+    spdlog::warn("store refused new data database={} doing=\"{}\" cause=\"no space left on the device {}\"", path_,
+                 doing, missing);
+    return {StatusCode::kResourceExhausted, "the store is full (no space left on the device " + missing + ") " +
+                                                doing + ": delete datasets or jobs, or give the data directory room"};
   }
 
   // Runs a statement that returns no rows.
@@ -1133,6 +1321,7 @@ class SqliteStore final : public Store {
   std::unique_ptr<sqlite3, CloseDb> db_;
   const std::string path_;
   bool room_needed_ = false;  // a write found no room: make_room() once no transaction is open
+  bool reserve_made_ = false;  // the reserve was in place once: new data waits for it when it is gone
 };
 
 }  // namespace

@@ -99,6 +99,10 @@ struct JobRecord {
   JobKind kind = JobKind::kIdentification;
   JobState state = JobState::kQueued;
   std::string spec;  // opaque: encoded by the service layer
+  // The model the spec names, pinned ("name@revision" for a tenant's text
+  // model): what keeps a deleted model's revision stored while the job may
+  // still run (purge_unused_models).
+  std::string model;
   // Progress (identification): pass and sample are 1-based; 0 = not started.
   int pass = 0;
   int passes = 0;
@@ -154,6 +158,13 @@ struct StoreUsage {
   std::int64_t result_bytes = 0;    // job results, every tenant's
 };
 
+// Queued and running jobs, counted (Store::count_unfinished_jobs).
+struct UnfinishedJobs {
+  std::int64_t queued = 0;
+  std::int64_t running = 0;
+  std::int64_t of_tenant = 0;  // queued or running, of the tenant asked about
+};
+
 // claim_request_id's answer from what is stored for `request_id`: the
 // object id, or INVALID_ARGUMENT when it names another kind than `kind`.
 Result<std::string> named_object(const std::string& request_id, const std::string& stored_kind,
@@ -188,6 +199,16 @@ class Store {
   // INVALID_ARGUMENT.
   virtual Result<std::string> claim_request_id(const std::string& tenant, const std::string& request_id,
                                                const std::string& kind, const std::string& object_id) = 0;
+  // The id an earlier call's claim of `request_id` names (nullopt: none);
+  // INVALID_ARGUMENT when it names another kind. Read only: a manager looks
+  // first, checks the request (limits, quotas), and claims only then, so a
+  // refused request stores nothing.
+  virtual Result<std::optional<std::string>> find_request_id(const std::string& tenant, const std::string& request_id,
+                                                             const std::string& kind) = 0;
+  // Forgets the request ids claimed before `claimed_before_ms` (the store's
+  // clock for PostgreSQL, as claims are): a retry is answered for as long as
+  // its id is kept (docs/operations.md). Returns how many.
+  virtual Result<int> delete_request_ids(std::int64_t claimed_before_ms) = 0;
   virtual Status update_job(const JobRecord& job) = 0;
   virtual Result<JobRecord> get_job(const std::string& tenant, const std::string& id) = 0;
   // Oldest first.
@@ -195,6 +216,10 @@ class Store {
   // Every tenant's jobs in one of these states, oldest first: what a daemon
   // starting up must run again.
   virtual Result<std::vector<JobRecord>> jobs_in_states(const std::vector<JobState>& states) = 0;
+  // How many jobs are queued and running, every tenant's, and how many of
+  // them are `tenant`'s: what a submit and a metrics scrape need, without
+  // reading any job's spec.
+  virtual Result<UnfinishedJobs> count_unfinished_jobs(const std::string& tenant) = 0;
 
   // The job queue. Several riccatid may share one store (PostgreSQL); each
   // job runs on one of them at a time, under a lease that its owner renews.
@@ -236,6 +261,9 @@ class Store {
   // NOT_FOUND if the tenant has no such job.
   virtual Status put_result(const std::string& tenant, const std::string& job_id, const std::string& result) = 0;
   virtual Result<std::string> get_result(const std::string& tenant, const std::string& job_id) = 0;
+  // The bytes of a job's stored result, without reading it: NOT_FOUND if
+  // there is none (what a read is held to before it begins).
+  virtual Result<std::int64_t> result_size(const std::string& tenant, const std::string& job_id) = 0;
   // The bytes of the tenant's stored results (its quota, max_tenant_result_bytes).
   virtual Result<std::int64_t> result_bytes(const std::string& tenant) = 0;
   virtual Result<StoreUsage> usage() = 0;
@@ -313,6 +341,12 @@ class Store {
   virtual Status delete_model(const std::string& tenant, const std::string& name) = 0;
   // Every revision of the tenant's models that is not deleted, by name then
   // revision.
+  // Deletes the revisions of deleted text models (every tenant's) that no
+  // queued or running job names (JobRecord::model): an ended job keeps its
+  // result, not its model. A name's newest revision stays with its source
+  // emptied, so that revision numbers are never given twice. Returns how
+  // many revisions were deleted or emptied.
+  virtual Result<int> purge_unused_models() = 0;
   virtual Result<std::vector<ModelRevision>> list_model_revisions(const std::string& tenant) = 0;
 };
 

@@ -195,7 +195,9 @@ TEST_F(LimitsTest, MeasurementsPerMessage) {
 // A job's result is estimated at submit: one over max_result_bytes used to
 // be computed for minutes and then fail to be stored (a result over SQLite's
 // 1 GB limit, run again and again). 500 samples of the two-tank model's 4
-// parameters make 16000 bytes of trace a pass, plus 28000 once.
+// parameters make 16000 bytes of trace a pass (and 112 of its summary),
+// plus 28128 once and 70656 for what is not doubles (64 KiB, and 512 bytes
+// for each of the model's 10 names).
 TEST(ResultLimits, AJobWhoseResultWouldBeTooLargeIsRefusedAtSubmit) {
   TempDir dir;
   DaemonProcess daemon(dir.path() / "data", {"--max-result-bytes", "1000000"});
@@ -207,10 +209,10 @@ TEST(ResultLimits, AJobWhoseResultWouldBeTooLargeIsRefusedAtSubmit) {
   v1::Job job;
   {
     grpc::ClientContext ctx;
-    const grpc::Status s = jobs->SubmitIdentification(&ctx, testing::hensen_spec(data.id(), 61), &job);
+    const grpc::Status s = jobs->SubmitIdentification(&ctx, testing::hensen_spec(data.id(), 56), &job);
     EXPECT_EQ(s.error_code(), grpc::StatusCode::RESOURCE_EXHAUSTED) << s.error_message();
     EXPECT_NE(s.error_message().find("limit max_result_bytes = 1000000 reached: the job's result would take about "
-                                     "1004000 bytes (61 passes x 4 parameters x 500 samples of estimate traces"),
+                                     "1001056 bytes (56 passes x 4 parameters x 500 samples of estimate traces"),
               std::string::npos)
         << s.error_message();
     EXPECT_NE(s.error_message().find("ask for fewer passes, or a shorter sample range (first_sample, end_sample)"),
@@ -219,15 +221,15 @@ TEST(ResultLimits, AJobWhoseResultWouldBeTooLargeIsRefusedAtSubmit) {
   }
   {
     grpc::ClientContext ctx;
-    const grpc::Status s = jobs->SubmitIdentification(&ctx, testing::hensen_spec(data.id(), 60), &job);
-    EXPECT_TRUE(s.ok()) << "60 passes, 988000 bytes: " << s.error_message();
+    const grpc::Status s = jobs->SubmitIdentification(&ctx, testing::hensen_spec(data.id(), 55), &job);
+    EXPECT_TRUE(s.ok()) << "55 passes, 984944 bytes: " << s.error_message();
   }
   {
-    v1::IdentificationSpec ranged = testing::hensen_spec(data.id(), 61);
+    v1::IdentificationSpec ranged = testing::hensen_spec(data.id(), 56);
     ranged.set_end_sample(250);
     grpc::ClientContext ctx;
     const grpc::Status s = jobs->SubmitIdentification(&ctx, ranged, &job);
-    EXPECT_TRUE(s.ok()) << "61 passes over half the samples: " << s.error_message();
+    EXPECT_TRUE(s.ok()) << "56 passes over half the samples: " << s.error_message();
   }
   // Smoothing over 2000 samples: 1 + 4 x 6 + 2 x 2 values a sample fit;
   // with the covariance of z (36 more a sample) they do not.
@@ -243,7 +245,7 @@ TEST(ResultLimits, AJobWhoseResultWouldBeTooLargeIsRefusedAtSubmit) {
   {
     grpc::ClientContext ctx;
     const grpc::Status s = jobs->SubmitSmoothing(&ctx, smoothing, &job);
-    EXPECT_TRUE(s.ok()) << "2000 x 29 values, 464000 bytes: " << s.error_message();
+    EXPECT_TRUE(s.ok()) << "2000 x 29 values, 532608 bytes: " << s.error_message();
   }
   smoothing.set_full_covariance(true);
   {
@@ -251,7 +253,7 @@ TEST(ResultLimits, AJobWhoseResultWouldBeTooLargeIsRefusedAtSubmit) {
     const grpc::Status s = jobs->SubmitSmoothing(&ctx, smoothing, &job);
     EXPECT_EQ(s.error_code(), grpc::StatusCode::RESOURCE_EXHAUSTED) << s.error_message();
     EXPECT_NE(s.error_message().find("limit max_result_bytes = 1000000 reached: the job's result would take about "
-                                     "1040000 bytes (2000 samples x 65 values (6 states and parameters, with their "
+                                     "1108608 bytes (2000 samples x 65 values (6 states and parameters, with their "
                                      "full covariance)"),
               std::string::npos)
         << s.error_message();
@@ -462,7 +464,8 @@ TEST(UploadLimits, TheQuotaHoldsForConcurrentUploadsAndUploadsInFlightAreCapped)
   TempDir dir;
   constexpr std::int64_t kQuota = 500'000;
   DaemonProcess daemon(dir.path() / "data",
-                       {"--max-tenant-dataset-bytes", std::to_string(kQuota), "--max-uploads", "12"});
+                       {"--max-tenant-dataset-bytes", std::to_string(kQuota), "--max-uploads", "12",
+                        "--max-tenant-uploads", "12"});
   daemon.start();
   auto datasets = v1::DatasetService::NewStub(daemon.channel());
   const std::string csv = small_csv(3000);  // about 60 KB

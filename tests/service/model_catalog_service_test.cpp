@@ -250,6 +250,8 @@ TEST_F(ModelCatalogService, ACheckStoresNothingAndAStoredModelListsItsRevisions)
 
   ASSERT_TRUE(create_model(renamed, &info).ok());
   ASSERT_TRUE(create_model(renamed, &info).ok());
+  EXPECT_EQ(info.text().revision(), 1u) << "the same source again is the same revision (a retry)";
+  ASSERT_TRUE(create_model(renamed + "# changed\n", &info).ok());
   EXPECT_EQ(info.text().revision(), 2u);
   grpc::ClientContext ctx;
   v1::ListModelsResponse list;
@@ -270,8 +272,8 @@ TEST_F(ModelCatalogService, ATenantsStoredModelsAreHeldToTheirQuota) {
   start({"--max-tenant-models", "2", "--max-tenant-model-bytes", std::to_string(3 * source.size())});
   v1::ModelInfo info;
   ASSERT_TRUE(create_model(source, &info).ok());
-  ASSERT_TRUE(create_model(source, &info).ok());
-  grpc::Status s = create_model(source, &info);
+  ASSERT_TRUE(create_model(source + "#2\n", &info).ok());
+  grpc::Status s = create_model(source + "#3\n", &info);
   EXPECT_EQ(s.error_code(), grpc::StatusCode::RESOURCE_EXHAUSTED);
   EXPECT_EQ(s.error_message().rfind("limit max_tenant_models = 2 reached", 0), 0u) << s.error_message();
   // A check uses no room.

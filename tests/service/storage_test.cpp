@@ -140,7 +140,9 @@ TEST(Storage, AFullDiskRefusesWritesKeepsServingAndDeletingMakesRoom) {
   ASSERT_FALSE(refused.ok()) << "60 uploads of 0.5 MiB fitted on a 16 MiB disk";
   ASSERT_GE(stored.size(), 2u);
   EXPECT_EQ(refused.error_code(), grpc::StatusCode::RESOURCE_EXHAUSTED) << refused.error_message();
-  EXPECT_NE(refused.error_message().find("the store is full (no space left on the device)"), std::string::npos)
+  // Refused when the write found no room, or before it, when the disk has
+  // no room for the data and its copy in the write-ahead log.
+  EXPECT_NE(refused.error_message().find("the store is full (no space left on the device"), std::string::npos)
       << refused.error_message();
   EXPECT_EQ(refused.error_message().find(dir.path().string()), std::string::npos)
       << "a client is told where the daemon's files are: " << refused.error_message();
@@ -195,6 +197,117 @@ TEST(Storage, AFullDiskRefusesWritesKeepsServingAndDeletingMakesRoom) {
   EXPECT_EQ(daemon.stop(), 0) << "riccatid did not live through it: " << daemon.exit_report();
 }
 
+
+// Fills the store with uploads until one is refused; the ids stored, and the
+// refusal (which must say the store is full).
+std::vector<std::string> fill(v1::DatasetService::Stub& datasets, unsigned seed, grpc::Status* refused) {
+  std::vector<std::string> stored;
+  *refused = grpc::Status::OK;
+  for (unsigned i = 0; i < 80 && refused->ok(); ++i) {
+    v1::DatasetInfo info;
+    *refused = testing::upload_dataset(datasets, "fill" + std::to_string(seed + i) + ".csv",
+                                       random_csv(12'000, seed + i), {"F1", "F2"}, {"h1", "h2"}, &info);
+    if (refused->ok()) stored.push_back(info.id());
+  }
+  return stored;
+}
+
+grpc::Status delete_dataset(v1::DatasetService::Stub& datasets, const std::string& id) {
+  grpc::ClientContext ctx;
+  v1::DeleteDatasetRequest del;
+  del.set_id(id);
+  v1::DeleteDatasetResponse deleted;
+  return datasets.DeleteDataset(&ctx, del, &deleted);
+}
+
+// Issue 30, item 11: the reserve that lets a deletion run on a full disk was
+// given back at the first such deletion and never made again while the disk
+// stayed full, so the second full disk could not be recovered, and a
+// restarted riccatid refused to start. Now deletions give their pages back to
+// the file system, the reserve is made again before new data is stored, and a
+// start on a full disk serves reads and deletions: three rounds of filling
+// and deleting, the last after a restart on the full disk.
+TEST(Storage, AFullDiskIsRecoveredByDeletingEveryTimeAndAfterARestart) {
+  TempDir dir;
+  SmallDisk disk(dir.path() / "data", 16);
+  if (!disk.mounted()) GTEST_SKIP() << "cannot mount a tmpfs here (needs root): the full-disk test did not run";
+  DaemonProcess daemon(dir.path() / "data");
+  daemon.start();
+  auto datasets = v1::DatasetService::NewStub(daemon.channel());
+  std::vector<std::string> kept;
+  for (int round = 0; round < 3; ++round) {
+    grpc::Status refused;
+    const std::vector<std::string> stored = fill(*datasets, 100 * round, &refused);
+    ASSERT_EQ(refused.error_code(), grpc::StatusCode::RESOURCE_EXHAUSTED)
+        << "round " << round << ": " << refused.error_message();
+    EXPECT_NE(refused.error_message().find("the store is full"), std::string::npos) << refused.error_message();
+    kept.insert(kept.end(), stored.begin(), stored.end());
+    if (round == 2) {
+      // A restart on the full disk: riccatid starts, and serves.
+      datasets.reset();
+      ASSERT_EQ(daemon.stop(), 0) << daemon.exit_report();
+      daemon.start();
+      datasets = v1::DatasetService::NewStub(daemon.channel());
+      grpc::ClientContext ctx;
+      v1::ListDatasetsResponse list;
+      ASSERT_TRUE(datasets->ListDatasets(&ctx, {}, &list).ok());
+      EXPECT_EQ(list.datasets_size(), static_cast<int>(kept.size())) << "after a restart on the full disk";
+    }
+    // Deleting makes room, however full: datasets are deleted one by one
+    // (each deletion must work) until a new one is stored, within a few
+    // (an upload needs room for its write-ahead log copy as well).
+    bool stored_again = false;
+    std::string last;
+    for (int deleted = 0; deleted < 8 && !stored_again; ++deleted) {
+      ASSERT_FALSE(kept.empty()) << "round " << round;
+      const grpc::Status s = delete_dataset(*datasets, kept.front());
+      ASSERT_TRUE(s.ok()) << "round " << round << ", deletion " << deleted + 1 << " on a full disk: " << s.error_message();
+      kept.erase(kept.begin());
+      v1::DatasetInfo again;
+      const grpc::Status up = testing::upload_dataset(*datasets, "again" + std::to_string(round) + ".csv",
+                                                      random_csv(12'000, 1000 + round), {"F1", "F2"}, {"h1", "h2"},
+                                                      &again);
+      stored_again = up.ok();
+      last = up.error_message();
+      if (stored_again) kept.push_back(again.id());
+    }
+    EXPECT_TRUE(stored_again) << "round " << round << ": 8 deletions made no room for an upload: " << last;
+  }
+  datasets.reset();
+  EXPECT_EQ(daemon.stop(), 0) << daemon.exit_report();
+}
+
+// The same under a file size limit (ulimit -f, systemd's LimitFSIZE): the
+// database shrinks as deletions free its pages, so the log's commits can be
+// copied into it and deleting keeps making room, round after round.
+TEST(Storage, AFileSizeLimitIsRecoveredByDeletingEveryTime) {
+  TempDir dir;
+  DaemonProcess daemon(dir.path() / "data");
+  daemon.set_file_size_limit(3 << 20);
+  daemon.start();
+  auto datasets = v1::DatasetService::NewStub(daemon.channel());
+  std::vector<std::string> kept;
+  for (int round = 0; round < 3; ++round) {
+    grpc::Status refused;
+    const std::vector<std::string> stored = fill(*datasets, 100 * round, &refused);
+    ASSERT_EQ(refused.error_code(), grpc::StatusCode::RESOURCE_EXHAUSTED)
+        << "round " << round << ": " << refused.error_message();
+    kept.insert(kept.end(), stored.begin(), stored.end());
+    ASSERT_GE(kept.size(), 2u) << "round " << round;
+    for (int i = 0; i < 2; ++i) {
+      const grpc::Status s = delete_dataset(*datasets, kept.front());
+      ASSERT_TRUE(s.ok()) << "round " << round << ", deleting at the file size limit: " << s.error_message();
+      kept.erase(kept.begin());
+    }
+    v1::DatasetInfo again;
+    const grpc::Status s = testing::upload_dataset(*datasets, "again" + std::to_string(round) + ".csv",
+                                                   random_csv(12'000, 1000 + round), {"F1", "F2"}, {"h1", "h2"}, &again);
+    ASSERT_TRUE(s.ok()) << "round " << round << ", the room two deletions made: " << s.error_message();
+    kept.push_back(again.id());
+  }
+  datasets.reset();
+  EXPECT_EQ(daemon.stop(), 0) << daemon.exit_report();
+}
 
 // An upload's memory: the daemon holds the bytes as they arrive (their size
 // declared, as the CLI and the Python client do: one buffer), hashes them,

@@ -116,10 +116,15 @@ TEST_F(TextModelService, ANewRevisionOrADeleteLeavesAStoredJobsModelAsItWas) {
   ASSERT_TRUE(models_->DeleteModel(&ctx, remove, &removed).ok());
   EXPECT_EQ(get("two_tank_text", &info).error_code(), grpc::StatusCode::NOT_FOUND);
   EXPECT_EQ(count_models(), 4);
-  // A job naming a revision still finds it.
-  ASSERT_TRUE(get("two_tank_text@2", &info).ok());
-  EXPECT_EQ(info.theta_default(0), 12.0);
+  // No job that may run names its revisions: they are purged (a queued
+  // job's revision stays until the job ends: BoundedRequests.
+  // RemovedModelsArePurgedUnlessAQueuedJobNamesThem).
+  EXPECT_EQ(get("two_tank_text@2", &info).error_code(), grpc::StatusCode::NOT_FOUND);
+  // Uploaded again, the name goes on counting: two_tank_text@2 is never another source.
+  ASSERT_TRUE(create(shipped("two_tank"), &info).ok());
+  EXPECT_EQ(info.text().revision(), 3u);
   grpc::ClientContext again;
+  remove.set_name("no_such_model");
   EXPECT_EQ(models_->DeleteModel(&again, remove, &removed).error_code(), grpc::StatusCode::NOT_FOUND);
 }
 

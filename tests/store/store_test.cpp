@@ -12,6 +12,7 @@
 #include <limits>
 #include <atomic>
 #include <bit>
+#include <chrono>
 #include <cstring>
 #include <latch>
 #include <random>
@@ -335,6 +336,67 @@ TEST_P(StoreTest, JobsUpdateListAndUnfinishedStates) {
   const auto listed = store->list_jobs("a").value();
   ASSERT_EQ(listed.size(), 2u);
   EXPECT_EQ(listed[0].id, "job-3");
+  // Counted as listed, without reading a spec: job-2 and job-3 queued (b, a),
+  // job-0 running (b), job-1 failed.
+  const UnfinishedJobs counts = store->count_unfinished_jobs("b").value();
+  EXPECT_EQ(counts.queued, 2);
+  EXPECT_EQ(counts.running, 1);
+  EXPECT_EQ(counts.of_tenant, 2);
+  EXPECT_EQ(store->count_unfinished_jobs("a").value().of_tenant, 1);
+  EXPECT_EQ(store->count_unfinished_jobs("nobody").value().of_tenant, 0);
+  // The pinned model a job names is kept.
+  JobRecord pinned = job("job-9", "a", 200);
+  pinned.model = "tank@3";
+  ASSERT_TRUE(store->put_job(pinned).is_ok());
+  EXPECT_EQ(store->get_job("a", "job-9").value().model, "tank@3");
+}
+
+TEST_P(StoreTest, AResultsSizeIsReadWithoutTheResult) {
+  auto store = open();
+  ASSERT_TRUE(store->put_job(job("job-1", "t", 1)).is_ok());
+  EXPECT_EQ(store->result_size("t", "job-1").status().code(), StatusCode::kNotFound);
+  ASSERT_TRUE(store->put_result("t", "job-1", std::string(12345, '\0')).is_ok());
+  EXPECT_EQ(store->result_size("t", "job-1").value(), 12345);
+  EXPECT_EQ(store->result_size("u", "job-1").status().code(), StatusCode::kNotFound) << "another tenant's";
+}
+
+// A deleted model's revisions go once no queued or running job names them;
+// the name's newest stays, emptied, so that its number is not given again.
+TEST_P(StoreTest, DeletedModelsArePurgedUnlessAJobThatMayRunNamesThem) {
+  auto store = open();
+  auto model = [](const std::string& tenant, const std::string& name, const std::string& source) {
+    ModelRecord m;
+    m.tenant = tenant;
+    m.name = name;
+    m.source = source;
+    m.sha256 = std::string(64, 'a');
+    return m;
+  };
+  for (const char* source : {"v1", "v2", "v3"}) ASSERT_TRUE(store->put_model(model("t", "tank", source)).is_ok());
+  ASSERT_TRUE(store->put_model(model("t", "arm", "a1")).is_ok());
+  ASSERT_TRUE(store->put_model(model("u", "tank", "other")).is_ok());
+  JobRecord queued = job("job-1", "t", 1);
+  queued.model = "tank@2";
+  ASSERT_TRUE(store->put_job(queued).is_ok());
+  ASSERT_TRUE(store->delete_model("t", "tank").is_ok());
+  // tank@1 deleted; tank@2 kept (job-1 may run on it); tank@3 emptied (the newest).
+  EXPECT_EQ(store->purge_unused_models().value(), 2);
+  EXPECT_EQ(store->get_model("t", "tank", 1).status().code(), StatusCode::kNotFound);
+  EXPECT_EQ(store->get_model("t", "tank", 2).value().source, "v2");
+  EXPECT_EQ(store->get_model("t", "tank", 3).value().source, "");
+  EXPECT_EQ(store->get_model("t", "arm", 0).value().source, "a1") << "a model not deleted is left alone";
+  EXPECT_EQ(store->get_model("u", "tank", 0).value().source, "other") << "another tenant's is left alone";
+  // The job ends: tank@2 goes too.
+  JobRecord ended = store->get_job("t", "job-1").value();
+  ended.state = JobState::kSucceeded;
+  ASSERT_TRUE(store->update_job(ended).is_ok());
+  EXPECT_EQ(store->purge_unused_models().value(), 1);
+  EXPECT_EQ(store->get_model("t", "tank", 2).status().code(), StatusCode::kNotFound);
+  EXPECT_EQ(store->put_model(model("t", "tank", "v4")).value().revision, 4);
+  // The emptied tank@3 goes: tank@4 keeps the count now.
+  EXPECT_EQ(store->purge_unused_models().value(), 1);
+  EXPECT_EQ(store->get_model("t", "tank", 3).status().code(), StatusCode::kNotFound);
+  EXPECT_EQ(store->purge_unused_models().value(), 0);
 }
 
 TEST_P(StoreTest, JobPassRecordsComeBackInPassOrderAndBelongToTheJobsTenant) {
@@ -498,6 +560,23 @@ TEST_P(StoreTest, ARequestIdNamesOneObjectForEveryClaim) {
   for (auto& t : threads) t.join();
   EXPECT_EQ(std::set<std::string>(named.begin(), named.end()).size(), 1u) << named[0];
   EXPECT_EQ(named[0].rfind("ses-", 0), 0u) << named[0];
+}
+
+// Looking a request id up stores nothing; old ids are forgotten.
+TEST_P(StoreTest, ARequestIdIsFoundWithoutAClaimAndForgottenWhenOld) {
+  auto store = open();
+  EXPECT_FALSE(store->find_request_id("t", "req-1", "job").value().has_value());
+  EXPECT_FALSE(store->find_request_id("t", "req-1", "job").value().has_value()) << "a look-up claimed it";
+  ASSERT_EQ(store->claim_request_id("t", "req-1", "job", "job-a").value(), "job-a");
+  EXPECT_EQ(store->find_request_id("t", "req-1", "job").value(), std::optional<std::string>("job-a"));
+  EXPECT_FALSE(store->find_request_id("u", "req-1", "job").value().has_value()) << "request ids are per tenant";
+  EXPECT_EQ(store->find_request_id("t", "req-1", "dataset").status().code(), StatusCode::kInvalidArgument);
+  // Claimed "now" on the store's clock: kept by a cut-off in the past, gone by one in the future.
+  const std::int64_t now = std::chrono::duration_cast<std::chrono::milliseconds>(
+                               std::chrono::system_clock::now().time_since_epoch()).count();
+  EXPECT_EQ(store->delete_request_ids(now - 3'600'000).value(), 0);
+  EXPECT_EQ(store->delete_request_ids(now + 3'600'000).value(), 1);
+  EXPECT_FALSE(store->find_request_id("t", "req-1", "job").value().has_value());
 }
 
 TEST_P(StoreTest, TheJobQueueHandsOutEachJobOnceOldestFirst) {
@@ -854,7 +933,7 @@ TEST(PostgresStore, StoresOpeningAtOnceOnAnEmptyDatabaseAllSucceed) {
   for (int i = 0; i < kStores; ++i) ASSERT_TRUE(opened[i].is_ok()) << i << ": " << opened[i].status().to_string();
   const pqxx::result versions = schema.exec("SELECT version FROM riccati_schema_migrations ORDER BY version");
   // Each migration applied once, in order.
-  ASSERT_EQ(versions.size(), 10u);  // postgres_store.cpp's migrations
+  ASSERT_EQ(versions.size(), 11u);  // postgres_store.cpp's migrations
   for (int v = 0; v < static_cast<int>(versions.size()); ++v) EXPECT_EQ(versions[v][0].as<int>(), v + 1);
   // And they share one database: what one stores, another reads.
   ASSERT_TRUE(opened[0].value()->put_job_pass("t", "none", 1, "c").code() == StatusCode::kNotFound);

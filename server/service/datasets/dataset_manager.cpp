@@ -25,6 +25,7 @@ UploadTicket::~UploadTicket() {
   if (manager_ == nullptr) return;
   std::lock_guard lock(manager_->mu_);
   --manager_->uploads_;
+  if (--manager_->tenant_uploads_[tenant_] == 0) manager_->tenant_uploads_.erase(tenant_);
   if ((manager_->in_flight_bytes_[tenant_] -= bytes_) == 0) manager_->in_flight_bytes_.erase(tenant_);
 }
 
@@ -56,6 +57,7 @@ Status DatasetManager::quota_error(std::int64_t used) const {
 }
 
 Result<UploadTicket> DatasetManager::begin_upload(const std::string& tenant, const std::string& name) {
+  RICCATI_RETURN_IF_ERROR(check_client_string("the dataset's name", name, kMaxNameBytes));
   std::unique_lock stored_lock(stored_mu_);
   RICCATI_ASSIGN_OR_RETURN(const std::int64_t stored, stored_bytes(tenant));
   stored_lock.unlock();
@@ -63,6 +65,15 @@ Result<UploadTicket> DatasetManager::begin_upload(const std::string& tenant, con
   if (uploads_ >= limits_.max_uploads) {
     return limit_reached("max_uploads", limits_.max_uploads, "as many uploads are in flight; try again shortly");
   }
+  // A share per tenant, so that one tenant's uploads (slow ones too) cannot
+  // hold every place.
+  std::int64_t& own = tenant_uploads_[tenant];
+  if (own >= limits_.max_tenant_uploads) {
+    if (own == 0) tenant_uploads_.erase(tenant);
+    return limit_reached("max_tenant_uploads", limits_.max_tenant_uploads,
+                         "this tenant has as many uploads in flight; wait for one to end");
+  }
+  ++own;
   ++uploads_;
   return UploadTicket(this, tenant, name.empty() ? "upload" : name, stored);
 }
@@ -112,6 +123,15 @@ Result<DatasetRecord> DatasetManager::upload(UploadTicket& ticket, DatasetUpload
   const std::string name = upload.name.empty() ? "upload" : upload.name;
   const auto size = static_cast<std::int64_t>(upload.bytes.size());
   if (upload.bytes.empty()) return invalid_argument("upload of " + name + " is empty");
+  RICCATI_RETURN_IF_ERROR(check_client_string("request_id", upload.request_id, kMaxRequestIdBytes));
+  RICCATI_RETURN_IF_ERROR(check_client_string("time_column", upload.mapping.time, kMaxNameBytes));
+  for (const auto* columns : {&upload.mapping.inputs, &upload.mapping.outputs}) {
+    for (const std::string& column : *columns) {
+      RICCATI_RETURN_IF_ERROR(check_client_string(columns == &upload.mapping.inputs ? "an input column's name"
+                                                                                     : "an output column's name",
+                                                  column, kMaxNameBytes));
+    }
+  }
   RICCATI_RETURN_IF_ERROR(check_true_parameters(upload.true_parameters, name));
   const std::string extension = std::filesystem::path(name).extension().string();
   const DatasetFormat format =
@@ -141,7 +161,8 @@ Result<DatasetRecord> DatasetManager::upload(UploadTicket& ticket, DatasetUpload
   DatasetRecord record;
   record.id = new_id("ds");
   if (!upload.request_id.empty()) {
-    // A retry of an upload that was stored gets that dataset.
+    // A retry of an upload that was stored gets that dataset. Claimed only
+    // now, past every check: a refused upload stores nothing.
     RICCATI_ASSIGN_OR_RETURN(record.id, store_.claim_request_id(tenant, upload.request_id, "dataset", record.id));
     if (Result<DatasetRecord> made = store_.get_dataset(tenant, record.id);
         made.is_ok() || made.status().code() != StatusCode::kNotFound) {

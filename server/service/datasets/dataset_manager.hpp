@@ -70,6 +70,7 @@ class DatasetManager {
   Result<Dataset> load(const std::string& tenant, const std::string& id);
   Result<std::vector<DatasetRecord>> list(const std::string& tenant);
   Status remove(const std::string& tenant, const std::string& id);
+  const Limits& limits() const { return limits_; }
 
  private:
   friend class UploadTicket;
@@ -78,10 +79,11 @@ class DatasetManager {
   Status quota_error(std::int64_t used) const;
 
   Store& store_;
-  const Limits limits_;  // max_dataset_bytes, max_dataset_samples, max_tenant_dataset_bytes, max_uploads
+  const Limits limits_;  // max_dataset_bytes, max_dataset_samples, max_tenant_dataset_bytes, max_uploads, max_tenant_uploads
   std::mutex stored_mu_;  // reading what a tenant has stored, and storing an upload and giving back its room
   std::mutex mu_;
   std::int64_t uploads_ = 0;                             // in flight, all tenants
+  std::map<std::string, std::int64_t> tenant_uploads_;  // in flight, per tenant
   std::map<std::string, std::int64_t> in_flight_bytes_;  // per tenant
 };
 

@@ -40,6 +40,7 @@ int http_status(StatusCode code) {
     case StatusCode::kInvalidArgument:
     case StatusCode::kOutOfRange: return 400;
     case StatusCode::kUnauthenticated: return 401;
+    case StatusCode::kPermissionDenied: return 403;
     case StatusCode::kNotFound: return 404;
     case StatusCode::kAlreadyExists:
     case StatusCode::kFailedPrecondition:
@@ -88,11 +89,13 @@ void reply(Response& res, const google::protobuf::Message& message) { reply_json
 
 // JSON that is kept (RenderedResults): sent from where it is, not copied
 // into the response; the response holds it while it is written.
-void reply_kept_json(Response& res, std::shared_ptr<const std::string> json) {
+void reply_kept_json(Response& res, std::shared_ptr<const std::string> json,
+                     std::shared_ptr<const void> hold = nullptr) {
   res.status = 200;
   const std::size_t size = json->size();
   res.set_content_provider(size, "application/json",
-                           [json = std::move(json)](std::size_t offset, std::size_t length, httplib::DataSink& sink) {
+                           [json = std::move(json), hold = std::move(hold)](std::size_t offset, std::size_t length,
+                                                                            httplib::DataSink& sink) {
                              return sink.write(json->data() + offset, length);
                            });
 }
@@ -157,7 +160,10 @@ class HttpApi::Routes {
           if (!entry.is_ok()) return fail(res, entry.status());
           reply(res, to_proto(entry.value()));
         }));
-    server.Post("/api/v1/models/reload", authed([this](const std::string& tenant, const Request&, Response& res) {
+    server.Post("/api/v1/models/reload", authed([this](const std::string& tenant, const Request& req, Response& res) {
+      if (!api_.auth_.is_operator_header(req.get_header_value("Authorization"))) {
+        return fail(res, operator_only("ReloadModels"));
+      }
       const auto report = api_.models_.reload();
       if (!report.is_ok()) return fail(res, report.status());
       spdlog::info("models reloaded by tenant={}", tenant);
@@ -248,9 +254,12 @@ class HttpApi::Routes {
         api_.rendered_results_->erase(tenant, id);
         return fail(res, job.status());
       }
-      const auto result = job_result(api_.jobs_, tenant, id);
-      if (!result.is_ok()) return fail(res, result.status());
-      reply_kept_json(res, keep_result_json(*api_.rendered_results_, tenant, id, result.value(), "first GET"));
+      auto read = job_result(api_.jobs_, tenant, id);
+      if (!read.is_ok()) return fail(res, read.status());
+      auto json = keep_result_json(*api_.rendered_results_, tenant, id, read->result, "first GET");
+      read->result.Clear();  // the JSON is what is sent
+      // The read's room is held until the JSON is sent.
+      reply_kept_json(res, std::move(json), std::move(read->read));
     }));
     server.Get(R"(/api/v1/jobs/([^/]+)/events)", authed([this](const std::string& tenant, const Request& req,
                                                                Response& res) { job_events(tenant, req.matches[1].str(), res); }));

@@ -255,30 +255,68 @@ Status check_against_datasets(const IdentificationJob& job, const std::vector<Da
   return Status::ok();
 }
 
+namespace {
+
+// The doubles of one experiment's fit (ExperimentFit): t, y measured and
+// modelled, residuals and mask per sample; the initial states; and the
+// residual diagnostics (diagnostics.hpp), whose cross-correlation of every
+// output with every input at lags -h..h is (ny nu) x (2h + 1): with many
+// inputs and outputs it outgrows the samples themselves.
+double experiment_fit_values(double samples, double nx, double ny, double nu) {
+  const double h = std::min(20.0, std::floor(samples / 4));
+  const double per_sample = samples * (1 + 4 * ny);
+  const double fits = 8 * ny;                                            // OutputFit per output
+  const double diagnostics = ny * h + ny + ny * nu * (2 * h + 1) + 3 * ny * nu + 8;
+  const double summary = (ny + ny * nu + 1) * 16;  // a line per test, ~128 bytes: in doubles' worth
+  return per_sample + 3 * nx + fits + diagnostics + summary;
+}
+
+}  // namespace
+
 ResultSize estimated_result_size(const IdentificationJob& job, const std::vector<DatasetRecord>& records,
                                  const Model& model) {
   // The first experiment within its sample range (checked by check_against_datasets).
   const Eigen::Index end = job.filter.end_sample < 0 ? records.front().samples : job.filter.end_sample;
   const double first = static_cast<double>(end - job.filter.first_sample);
-  const double ny = model.ny(), nx = model.nx(), ntheta = model.ntheta();
+  const double ny = model.ny(), nx = model.nx(), nu = model.nu(), ntheta = model.ntheta();
+  // Each name once, in bytes as doubles' worth (8 a double), with its tag.
+  double name_values = 0;
+  for (const auto* names : {&model.state_names(), &model.param_names(), &model.output_names()}) {
+    for (const std::string& name : *names) name_values += static_cast<double>(name.size() + 2) / 8;
+  }
   ResultSize size;
   size.smaller = "fewer passes, or a shorter sample range (first_sample, end_sample)";
+  double values = name_values;
   if (job.method == IdentificationMethod::kFilter || job.init_passes > 0) {
     const int passes = job.method == IdentificationMethod::kFilter ? job.filter.passes : job.init_passes;
-    // Each pass's theta trace; t, x_trace, y_model and innovations once.
-    size.bytes += 8 * (passes * ntheta * first + first * (1 + nx + 2 * ny));
+    // Each pass's theta trace and summary (final, mean, std, innovation RMS);
+    // t, x_trace, y_model and innovations once.
+    values += passes * (ntheta * first + 3 * ntheta + ny) + first * (1 + nx + 2 * ny) + 3 * ntheta;
     size.what = std::to_string(passes) + " passes x " + std::to_string(model.ntheta()) + " parameters x " +
                 std::to_string(end - job.filter.first_sample) + " samples of estimate traces";
   }
   if (job.method != IdentificationMethod::kFilter) {
-    // Each experiment's t, y_measured, y_model, residuals and mask.
+    // The estimate: values, deviations, intervals, covariance and
+    // correlation, the cost after each iteration, noise levels (ML).
+    const int iterations = job.method == IdentificationMethod::kOutputError
+                               ? job.output_error.optimizer.max_iterations
+                               : job.max_likelihood.optimizer.max_iterations;
+    values += 6 * ntheta + 2 * ntheta * ntheta + std::max(iterations, 0) + 2 + 4 * (nx + ny) + 16;
+    // Each experiment's fit, its residuals' diagnostics included.
     double samples = first;
-    for (std::size_t e = 1; e < records.size(); ++e) samples += static_cast<double>(records[e].samples);
-    size.bytes += 8 * samples * (1 + 4 * ny);
+    values += experiment_fit_values(first, nx, ny, nu);
+    for (std::size_t e = 1; e < records.size(); ++e) {
+      const auto n = static_cast<double>(records[e].samples);
+      samples += n;
+      values += experiment_fit_values(n, nx, ny, nu);
+    }
     if (size.what.empty()) size.smaller = "a shorter sample range (first_sample, end_sample), or fewer experiments";
     size.what += (size.what.empty() ? "" : ", and ") + std::to_string(static_cast<std::int64_t>(samples)) +
-                 " samples x " + std::to_string(1 + 4 * model.ny()) + " values of fitted outputs";
+                 " samples x " + std::to_string(1 + 4 * model.ny()) + " values of fitted outputs in " +
+                 std::to_string(records.size()) + " experiments, with residual diagnostics of " +
+                 std::to_string(model.ny()) + " outputs x " + std::to_string(model.nu()) + " inputs";
   }
+  size.bytes = 8 * values + kFixedResultBytes + kResultBytesPerName * (nx + ntheta + ny + nu);
   return size;
 }
 

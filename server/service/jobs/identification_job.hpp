@@ -57,6 +57,13 @@ struct ResultSize {
   std::string smaller;
 };
 
+// What a result holds besides its doubles: fields' tags and lengths,
+// names, warnings, a termination message. Added to every job's estimate,
+// with kResultBytesPerName for each name of the model (a warning or a test's
+// line may name each).
+inline constexpr double kFixedResultBytes = 64 * 1024;
+inline constexpr double kResultBytesPerName = 512;
+
 // An identification's result (job_convert.cpp's to_proto): each filter pass's
 // parameter trace, the last pass's state trace and outputs; for output error
 // and maximum likelihood, each experiment's outputs and residuals.

@@ -61,9 +61,16 @@ Status JobManager::start() {
   // instance's id: the others belong to live instances or wait for their
   // leases to expire.
   // Their claims count as attempts: their instance died with them.
-  RICCATI_ASSIGN_OR_RETURN(const int released,
-                           store_.release_jobs(queue_.exclusive_store ? "" : instance_, /*stopped=*/false));
-  if (released > 0) spdlog::info("jobs queued again count={} (left running by an earlier run)", released);
+  // On a full store (a full disk) the release cannot be written: riccatid
+  // starts anyway, to read and delete (the jobs' leases expire instead, and
+  // they are claimed again then).
+  const Result<int> released = store_.release_jobs(queue_.exclusive_store ? "" : instance_, /*stopped=*/false);
+  if (!released.is_ok() && released.status().code() != StatusCode::kResourceExhausted) return released.status();
+  if (!released.is_ok()) {
+    spdlog::warn("jobs of an earlier run not released error=\"{}\"", released.status().message());
+  } else if (released.value() > 0) {
+    spdlog::info("jobs queued again count={} (left running by an earlier run)", released.value());
+  }
   spdlog::info("job queue instance={} lease_ms={} poll_ms={}", instance_, queue_.lease.count(), queue_.poll.count());
   std::lock_guard lock(mu_);
   for (int i = 0; i < worker_count_; ++i) workers_.emplace_back([this] { worker_loop(); });
@@ -128,6 +135,7 @@ Result<JobRecord> JobManager::submit_identification(const std::string& tenant, c
   job.passes = plan.method == IdentificationMethod::kFilter ? plan.filter.passes : plan.init_passes;
   job.samples = datasets.front().samples;
   job.spec = with_model(spec, resolved.reference);
+  job.model = resolved.reference;
   return enqueue(std::move(job), result_size.bytes, spec.request_id());
 }
 
@@ -149,7 +157,7 @@ Result<JobRecord> JobManager::submit_smoothing(const std::string& tenant, const 
     const double samples = static_cast<double>(end - settings.first_sample);
     const double nz = model->nx() + model->ntheta();
     const double per_sample = 1 + 4 * nz + 2 * model->ny() + (spec.full_covariance() ? nz * nz : 0);
-    result_size = {8 * samples * per_sample,
+    result_size = {8 * samples * per_sample + kFixedResultBytes + kResultBytesPerName * nz,
          std::to_string(end - settings.first_sample) + " samples x " + std::to_string(static_cast<int>(per_sample)) +
              " values (" + std::to_string(static_cast<int>(nz)) + " states and parameters" +
              (spec.full_covariance() ? ", with their full covariance" : "") + ")",
@@ -164,6 +172,7 @@ Result<JobRecord> JobManager::submit_smoothing(const std::string& tenant, const 
   job.passes = 2;  // forward and back
   job.samples = end - settings.first_sample;
   job.spec = with_model(spec, resolved.reference);
+  job.model = resolved.reference;
   return enqueue(std::move(job), result_size.bytes, spec.request_id());
 }
 
@@ -211,7 +220,8 @@ Result<JobRecord> JobManager::submit_validation(const std::string& tenant, const
   }
   // Per sample: t, the measured and the simulated outputs.
   const int per_sample = 1 + 2 * model->ny();
-  const ResultSize result_size{8.0 * static_cast<double>(dataset.samples) * per_sample,
+  const ResultSize result_size{8.0 * static_cast<double>(dataset.samples) * per_sample + kFixedResultBytes +
+                                   kResultBytesPerName * (model->nx() + model->ntheta() + model->ny()),
                                std::to_string(dataset.samples) + " samples x " + std::to_string(per_sample) + " values",
                                "a dataset with fewer samples"};
   RICCATI_RETURN_IF_ERROR(check_result_size(result_size, limits_.max_result_bytes));
@@ -221,30 +231,41 @@ Result<JobRecord> JobManager::submit_validation(const std::string& tenant, const
   job.kind = JobKind::kValidation;
   job.samples = dataset.samples;
   job.spec = with_model(spec, resolved.reference);
+  job.model = resolved.reference;
   return enqueue(std::move(job), result_size.bytes, spec.request_id());
 }
 
 Result<JobRecord> JobManager::enqueue(JobRecord job, double result_bytes, const std::string& request_id) {
+  RICCATI_RETURN_IF_ERROR(check_client_string("request_id", request_id, kMaxRequestIdBytes));
+  if (static_cast<std::int64_t>(job.spec.size()) > limits_.max_stored_request_bytes) {
+    return limit_reached("max_stored_request_bytes", limits_.max_stored_request_bytes,
+                         "the job's spec is " + std::to_string(job.spec.size()) + " bytes encoded");
+  }
   job.state = JobState::kQueued;
   job.created_ms = now_ms();
+  // A retry of a request that made a job gets that job. The request_id is
+  // claimed only once the job has passed its limits: a refused submit
+  // stores nothing.
+  std::optional<std::string> earlier;
   if (!request_id.empty()) {
-    // A retry of a request that made a job gets that job.
-    RICCATI_ASSIGN_OR_RETURN(job.id, store_.claim_request_id(job.tenant, request_id, "job", job.id));
-    if (Result<JobRecord> made = get(job.tenant, job.id); made.is_ok() || made.status().code() != StatusCode::kNotFound) {
-      return made;
+    RICCATI_ASSIGN_OR_RETURN(earlier, store_.find_request_id(job.tenant, request_id, "job"));
+    if (earlier) {
+      job.id = *earlier;
+      if (Result<JobRecord> made = get(job.tenant, job.id);
+          made.is_ok() || made.status().code() != StatusCode::kNotFound) {
+        return made;
+      }
     }
   }
   {
     std::lock_guard submit(submit_mu_);
-    // Queued or running, on every instance sharing the store.
-    RICCATI_ASSIGN_OR_RETURN(const std::vector<JobRecord> unfinished,
-                             store_.jobs_in_states({JobState::kQueued, JobState::kRunning}));
-    if (static_cast<std::int64_t>(unfinished.size()) >= limits_.max_jobs) {
+    // Queued or running, on every instance sharing the store: counted, no
+    // job's spec read.
+    RICCATI_ASSIGN_OR_RETURN(const UnfinishedJobs unfinished, store_.count_unfinished_jobs(job.tenant));
+    if (unfinished.queued + unfinished.running >= limits_.max_jobs) {
       return limit_reached("max_jobs", limits_.max_jobs, "that many jobs are queued or running");
     }
-    const auto own = std::count_if(unfinished.begin(), unfinished.end(),
-                                   [&](const JobRecord& other) { return other.tenant == job.tenant; });
-    if (own >= limits_.max_tenant_jobs) {
+    if (unfinished.of_tenant >= limits_.max_tenant_jobs) {
       return limit_reached("max_tenant_jobs", limits_.max_tenant_jobs,
                            "this tenant has that many jobs queued or running; wait for one to end or cancel one");
     }
@@ -255,6 +276,17 @@ Result<JobRecord> JobManager::enqueue(JobRecord job, double result_bytes, const 
                            "this tenant's results take " + std::to_string(results) + " bytes, and this job's about " +
                                std::to_string(static_cast<std::int64_t>(result_bytes)) +
                                " more: delete jobs it no longer needs (DeleteJob, riccati job delete ID)");
+    }
+    if (!request_id.empty() && !earlier) {
+      const std::string mine = job.id;
+      RICCATI_ASSIGN_OR_RETURN(job.id, store_.claim_request_id(job.tenant, request_id, "job", job.id));
+      if (job.id != mine) {
+        // Another call with the same request_id claimed it first.
+        if (Result<JobRecord> made = get(job.tenant, job.id);
+            made.is_ok() || made.status().code() != StatusCode::kNotFound) {
+          return made;
+        }
+      }
     }
     const Status stored = store_.put_job(job);
     if (stored.code() == StatusCode::kAlreadyExists && !request_id.empty()) {
@@ -291,11 +323,23 @@ Result<std::vector<JobRecord>> JobManager::list(const std::string& tenant) {
   return jobs;
 }
 
-Result<std::string> JobManager::result(const std::string& tenant, const std::string& id) {
+Result<JobManager::StoredResult> JobManager::result(const std::string& tenant, const std::string& id) {
   // The result first: the store writes it with the job's end, so a job that
-  // has one has ended, whatever a reader saw before.
-  Result<std::string> stored = store_.get_result(tenant, id);
-  if (stored.status().code() != StatusCode::kNotFound) return stored;
+  // has one has ended, whatever a reader saw before. Its size first, to wait
+  // for room among the reads in progress before it is read.
+  Result<std::int64_t> size = store_.result_size(tenant, id);
+  if (size.is_ok()) {
+    StoredResult out;
+    RICCATI_ASSIGN_OR_RETURN(out.read, result_reads_.acquire(size.value()));
+    Result<std::string> stored = store_.get_result(tenant, id);
+    if (stored.is_ok()) {
+      out.encoded = std::move(stored).value();
+      return out;
+    }
+    if (stored.status().code() != StatusCode::kNotFound) return stored.status();  // else deleted meanwhile
+  } else if (size.status().code() != StatusCode::kNotFound) {
+    return size.status();
+  }
   RICCATI_ASSIGN_OR_RETURN(const JobRecord job, get(tenant, id));
   return failed_precondition("job " + id + " has no result: it is " + job_state_name(job.state));
 }
@@ -520,6 +564,18 @@ void JobManager::run(JobRecord job) {
     notify_changed(id);
     return;
   }
+  if (result.is_ok() && static_cast<std::int64_t>(result.value().size()) > limits_.max_result_bytes) {
+    // The estimate at submit is an upper bound (estimated_result_size); a
+    // result past the limit anyway is a defect of the estimate, and is not
+    // stored.
+    spdlog::error("job result over its limit id={} bytes={} max_result_bytes={}", id, result.value().size(),
+                  limits_.max_result_bytes);
+    return finish(std::move(outcome.record),
+                  limit_reached("max_result_bytes", limits_.max_result_bytes,
+                                "the job's result took " + std::to_string(result.value().size()) +
+                                    " bytes, more than its estimate at submit: nothing stored"),
+                  claimed);
+  }
   finish(std::move(outcome.record), result, claimed);
 }
 
@@ -594,6 +650,13 @@ void JobManager::delete_old_jobs() {
     spdlog::info("old jobs deleted count={} max_tenant_jobs_kept={} max_job_age_days={}", deleted.value(),
                  limits_.max_tenant_jobs_kept, limits_.max_job_age_days);
   }
+  // A deleted text model's revisions go once no job that may still run names them.
+  Result<int> purged = store_.purge_unused_models();
+  if (!purged.is_ok()) spdlog::warn("deleted models not purged error=\"{}\"", purged.status().message());
+  // Request ids (every kind's: jobs, datasets, sessions) answer retries for
+  // a week, then go: a retry is seconds or minutes after its first call.
+  Result<int> forgotten = store_.delete_request_ids(now_ms() - kRequestIdRetentionMs);
+  if (!forgotten.is_ok()) spdlog::warn("old request ids not deleted error=\"{}\"", forgotten.status().message());
 }
 
 Status JobManager::remove(const std::string& tenant, const std::string& id) {

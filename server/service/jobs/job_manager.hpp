@@ -20,6 +20,7 @@
 // at every lease renewal and pass.
 #pragma once
 
+#include "service/jobs/result_reads.hpp"
 #include "service/limits.hpp"
 #include "service/metrics.hpp"
 
@@ -93,8 +94,13 @@ class JobManager {
   // The tenant's jobs, oldest first, with the progress of those running here.
   Result<std::vector<JobRecord>> list(const std::string& tenant);
   // The result of a job that succeeded (encoded JobResult); FAILED_PRECONDITION
-  // naming the job's state when it has none.
-  Result<std::string> result(const std::string& tenant, const std::string& id);
+  // naming the job's state when it has none. `read` holds the result's room
+  // among the reads in progress (ResultReads): keep it until the answer is sent.
+  struct StoredResult {
+    std::string encoded;
+    std::shared_ptr<const void> read;
+  };
+  Result<StoredResult> result(const std::string& tenant, const std::string& id);
 
   // The job if it has changed since `*version` (0: any job), updating
   // `*version`; nullopt if it has not. Never waits on this instance's jobs:
@@ -163,6 +169,7 @@ class JobManager {
   // max_jobs, max_tenant_jobs, max_passes, max_result_bytes, max_job_attempts,
   // max_tenant_result_bytes, max_tenant_jobs_kept, max_job_age_days
   const Limits limits_;
+  ResultReads result_reads_{limits_.max_result_read_bytes};
   const int worker_count_;
   const JobQueueOptions queue_;
   const std::string instance_;

@@ -3,6 +3,7 @@
 #include <spdlog/spdlog.h>
 
 #include <charconv>
+#include <filesystem>
 
 #include "engine/sha256.hpp"
 #include "service/ids.hpp"
@@ -26,6 +27,14 @@ Result<Name> parse_name(std::string_view s) {
     return invalid_argument("model \"" + std::string(s) + "\": a revision is a positive number (name@3)");
   }
   return n;
+}
+
+// A stored revision; a deleted one that was purged (Store::purge_unused_models
+// keeps its number, not its source) is NOT_FOUND.
+Result<ModelRecord> stored_model(Store& store, const std::string& tenant, const Name& n) {
+  RICCATI_ASSIGN_OR_RETURN(ModelRecord record, store.get_model(tenant, n.name, n.revision));
+  if (record.deleted && record.source.empty()) return not_found("model " + n.name + " was deleted");
+  return record;
 }
 
 Status no_model(std::string_view name) { return not_found("no model \"" + std::string(name) + "\" is loaded"); }
@@ -63,11 +72,28 @@ std::shared_ptr<const ModelRegistry> ModelCatalog::builtins() const {
   return builtins_;
 }
 
+std::string ModelCatalog::without_server_paths(std::string text) const {
+  std::string dir = std::filesystem::path(models_dir_).lexically_normal().string();
+  while (dir.size() > 1 && dir.back() == '/') dir.pop_back();
+  if (dir.empty()) return text;
+  for (const auto& [from, to] : {std::pair{dir + "/", std::string()}, std::pair{dir, std::string("the models directory")}}) {
+    for (std::size_t at = text.find(from); at != std::string::npos; at = text.find(from, at + to.size())) {
+      text.replace(at, from.size(), to);
+    }
+  }
+  return text;
+}
+
 Result<ReloadReport> ModelCatalog::reload() {
   if (models_dir_.empty()) return failed_precondition("this riccatid was started without a models directory to reload");
   std::lock_guard one_at_a_time(reload_mu_);
   const std::shared_ptr<const ModelRegistry> before = builtins();
-  RICCATI_ASSIGN_OR_RETURN(ModelRegistry loaded, ModelRegistry::load_directory(models_dir_, before.get()));
+  Result<ModelRegistry> loaded_or = ModelRegistry::load_directory(models_dir_, before.get());
+  if (!loaded_or.is_ok()) {
+    spdlog::warn("models not reloaded dir={} error=\"{}\"", models_dir_, loaded_or.status().message());
+    return Status(loaded_or.status().code(), without_server_paths(loaded_or.status().message()));
+  }
+  ModelRegistry loaded = std::move(loaded_or).value();
   auto after = std::make_shared<const ModelRegistry>(std::move(loaded));
   ReloadReport report;
   for (const ModelPtr& m : after->models()) {
@@ -103,6 +129,12 @@ Result<ReloadReport> ModelCatalog::reload() {
   spdlog::info("models reloaded dir={} added=[{}] changed=[{}] removed=[{}] unchanged={} refused={}", models_dir_,
                names(report.added), names(report.changed), names(report.removed), report.unchanged.size(),
                report.refused.size());
+  // The log has the server's paths; the caller gets each file's name within
+  // the models directory.
+  for (RefusedPlugin& r : report.refused) {
+    r.path = without_server_paths(r.path);
+    r.reason = without_server_paths(r.reason);
+  }
   return report;
 }
 
@@ -120,6 +152,9 @@ Result<std::shared_ptr<const ModelCatalog::Compiled>> ModelCatalog::compiled(con
   Result<JacobianCheck> check = check_jacobians(*c->model, generic_points(*c->model));
   if (check.is_ok()) c->jacobian_check = std::move(check).value();
   std::lock_guard lock(mu_);
+  // Bounded: a tenant's many uploads must not hold riccatid's memory. When
+  // full, the cache starts again (a job running a model holds its own).
+  if (cache_.size() >= kMaxCompiledModels) cache_.clear();
   return cache_.emplace(key, std::move(c)).first->second;
 }
 
@@ -128,7 +163,7 @@ Result<ResolvedModel> ModelCatalog::resolve(const std::string& tenant, std::stri
   if (n.revision == 0) {
     if (ModelPtr builtin = builtins()->find(n.name)) return ResolvedModel{std::move(builtin), n.name};
   }
-  Result<ModelRecord> record = store_.get_model(tenant, n.name, n.revision);
+  Result<ModelRecord> record = stored_model(store_, tenant, n);
   if (!record.is_ok()) {
     if (record.status().code() == StatusCode::kNotFound) return no_model(name);
     return record.status();
@@ -187,7 +222,7 @@ Result<CatalogEntry> ModelCatalog::describe(const std::string& tenant, std::stri
     const std::shared_ptr<const ModelRegistry> registry = builtins();
     if (ModelPtr builtin = registry->find(n.name)) return builtin_entry(registry, builtin);
   }
-  Result<ModelRecord> record = store_.get_model(tenant, n.name, n.revision);
+  Result<ModelRecord> record = stored_model(store_, tenant, n);
   if (!record.is_ok()) {
     if (record.status().code() == StatusCode::kNotFound) return no_model(name);
     return record.status();
@@ -223,8 +258,9 @@ Result<CatalogEntry> ModelCatalog::create(const std::string& tenant, const std::
   RICCATI_ASSIGN_OR_RETURN(TextModel text, compile_text_model(source, origin));
   const std::string& name = text.model->name();
   if (const ModelPtr builtin = builtins()->find(name)) {
-    return Status(StatusCode::kAlreadyExists, "model \"" + name + "\" is built into this riccatid (" +
-                                                  builtin->origin() + "): give the text model another name");
+    return Status(StatusCode::kAlreadyExists, "model \"" + name +
+                                                  "\" is built into this riccatid (a model of its models directory): "
+                                                  "give the text model another name");
   }
   if (validate_only) {
     auto c = std::make_shared<Compiled>();
@@ -239,6 +275,18 @@ Result<CatalogEntry> ModelCatalog::create(const std::string& tenant, const std::
     return entry_of(unstored, c);
   }
   std::lock_guard lock(create_mu_);
+  // The same source as the name's newest revision is that revision: a
+  // CreateModel retried (after a lost answer, or riccatid's restart) stores
+  // nothing and counts once.
+  const std::string digest = sha256_hex(source);
+  if (Result<ModelRecord> newest = store_.get_model(tenant, name, 0);
+      newest.is_ok() && !newest->deleted && newest->sha256 == digest) {
+    RICCATI_ASSIGN_OR_RETURN(const auto c, compiled(newest.value()));
+    CatalogEntry e = entry_of(newest.value(), c);
+    RICCATI_ASSIGN_OR_RETURN(const std::vector<ModelRevision> revisions, store_.list_model_revisions(tenant));
+    e.revisions = revisions_of(revisions, name);
+    return e;
+  }
   RICCATI_RETURN_IF_ERROR(check_quota(tenant, static_cast<std::int64_t>(source.size())));
   ModelRecord record;
   record.tenant = tenant;
@@ -261,7 +309,19 @@ Status ModelCatalog::remove(const std::string& tenant, const std::string& name) 
   }
   const Status s = store_.delete_model(tenant, name);
   if (s.code() == StatusCode::kNotFound) return no_model(name);
-  return s;
+  RICCATI_RETURN_IF_ERROR(s);
+  {
+    // Its compiled revisions go from the cache (a job running one holds it).
+    std::lock_guard lock(mu_);
+    std::erase_if(cache_, [&](const auto& entry) {
+      return std::get<0>(entry.first) == tenant && std::get<1>(entry.first) == name;
+    });
+  }
+  // And its revisions from the store, unless a queued or running job names them.
+  if (Result<int> purged = store_.purge_unused_models(); !purged.is_ok()) {
+    spdlog::warn("deleted models not purged error=\"{}\"", purged.status().message());
+  }
+  return Status::ok();
 }
 
 }  // namespace riccati::service

@@ -104,6 +104,10 @@ class ModelCatalog {
   mutable std::mutex create_mu_;                   // a quota's check and the store's put together
   mutable std::mutex mu_;
   // (tenant, name, revision) -> compiled model; revisions never change.
+  // `text` with the models directory's path taken out (a file's path is its
+  // name within it): what a tenant is shown of the server's files.
+  std::string without_server_paths(std::string text) const;
+  static constexpr std::size_t kMaxCompiledModels = 256;
   mutable std::map<std::tuple<std::string, std::string, std::int64_t>, std::shared_ptr<const Compiled>> cache_;
 };
 

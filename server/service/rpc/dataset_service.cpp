@@ -3,7 +3,10 @@
 #include "service/convert.hpp"
 
 #include <algorithm>
+#include <atomic>
+#include <chrono>
 #include <cstdint>
+#include <vector>
 #include <optional>
 #include <thread>
 
@@ -65,11 +68,18 @@ class DatasetServiceImpl::UploadReactor final : public grpc::ServerReadReactor<v
       return;
     }
     slot_ = std::move(slot.value());
+    touched();
+    {
+      std::lock_guard lock(service_.uploads_mu_);
+      service_.uploads_.insert(this);
+    }
+    service_.uploads_changed_.notify_all();
     StartRead(&part_);
   }
 
   void OnReadDone(bool ok) override {
     if (!ok) return end();
+    touched();
     if (!ticket_) {
       if (!part_.has_header()) return end_with(to_grpc(invalid_argument("the first message of an upload must be its header")));
       if (!v1::DatasetFormat_IsValid(part_.header().format())) {
@@ -109,21 +119,49 @@ class DatasetServiceImpl::UploadReactor final : public grpc::ServerReadReactor<v
   }
 
   void OnDone() override {
+    leave_watch();
     if (storing_.joinable()) storing_.join();
     delete this;
+  }
+
+  static std::int64_t steady_ms() {
+    return std::chrono::duration_cast<std::chrono::milliseconds>(std::chrono::steady_clock::now().time_since_epoch())
+        .count();
+  }
+
+  // Called by the idle watch with its registry locked: ends an upload whose
+  // client has sent nothing for `idle_ms` (its pending read then fails, and
+  // end() says why).
+  void cancel_if_idle(std::int64_t now_ms, std::int64_t idle_ms) {
+    if (now_ms - last_read_ms_.load() < idle_ms || idle_.exchange(true)) return;
+    context_->TryCancel();
   }
 
  private:
   // Gives back the upload's room and place before the client hears the
   // status, so that a client that goes on at once finds them free.
   void end_with(const grpc::Status& status) {
+    leave_watch();
     ticket_.reset();
     slot_ = StreamSlot();
     Finish(status);
   }
 
+  void touched() { last_read_ms_ = steady_ms(); }
+  void leave_watch() {
+    std::lock_guard lock(service_.uploads_mu_);
+    service_.uploads_.erase(this);
+  }
+
   // The client is done sending, or gone.
   void end() {
+    leave_watch();
+    if (idle_) {
+      const std::int64_t idle_s = service_.datasets_.limits().upload_idle_seconds;
+      return end_with({grpc::StatusCode::DEADLINE_EXCEEDED,
+                       "the upload of " + upload_.name + " sent nothing for " + std::to_string(idle_s) +
+                           " s (upload_idle_seconds, --upload-idle-seconds): nothing stored"});
+    }
     if (!ticket_) return end_with(to_grpc(invalid_argument("the first message of an upload must be its header")));
     // A read also ends when the client cancels or its deadline passes: what
     // arrived may be cut at a line boundary and parse, so store nothing.
@@ -153,7 +191,39 @@ class DatasetServiceImpl::UploadReactor final : public grpc::ServerReadReactor<v
   std::optional<UploadTicket> ticket_;
   std::int64_t declared_ = 0;  // the header's size_bytes: reserved at once
   std::thread storing_;
+  std::atomic<std::int64_t> last_read_ms_{0};  // steady clock: the last message's arrival
+  std::atomic<bool> idle_{false};              // ended by the idle watch
 };
+
+DatasetServiceImpl::DatasetServiceImpl(const Authenticator& auth, DatasetManager& datasets, StreamSlots& slots)
+    : auth_(auth), datasets_(datasets), slots_(slots), idle_watch_([this] { watch_idle_uploads(); }) {}
+
+DatasetServiceImpl::~DatasetServiceImpl() {
+  {
+    std::lock_guard lock(uploads_mu_);
+    stopping_ = true;
+  }
+  uploads_changed_.notify_all();
+  idle_watch_.join();
+}
+
+void DatasetServiceImpl::watch_idle_uploads() {
+  const std::int64_t idle_ms = datasets_.limits().upload_idle_seconds * 1000;
+  std::unique_lock lock(uploads_mu_);
+  while (!stopping_) {
+    if (uploads_.empty()) {
+      uploads_changed_.wait(lock);
+      continue;
+    }
+    uploads_changed_.wait_for(lock, std::chrono::seconds(1));
+    // A copy: a cancelled upload may leave the set inside TryCancel.
+    const std::vector<UploadReactor*> reading(uploads_.begin(), uploads_.end());
+    const std::int64_t now = UploadReactor::steady_ms();
+    for (UploadReactor* upload : reading) {
+      if (uploads_.count(upload) != 0) upload->cancel_if_idle(now, idle_ms);
+    }
+  }
+}
 
 grpc::ServerReadReactor<v1::UploadDatasetRequest>* DatasetServiceImpl::UploadDataset(
     grpc::CallbackServerContext* context, v1::DatasetInfo* response) {

@@ -4,6 +4,11 @@
 
 #include <grpcpp/grpcpp.h>
 
+#include <condition_variable>
+#include <mutex>
+#include <set>
+#include <thread>
+
 #include "riccati/v1/datasets.grpc.pb.h"
 #include "service/auth.hpp"
 #include "service/datasets/dataset_manager.hpp"
@@ -15,8 +20,8 @@ namespace riccati::service {
 // holds no thread while its client sends, and takes a place in StreamSlots.
 class DatasetServiceImpl final : public v1::DatasetService::WithCallbackMethod_UploadDataset<v1::DatasetService::Service> {
  public:
-  DatasetServiceImpl(const Authenticator& auth, DatasetManager& datasets, StreamSlots& slots)
-      : auth_(auth), datasets_(datasets), slots_(slots) {}
+  DatasetServiceImpl(const Authenticator& auth, DatasetManager& datasets, StreamSlots& slots);
+  ~DatasetServiceImpl() override;
   grpc::ServerReadReactor<v1::UploadDatasetRequest>* UploadDataset(grpc::CallbackServerContext*,
                                                                   v1::DatasetInfo*) override;
   grpc::Status GetDataset(grpc::ServerContext*, const v1::GetDatasetRequest*, v1::DatasetInfo*) override;
@@ -27,9 +32,19 @@ class DatasetServiceImpl final : public v1::DatasetService::WithCallbackMethod_U
 
  private:
   class UploadReactor;
+  // Ends the uploads that sent nothing for upload_idle_seconds: a thread
+  // that looks every second. The registry's mutex is recursive because gRPC
+  // may run a cancelled upload's callbacks, which leave the registry, inside
+  // TryCancel.
+  void watch_idle_uploads();
   const Authenticator& auth_;
   DatasetManager& datasets_;
   StreamSlots& slots_;
+  std::recursive_mutex uploads_mu_;
+  std::condition_variable_any uploads_changed_;
+  std::set<UploadReactor*> uploads_;  // reading their bytes
+  bool stopping_ = false;
+  std::thread idle_watch_;
 };
 
 v1::DatasetInfo to_proto(const DatasetRecord& record);

@@ -290,18 +290,22 @@ grpc::Status JobServiceImpl::CancelJob(grpc::ServerContext* context, const v1::C
   return grpc::Status::OK;
 }
 
-Result<v1::JobResult> job_result(JobManager& jobs, const std::string& tenant, const std::string& job_id) {
-  RICCATI_ASSIGN_OR_RETURN(const std::string encoded, jobs.result(tenant, job_id));
-  v1::JobResult result;
-  if (!result.ParseFromString(encoded)) return internal_error("stored result of job " + job_id + " is unreadable");
-  return result;
+Result<ReadJobResult> job_result(JobManager& jobs, const std::string& tenant, const std::string& job_id) {
+  RICCATI_ASSIGN_OR_RETURN(JobManager::StoredResult stored, jobs.result(tenant, job_id));
+  ReadJobResult out;
+  out.read = std::move(stored.read);
+  if (!out.result.ParseFromString(stored.encoded)) {
+    return internal_error("stored result of job " + job_id + " is unreadable");
+  }
+  return out;
 }
 
 grpc::Status JobServiceImpl::GetResult(grpc::ServerContext* context, const v1::GetResultRequest* request,
                                        v1::JobResult* response) {
-  Result<v1::JobResult> result = job_result(jobs_, auth_.tenant(*context), request->job_id());
-  if (!result.is_ok()) return to_grpc(result.status());
-  *response = std::move(result.value());
+  Result<ReadJobResult> read = job_result(jobs_, auth_.tenant(*context), request->job_id());
+  if (!read.is_ok()) return to_grpc(read.status());
+  // Swapped, not copied: the message is the result's largest copy.
+  response->Swap(&read.value().result);
   return grpc::Status::OK;
 }
 

@@ -60,7 +60,12 @@ class JobServiceImpl final : public v1::JobService::WithCallbackMethod_WatchJob<
   std::thread pump_;
 };
 
-// A succeeded job's result (GetResult).
-Result<v1::JobResult> job_result(JobManager& jobs, const std::string& tenant, const std::string& job_id);
+// A succeeded job's result (GetResult), with its room among the reads in
+// progress (ResultReads), to hold until the answer is sent.
+struct ReadJobResult {
+  v1::JobResult result;
+  std::shared_ptr<const void> read;
+};
+Result<ReadJobResult> job_result(JobManager& jobs, const std::string& tenant, const std::string& job_id);
 
 }  // namespace riccati::service

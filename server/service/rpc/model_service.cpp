@@ -132,11 +132,12 @@ grpc::Status ModelServiceImpl::CreateModel(grpc::ServerContext* context, const v
   return grpc::Status::OK;
 }
 
-// Any authenticated caller: the directory is the operator's, the caller gives
-// nothing but the call, and reloads run one at a time (an unchanged file is
-// not loaded or checked again).
+// The operator's: the directory is theirs, and a reload changes every
+// tenant's models (reloads run one at a time; an unchanged file is not
+// loaded or checked again).
 grpc::Status ModelServiceImpl::ReloadModels(grpc::ServerContext* context, const v1::ReloadModelsRequest*,
                                             v1::ReloadModelsResponse* response) {
+  if (!auth_.is_operator(*context)) return to_grpc(operator_only("ReloadModels"));
   const Result<ReloadReport> report = models_.reload();
   if (!report.is_ok()) return to_grpc(report.status());
   spdlog::info("models reloaded by tenant={}", auth_.tenant(*context));

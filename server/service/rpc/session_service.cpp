@@ -285,6 +285,19 @@ class SessionServiceImpl::StreamReactor final : public grpc::ServerBidiReactor<g
                                            "a message holds " + std::to_string(measurements.size()) +
                                                " measurements"))};
     }
+    // The answer is one message too: bounded before any of it is computed
+    // (a full covariance is nz^2 values a measurement).
+    const std::int64_t per_result = session_->result_bytes(full_covariance_);
+    if (measurements.size() * per_result > service_.limits_.max_message_bytes) {
+      const std::int64_t fits = std::max<std::int64_t>(1, service_.limits_.max_message_bytes / per_result);
+      return {false, to_grpc(limit_reached(
+                         "max_message_bytes", service_.limits_.max_message_bytes,
+                         "the answer to " + std::to_string(measurements.size()) + " measurements would take about " +
+                             std::to_string(measurements.size() * per_result) + " bytes (" +
+                             std::to_string(per_result) + " each" + (full_covariance_ ? ", with the full covariance" : "") +
+                             "): send at most " + std::to_string(fits) + " a message" +
+                             (full_covariance_ ? ", or open the stream without full_covariance" : "")))};
+    }
     int answered = 0;
     Status diverged;
     auto began = std::chrono::steady_clock::now();

@@ -76,6 +76,16 @@ Status Session::process(const v1::Measurement& m, bool full_covariance, v1::Meas
   return Status::ok();
 }
 
+std::int64_t Session::result_bytes(bool full_covariance) const {
+  std::lock_guard lock(mu_);
+  const Filter& filter = runner_.filter();
+  const auto nz = static_cast<std::int64_t>(filter.state().size());
+  const auto values = 2 * nz + 2 * static_cast<std::int64_t>(filter.predicted_output().size()) + 2 +
+                      static_cast<std::int64_t>(filter.estimated_inputs().size() + filter.equation_residuals().size()) +
+                      (full_covariance ? nz * nz + 2 : 0);
+  return 8 * values + 64;  // each value's 8 bytes, and the fields' tags and lengths
+}
+
 void Session::fill_estimate(double t, bool full_covariance, v1::Estimate* e) const {
   const Filter& filter = runner_.filter();
   const Eigen::MatrixXd& P = filter.covariance();
@@ -124,6 +134,9 @@ Status Session::retune(const v1::RetuneSessionRequest& request) {
   RICCATI_ASSIGN_OR_RETURN(const FilterSettings settings, from_proto(filter, runner_.model()));
   RICCATI_RETURN_IF_ERROR(runner_.retune(settings));
   *request_.mutable_filter() = std::move(filter);
+  // The history is the newest kRetuningsKept: it goes into every snapshot
+  // and SessionInfo, so it must not grow with a client's retunings.
+  if (retunings_.size() >= kRetuningsKept) retunings_.DeleteSubrange(0, retunings_.size() - kRetuningsKept + 1);
   v1::Retuning* retuning = retunings_.Add();
   retuning->set_t(runner_.started() ? runner_.filter().time() : 0.0);
   retuning->set_measurements(accepted_);

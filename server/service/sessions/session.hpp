@@ -37,6 +37,12 @@ class Session {
   // resumed the session: the stream must end with that status.
   Status process(const v1::Measurement& m, bool full_covariance, v1::MeasurementResult* out);
 
+  // At most the bytes of one measurement's answer (with or without the
+  // full covariance): what bounds a batch's answer before it is computed.
+  std::int64_t result_bytes(bool full_covariance) const;
+  // Retunings kept in the history (SessionInfo.retunings): the newest.
+  static constexpr int kRetuningsKept = 32;
+
   v1::SessionInfo info() const;
   // The filter's estimate now, for watchers (the web workbench's event
   // stream), and the measurements accepted so far; no estimate (false)

@@ -66,9 +66,15 @@ Status SessionManager::start() {
   if (store_ == nullptr) return Status::ok();
   // This instance's earlier run held these: nobody serves them now, so any
   // instance (this one too) may resume them at once.
-  RICCATI_ASSIGN_OR_RETURN(const int released,
-                           store_->release_sessions(options_.exclusive_store ? "" : options_.instance_id));
-  if (released > 0) spdlog::info("sessions released count={} (held by an earlier run)", released);
+  // On a full store (a full disk) the release cannot be written: riccatid
+  // starts anyway, to read and delete (their leases expire instead).
+  const Result<int> released = store_->release_sessions(options_.exclusive_store ? "" : options_.instance_id);
+  if (!released.is_ok() && released.status().code() != StatusCode::kResourceExhausted) return released.status();
+  if (!released.is_ok()) {
+    spdlog::warn("sessions of an earlier run not released error=\"{}\"", released.status().message());
+  } else if (released.value() > 0) {
+    spdlog::info("sessions released count={} (held by an earlier run)", released.value());
+  }
   spdlog::info("sessions stored instance={} lease_ms={} snapshot_ms={}", options_.instance_id,
                options_.lease.count(), options_.snapshot_interval.count());
   writer_ = std::thread([this] { writer_loop(); });
@@ -127,17 +133,46 @@ Status SessionManager::check_limits(const std::string& tenant) const {
 
 Result<std::shared_ptr<Session>> SessionManager::create(const std::string& tenant,
                                                         const v1::CreateSessionRequest& request) {
+  RICCATI_RETURN_IF_ERROR(check_client_string("request_id", request.request_id(), kMaxRequestIdBytes));
+  if (static_cast<std::int64_t>(request.ByteSizeLong()) > limits_.max_stored_request_bytes) {
+    return limit_reached("max_stored_request_bytes", limits_.max_stored_request_bytes,
+                         "the session's request is " + std::to_string(request.ByteSizeLong()) + " bytes encoded");
+  }
   std::string id = new_id("ses");
-  if (!request.request_id().empty() && store_ != nullptr) {
+  const bool idempotent = !request.request_id().empty() && store_ != nullptr;
+  std::optional<std::string> earlier;
+  if (idempotent) {
     // A retry of a request that made a session gets that session (here, or
     // resumed from its snapshot).
-    RICCATI_ASSIGN_OR_RETURN(id, store_->claim_request_id(tenant, request.request_id(), "session", id));
-    if (Result<std::shared_ptr<Session>> made = get(tenant, id);
-        made.is_ok() || made.status().code() != StatusCode::kNotFound) {
-      return made;
+    RICCATI_ASSIGN_OR_RETURN(earlier, store_->find_request_id(tenant, request.request_id(), "session"));
+    if (earlier) {
+      id = *earlier;
+      if (Result<std::shared_ptr<Session>> made = get(tenant, id);
+          made.is_ok() || made.status().code() != StatusCode::kNotFound) {
+        return made;
+      }
     }
   }
   RICCATI_ASSIGN_OR_RETURN(std::shared_ptr<Session> session, build(id, tenant, request, now_ms()));
+  if (idempotent && !earlier) {
+    // Claimed only once the session is within the limits: a refused
+    // request stores nothing.
+    {
+      std::lock_guard lock(mu_);
+      RICCATI_RETURN_IF_ERROR(check_limits(tenant));
+    }
+    RICCATI_ASSIGN_OR_RETURN(const std::string claimed,
+                             store_->claim_request_id(tenant, request.request_id(), "session", id));
+    if (claimed != id) {
+      // Another call with the same request_id claimed it first.
+      if (Result<std::shared_ptr<Session>> made = get(tenant, claimed);
+          made.is_ok() || made.status().code() != StatusCode::kNotFound) {
+        return made;
+      }
+      RICCATI_ASSIGN_OR_RETURN(session, build(claimed, tenant, request, now_ms()));
+      id = claimed;
+    }
+  }
   {
     std::lock_guard lock(mu_);
     if (auto made = sessions_.find(id); made != sessions_.end() && made->second->tenant() == tenant) {
