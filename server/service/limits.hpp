@@ -22,7 +22,7 @@ struct Limits {
   std::int64_t max_jobs = 1000;                        // queued and running jobs, all tenants
   std::int64_t max_tenant_jobs = 100;                  // queued and running jobs of one tenant
   std::int64_t max_passes = 10'000;                    // passes of one identification
-  std::int64_t max_simulation_steps = 20'000'000;      // samples x substeps of one Simulate call
+  std::int64_t max_simulation_steps = 20'000'000;      // integration steps of one Simulate call; of one sample elsewhere
   std::int64_t max_simulations = 4;                    // Simulate calls running at once, all tenants
   std::int64_t max_time_step_s = 3600;                 // a session's step between two measurements
   std::int64_t max_uploads = 16;                       // uploads in flight, all tenants
@@ -35,6 +35,7 @@ struct Limits {
   std::int64_t max_tenant_streams = 256;               // long-lived calls open, one tenant
   std::int64_t max_tenant_models = 1000;               // stored text model revisions of one tenant
   std::int64_t max_tenant_model_bytes = 64ll << 20;    // their sources, bytes
+  std::int64_t max_model_check_operations = 1'000'000'000;  // a text model's Jacobian check, estimated
 };
 
 struct LimitSpec {
@@ -55,7 +56,8 @@ inline constexpr LimitSpec kLimitSpecs[] = {
     {"max_tenant_jobs", &Limits::max_tenant_jobs, "Most queued and running jobs of one tenant"},
     {"max_passes", &Limits::max_passes, "Most passes of one identification"},
     {"max_simulation_steps", &Limits::max_simulation_steps,
-     "Most integration steps (samples x substeps) of one Simulate call"},
+     "Most integration steps (substeps, or an adaptive integrator's internal steps) of one Simulate call, and of "
+     "one sample of a session or job"},
     {"max_simulations", &Limits::max_simulations, "Most Simulate calls running at once, all tenants"},
     {"max_time_step_s", &Limits::max_time_step_s,
      "Longest step between two measurements of a session (s): a longer one is refused, the session goes on"},
@@ -80,6 +82,9 @@ inline constexpr LimitSpec kLimitSpecs[] = {
      "Most stored text model revisions of one tenant (every CreateModel is one; a deleted model's no longer count)"},
     {"max_tenant_model_bytes", &Limits::max_tenant_model_bytes,
      "All of a tenant's stored text model revisions (bytes of source; a deleted model's no longer count)"},
+    {"max_model_check_operations", &Limits::max_model_check_operations,
+     "Most operations (about nanoseconds) of a text model's Jacobian check, estimated from its size before it "
+     "runs: CreateModel refuses a model past it"},
 };
 
 // RESOURCE_EXHAUSTED: "limit <key> = <limit> reached: <what>".
