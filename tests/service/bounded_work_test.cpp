@@ -230,6 +230,51 @@ TEST_F(BoundedWork, CloseSessionEndsAMeasurementBeingIntegratedAndAnswersPromptl
   EXPECT_LT(quiet_after(), 1500ms);
 }
 
+// A sample past the per-sample bound is refused on its own, as a bad
+// measurement: the session has not diverged and takes the next one.
+TEST_F(BoundedWork, ASampleOverItsStepBudgetIsRefusedAndTheSessionGoesOn) {
+  start({"--max-simulation-steps", "100000"});
+  add_stiff_model();
+  v1::CreateSessionRequest create;
+  create.set_model("stiff");
+  *create.mutable_filter()->mutable_integrator() = explicit_adaptive();
+  create.mutable_filter()->mutable_r()->set_scalar(1e-3);
+  create.mutable_initial_state()->add_x0(0.0);
+  create.add_theta0(1e7);
+  create.mutable_p0()->mutable_diagonal()->add_values(1.0);
+  create.mutable_p0()->mutable_diagonal()->add_values(0.0);
+  v1::SessionInfo session;
+  {
+    grpc::ClientContext ctx;
+    const grpc::Status s = sessions_->CreateSession(&ctx, create, &session);
+    ASSERT_TRUE(s.ok()) << s.error_message();
+  }
+  grpc::ClientContext ctx;
+  ctx.set_deadline(std::chrono::system_clock::now() + 60s);
+  auto rw = sessions_->Stream(&ctx);
+  v1::StreamRequest open;
+  open.mutable_open()->set_session_id(session.id());
+  ASSERT_TRUE(rw->Write(open));
+  v1::StreamRequest batch;
+  testing::add_measurement(batch, 0.0, {0.0}, {0.0});
+  testing::add_measurement(batch, 1000.0, {0.0}, {0.0});  // ~1e9 steps: past 100,000
+  testing::add_measurement(batch, 1e-6, {0.0}, {0.0});    // a few steps after t = 0
+  ASSERT_TRUE(rw->Write(batch));
+  v1::StreamResponse response;
+  ASSERT_TRUE(rw->Read(&response));
+  ASSERT_EQ(response.results_size(), 3);
+  EXPECT_TRUE(response.results(0).has_estimate());
+  ASSERT_TRUE(response.results(1).has_error());
+  EXPECT_EQ(response.results(1).error().code(), static_cast<int>(grpc::StatusCode::RESOURCE_EXHAUSTED));
+  EXPECT_NE(response.results(1).error().message().find("limit max_simulation_steps = 100000 reached"),
+            std::string::npos)
+      << response.results(1).error().message();
+  EXPECT_TRUE(response.results(2).has_estimate()) << response.results(2).error().message();
+  rw->WritesDone();
+  const grpc::Status end = rw->Finish();
+  EXPECT_TRUE(end.ok()) << end.error_message();
+}
+
 TEST_F(BoundedWork, CancelJobEndsAJobWithinASampleAndSigtermExitsPromptly) {
   start(kNoStepLimit);
   add_stiff_model();
@@ -301,6 +346,32 @@ TEST_F(BoundedWork, CancelJobEndsAJobWithinASampleAndSigtermExitsPromptly) {
   simulate_ctx.TryCancel();
   const grpc::Status s = simulated.get_future().get();  // the call's callback has run before its context goes
   EXPECT_EQ(s.error_code(), grpc::StatusCode::UNAVAILABLE) << s.error_message();
+}
+
+// The checks cost nothing a cheap simulation would notice: 20,000 samples
+// of the two-tank plugin, one RK4 step each (IsCancelled() waits on gRPC's
+// completion queue, up to 1.5 ms a call: asked every sample or every 16
+// evaluations, it would take most of the time).
+TEST_F(BoundedWork, ACheapLongSimulationIsNotSlowedByItsChecks) {
+  start({});
+  v1::SimulateRequest r;
+  r.set_model("two_tank");
+  constexpr int kSamples = 20000;
+  for (double x : {0.4, 0.15}) r.add_x0(x);
+  for (int k = 0; k < kSamples; ++k) r.add_t(0.1 * k);
+  r.mutable_u()->set_rows(2);
+  r.mutable_u()->set_cols(kSamples);
+  for (int k = 0; k < 2 * kSamples; ++k) r.mutable_u()->add_values(0.01);
+  r.mutable_integrator()->set_substeps(1);
+  grpc::ClientContext ctx;
+  ctx.set_deadline(std::chrono::system_clock::now() + 60s);
+  v1::SimulateResponse response;
+  const auto t0 = Clock::now();
+  const grpc::Status s = models_->Simulate(&ctx, r, &response);
+  const auto took = Clock::now() - t0;
+  ASSERT_TRUE(s.ok()) << s.error_message();
+  EXPECT_LT(took, testing::kSanitized ? 60s : 2s);
+  RecordProperty("ms", std::to_string(std::chrono::duration_cast<std::chrono::milliseconds>(took).count()));
 }
 
 // A mechanical model whose n x n mass matrix is dense: M = I + s s'
