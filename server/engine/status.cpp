@@ -15,6 +15,7 @@ const char* status_code_name(StatusCode code) {
     case StatusCode::kOk: return "OK";
     case StatusCode::kCancelled: return "CANCELLED";
     case StatusCode::kInvalidArgument: return "INVALID_ARGUMENT";
+    case StatusCode::kDeadlineExceeded: return "DEADLINE_EXCEEDED";
     case StatusCode::kNotFound: return "NOT_FOUND";
     case StatusCode::kAlreadyExists: return "ALREADY_EXISTS";
     case StatusCode::kResourceExhausted: return "RESOURCE_EXHAUSTED";

@@ -16,6 +16,7 @@ enum class StatusCode {
   kOk = 0,
   kCancelled = 1,
   kInvalidArgument = 3,
+  kDeadlineExceeded = 4,
   kNotFound = 5,
   kAlreadyExists = 6,
   kPermissionDenied = 7,    // e.g. an operator's call by a tenant
@@ -57,6 +58,7 @@ inline Status not_found(std::string m) { return {StatusCode::kNotFound, std::mov
 inline Status failed_precondition(std::string m) { return {StatusCode::kFailedPrecondition, std::move(m)}; }
 inline Status internal_error(std::string m) { return {StatusCode::kInternal, std::move(m)}; }
 inline Status cancelled(std::string m) { return {StatusCode::kCancelled, std::move(m)}; }
+inline Status deadline_exceeded(std::string m) { return {StatusCode::kDeadlineExceeded, std::move(m)}; }
 
 // A number as messages show it: %g with `significant` digits.
 std::string message_number(double v, int significant = 6);

@@ -95,8 +95,10 @@ v1::Matrix to_matrix(const Eigen::MatrixXd& m) {
 }
 
 Result<Eigen::MatrixXd> from_matrix(const v1::Matrix& m, const std::string& field) {
-  const std::int64_t expected = static_cast<std::int64_t>(m.rows()) * m.cols();
-  if (expected != m.values_size()) {
+  // Two 32-bit counts: their product fits 64 unsigned bits (it need not fit
+  // 63: a 4e9 x 4e9 matrix needs 1.6e19 values).
+  const std::uint64_t expected = static_cast<std::uint64_t>(m.rows()) * static_cast<std::uint64_t>(m.cols());
+  if (expected != static_cast<std::uint64_t>(m.values_size())) {
     return invalid_argument(field + ": a " + std::to_string(m.rows()) + " x " + std::to_string(m.cols()) +
                             " matrix needs " + std::to_string(expected) + " values, got " +
                             std::to_string(m.values_size()));

@@ -233,6 +233,7 @@ void Daemon::shutdown(std::chrono::milliseconds grace) {
     // samples; a running job keeps its per-pass checkpoint and resumes at
     // the next start.
     if (http_ != nullptr) http_->stop();  // its event streams end at once
+    model_service_->drain();  // simulations stop within a sample
     session_service_->drain(deadline);
     job_service_->drain(deadline);
     sessions_->shutdown();

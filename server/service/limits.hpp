@@ -22,7 +22,7 @@ struct Limits {
   std::int64_t max_jobs = 1000;                        // queued and running jobs, all tenants
   std::int64_t max_tenant_jobs = 100;                  // queued and running jobs of one tenant
   std::int64_t max_passes = 10'000;                    // passes of one identification
-  std::int64_t max_simulation_steps = 20'000'000;      // samples x substeps of one Simulate call
+  std::int64_t max_simulation_steps = 20'000'000;      // integration steps of one Simulate call; of one sample elsewhere
   std::int64_t max_simulations = 4;                    // Simulate calls running at once, all tenants
   std::int64_t max_time_step_s = 3600;                 // a session's step between two measurements
   std::int64_t max_uploads = 16;                       // uploads in flight, all tenants
@@ -39,6 +39,7 @@ struct Limits {
   std::int64_t max_tenant_uploads = 4;                 // uploads in flight, one tenant
   std::int64_t upload_idle_seconds = 60;               // an upload that sends nothing for this long is ended
   std::int64_t max_result_read_bytes = 512ll << 20;    // stored results being read at once, all tenants
+  std::int64_t max_model_check_operations = 1'000'000'000;  // a text model's Jacobian check, estimated
 };
 
 struct LimitSpec {
@@ -59,7 +60,8 @@ inline constexpr LimitSpec kLimitSpecs[] = {
     {"max_tenant_jobs", &Limits::max_tenant_jobs, "Most queued and running jobs of one tenant"},
     {"max_passes", &Limits::max_passes, "Most passes of one identification"},
     {"max_simulation_steps", &Limits::max_simulation_steps,
-     "Most integration steps (samples x substeps) of one Simulate call"},
+     "Most integration steps (substeps, or an adaptive integrator's internal steps) of one Simulate call, and of "
+     "one sample of a session or job"},
     {"max_simulations", &Limits::max_simulations, "Most Simulate calls running at once, all tenants"},
     {"max_time_step_s", &Limits::max_time_step_s,
      "Longest step between two measurements of a session (s): a longer one is refused, the session goes on"},
@@ -93,6 +95,9 @@ inline constexpr LimitSpec kLimitSpecs[] = {
     {"max_result_read_bytes", &Limits::max_result_read_bytes,
      "Stored results being read at once (GetResult, gRPC and HTTP), all tenants (bytes as stored; each takes 3 to 5 "
      "times that while converted): a read waits for room, then is refused"},
+    {"max_model_check_operations", &Limits::max_model_check_operations,
+     "Most operations (about nanoseconds) of a text model's Jacobian check, estimated from its size before it "
+     "runs: CreateModel refuses a model past it"},
 };
 
 // RESOURCE_EXHAUSTED: "limit <key> = <limit> reached: <what>".

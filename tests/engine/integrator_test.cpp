@@ -5,6 +5,9 @@
 #include <gtest/gtest.h>
 
 #include <algorithm>
+#include <atomic>
+#include <chrono>
+#include <thread>
 #include <cmath>
 #include <limits>
 #include <numbers>
@@ -413,6 +416,137 @@ TEST(StiffIntegrationTest, CvodeBdfSolvesStiffRelaxationAccuratelyAndCheaply) {
   }
   EXPECT_LT(rhs.evaluations() * 10, explicit_rhs.evaluations())
       << "BDF: " << rhs.evaluations() << " evaluations, ERK: " << explicit_rhs.evaluations();
+}
+
+// The Interrupt a caller installs (InterruptScope): a budget of steps and a
+// cancellation polled within an interval, for every kind.
+
+// x'' = -omega^2 x whose every evaluation also spins a while (about a
+// microsecond): an interval of many steps takes seconds, as a stiff text
+// model's sample did.
+class BusyOscillator final : public OdeRhs {
+ public:
+  Status eval(double /*t*/, const double* y, double* ydot) override {
+    volatile double sink = 0.0;
+    for (int i = 0; i < 300; ++i) sink = sink + 1e-9 * i;
+    ydot[0] = y[1];
+    ydot[1] = -39.47841760435743 * y[0];  // (2 pi)^2
+    evaluations.fetch_add(1, std::memory_order_relaxed);
+    return Status::ok();
+  }
+  std::atomic<long> evaluations{0};
+};
+
+TEST_P(IntegratorTest, AStepBudgetStopsEveryKindWithinIt) {
+  auto integrator = make();
+  Oscillator rhs(2.0 * std::numbers::pi);
+  Interrupt interrupt;
+  interrupt.max_steps_total = 1000;
+  std::int64_t reported = -1;
+  interrupt.exhausted = [&](std::int64_t steps) {
+    reported = steps;
+    return Status(StatusCode::kResourceExhausted, "budget of 1000 steps: " + std::to_string(steps));
+  };
+  InterruptScope under(interrupt);
+  std::vector<double> y = {1.0, 0.0};
+  Status status;
+  int intervals = 0;
+  // An oscillation an interval: every kind needs far more than 1000 steps
+  // for 1000 intervals (the fixed ones 10 an interval).
+  for (; intervals < 1000 && status.is_ok(); ++intervals) {
+    status = integrator->integrate(rhs, intervals, intervals + 1.0, y);
+  }
+  ASSERT_EQ(status.code(), StatusCode::kResourceExhausted) << status.to_string();
+  EXPECT_LE(interrupt.steps, 1000);
+  EXPECT_GT(interrupt.steps, 900) << "stopped near the budget, not long before it";
+  EXPECT_GE(reported, interrupt.steps);
+  EXPECT_NE(status.message().find("budget of 1000 steps"), std::string::npos) << status.message();
+}
+
+TEST_P(IntegratorTest, APerIntervalBudgetBoundsOneInterval) {
+  IntegratorSettings settings = settings_for(GetParam());
+  settings.substeps = 1000;
+  auto integrator = make_integrator(settings);
+  ASSERT_TRUE(integrator.is_ok());
+  Oscillator rhs(2.0 * std::numbers::pi);
+  Interrupt interrupt;
+  interrupt.max_steps_per_interval = 100;
+  InterruptScope under(interrupt);
+  std::vector<double> y = {1.0, 0.0};
+  const Status status = (*integrator)->integrate(rhs, 0.0, 1000.0, y);
+  ASSERT_EQ(status.code(), StatusCode::kResourceExhausted) << status.to_string();
+  EXPECT_LE(interrupt.steps, 100);
+  // The next interval is bounded on its own, not by what the first took.
+  std::vector<double> y2 = {1.0, 0.0};
+  settings.substeps = 10;
+  auto small = make_integrator(settings);
+  ASSERT_TRUE(small.is_ok());
+  EXPECT_TRUE((*small)->integrate(rhs, 0.0, 0.01, y2).is_ok());
+}
+
+TEST_P(IntegratorTest, ACancelFromAnotherThreadStopsItWithinAnInterval) {
+  IntegratorSettings settings = settings_for(GetParam());
+  settings.substeps = 1000000;   // fixed kinds: 4e6 to 1.2e7 evaluations, seconds
+  settings.max_steps = 1000000000;  // adaptive kinds: 1e6 oscillations need ~1e7 steps
+  auto integrator = make_integrator(settings);
+  ASSERT_TRUE(integrator.is_ok());
+  BusyOscillator rhs;
+  std::atomic<bool> cancel{false};
+  Interrupt interrupt;
+  interrupt.poll = [&]() -> Status {
+    return cancel.load() ? cancelled("cancelled by the test") : Status::ok();
+  };
+  using Clock = std::chrono::steady_clock;
+  std::atomic<Clock::rep> cancelled_at{0};
+  std::thread canceller([&] {
+    // Once the integration is well under way (no sleep as synchronisation).
+    const auto give_up = Clock::now() + std::chrono::seconds(20);
+    while (rhs.evaluations.load() < 20000 && Clock::now() < give_up) std::this_thread::yield();
+    cancelled_at = Clock::now().time_since_epoch().count();
+    cancel = true;
+  });
+  Status status;
+  {
+    InterruptScope under(interrupt);
+    std::vector<double> y = {1.0, 0.0};
+    status = (*integrator)->integrate(rhs, 0.0, 1.0e6, y);
+  }
+  const auto returned = Clock::now();
+  canceller.join();
+  ASSERT_EQ(status.code(), StatusCode::kCancelled) << status.to_string();
+  EXPECT_NE(status.message().find("cancelled by the test"), std::string::npos) << status.message();
+  const auto late = returned - Clock::time_point(Clock::duration(cancelled_at.load()));
+  EXPECT_LT(late, std::chrono::seconds(1)) << "returned "
+                                            << std::chrono::duration_cast<std::chrono::milliseconds>(late).count()
+                                            << " ms after the cancel";
+}
+
+TEST_P(IntegratorTest, ADeadlineFromThePollIsReportedAsSuch) {
+  auto integrator = make();
+  Oscillator rhs(2.0 * std::numbers::pi);
+  Interrupt interrupt;
+  interrupt.poll = [] { return deadline_exceeded("past the deadline"); };
+  InterruptScope under(interrupt);
+  std::vector<double> y = {1.0, 0.0};
+  const Status status = integrator->integrate(rhs, 0.0, 1.0, y);
+  EXPECT_EQ(status.code(), StatusCode::kDeadlineExceeded) << status.to_string();
+  EXPECT_TRUE(is_interruption(status));
+}
+
+TEST(InterruptScopeTest, ScopesNestAndEndWithTheirBlock) {
+  EXPECT_EQ(current_interrupt(), nullptr);
+  Interrupt outer, inner;
+  {
+    InterruptScope a(outer);
+    EXPECT_EQ(current_interrupt(), &outer);
+    {
+      InterruptScope b(inner);
+      EXPECT_EQ(current_interrupt(), &inner);
+    }
+    EXPECT_EQ(current_interrupt(), &outer);
+    std::thread([] { EXPECT_EQ(current_interrupt(), nullptr) << "per thread"; }).join();
+  }
+  EXPECT_EQ(current_interrupt(), nullptr);
 }
 
 }  // namespace

@@ -327,5 +327,24 @@ TEST(OutputError, BoundsFixedParametersAndSeveralExperiments) {
   EXPECT_GT(r->experiments[1].x0_std[0], 0.0);
 }
 
+// Every parameter fixed and no initial state to estimate: nothing to
+// iterate on. Ceres runs no iteration and lists none, which was reported as
+// 0 - 1 (4294967295 once unsigned in the API).
+TEST(OutputError, EveryParameterFixedReportsZeroIterations) {
+  const ModelPtr model = registry().get("two_tank").value();
+  const Experiment e = two_tank_experiment(*model);
+  OutputErrorSettings s;
+  s.parameters = default_parameters(*model, model->theta_default());
+  s.parameters.fixed.assign(static_cast<std::size_t>(model->ntheta()), true);
+  const auto r = output_error(model, {e}, s);
+  if (!r.is_ok()) {
+    // Refusing a problem with no unknowns would do as well; a result must say 0.
+    EXPECT_EQ(r.status().code(), StatusCode::kInvalidArgument) << r.status().to_string();
+    return;
+  }
+  EXPECT_EQ(r->iterations, 0);
+  EXPECT_EQ(r->theta, model->theta_default());
+}
+
 }  // namespace
 }  // namespace riccati

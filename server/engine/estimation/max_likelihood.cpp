@@ -4,6 +4,7 @@
 #include <ceres/dynamic_numeric_diff_cost_function.h>
 
 #include <Eigen/Cholesky>
+#include <algorithm>
 #include <cmath>
 #include <limits>
 #include <optional>
@@ -481,7 +482,9 @@ Result<MaxLikelihoodResult> max_likelihood(ModelPtr model, const std::vector<Exp
     }
     return failed_precondition("maximum likelihood found no step it could take: " + why);
   }
-  result.iterations = static_cast<int>(summary.iterations.size()) - 1;
+  // Ceres lists the start as iteration 0; with every unknown held it runs
+  // none and lists nothing (not -1: unsigned in the API, 4294967295).
+  result.iterations = std::max(0, static_cast<int>(summary.iterations.size()) - 1);
   result.jacobian_evaluations = summary.num_jacobian_evaluations;
   result.converged = summary.termination_type == ceres::CONVERGENCE;
   result.termination = summary.message;

@@ -158,6 +158,9 @@ Status OnlineRunner::advance(double t, std::span<const double> u, std::span<cons
   // failed), and its estimate can no longer be trusted.
   const Status stepped = started_ ? filter_->step(t, u_last_.data(), u.data(), y.data()) : start(t, u.data(), y.data());
   if (!stepped.is_ok()) {
+    // An interrupted prediction (cancelled, a deadline, a step budget) left
+    // the filter where it was: the measurement is not taken, nothing diverged.
+    if (started_ && is_interruption(stepped)) return stepped;
     divergence_ = stepped;
     return divergence_;
   }
@@ -179,6 +182,7 @@ Status OnlineRunner::advance_without_measurement(double t, std::span<const doubl
   Status stepped;
   if (started_) {
     stepped = filter_->predict(t, u_last_.data(), u.data());
+    if (!stepped.is_ok() && is_interruption(stepped)) return stepped;  // as in advance()
   } else {
     if (initial_.mode != InitialState::kGiven) {
       return invalid_argument("a run that starts without a measurement needs x0 given");

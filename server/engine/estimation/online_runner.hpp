@@ -12,6 +12,8 @@
 //
 // A measurement that cannot be used (sizes, a value not finite, a time not
 // after the last one) is refused with kInvalidArgument and changes nothing.
+// An interruption of the prediction (integrators.hpp's Interrupt: cancelled,
+// a deadline, a step budget spent) is returned and changes nothing either.
 // Any other failure is the filter's (or the model's): the run has diverged,
 // its estimate can no longer be trusted, and every later measurement gets
 // that same error. The filter is created once and steps without allocating.

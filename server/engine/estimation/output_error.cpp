@@ -2,6 +2,7 @@
 
 #include <ceres/ceres.h>
 
+#include <algorithm>
 #include <array>
 #include <cmath>
 #include <limits>
@@ -193,7 +194,9 @@ Result<EstimationResult> output_error(ModelPtr model, const std::vector<Experime
     return failed_precondition("output error found no step it could take from theta = [" + join(p.theta0) +
                                "]: " + why);
   }
-  result.iterations = static_cast<int>(summary.iterations.size()) - 1;
+  // Ceres lists the start as iteration 0; with every unknown held it runs
+  // none and lists nothing (not -1: unsigned in the API, 4294967295).
+  result.iterations = std::max(0, static_cast<int>(summary.iterations.size()) - 1);
   result.evaluations = counters.evaluations;
   result.jacobian_evaluations = counters.jacobian_evaluations;
   result.converged = summary.termination_type == ceres::CONVERGENCE;

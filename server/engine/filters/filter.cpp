@@ -40,6 +40,19 @@ Status check_covariance(const Eigen::MatrixXd& M, Eigen::Index n, const std::str
                             std::to_string(M.rows()) + " x " + std::to_string(M.cols()));
   }
   if (!M.allFinite()) return invalid_argument(what + " has a NaN or infinite entry");
+  // A filter multiplies these by one another (P Phi', C S^-1 C', Q dt
+  // summed): an entry whose square overflows gives infinities, or estimates
+  // with standard deviations of 1e134 that report no divergence.
+  for (Eigen::Index j = 0; j < n; ++j) {
+    for (Eigen::Index i = 0; i < n; ++i) {
+      if (std::abs(M(i, j)) > kMaxCovarianceEntry) {
+        return invalid_argument(what + "[" + std::to_string(i) + ", " + std::to_string(j) + "] = " +
+                                message_number(M(i, j)) + " is too large: entries of a covariance or weight are at "
+                                "most " + message_number(kMaxCovarianceEntry) +
+                                " in magnitude (so that their products stay finite); rescale the model's units");
+      }
+    }
+  }
   const double scale = std::max(1.0, M.cwiseAbs().maxCoeff());
   if ((M - M.transpose()).cwiseAbs().maxCoeff() > 1e-12 * scale) {
     return invalid_argument(what + " is not symmetric");

@@ -113,8 +113,14 @@ Status validate(const FilterSettings& settings, const Model& model);
 // The EKF's and UKF's noise: Q (nz x nz) and R (ny x ny) covariances.
 Status validate_noise_covariances(const FilterSettings& settings, const Model& model);
 
-// A covariance-like matrix: n x n, finite, symmetric, no negative eigenvalue
-// beyond rounding. `what` names it in messages.
+// The largest magnitude of an entry of Q, R, P0, V or W: its square, and the
+// products a filter forms of such entries, stay finite (1e300 would not).
+inline constexpr double kMaxCovarianceEntry = 1e150;
+
+// A covariance-like matrix: n x n, finite, entries within
+// kMaxCovarianceEntry, symmetric, no negative eigenvalue beyond rounding.
+// `what` names it in messages. The one check of Q, R, P0 (each filter kind's
+// validation and the initial estimate's) and of the optimal filter's V and W.
 Status check_covariance(const Eigen::MatrixXd& M, Eigen::Index n, const std::string& what);
 
 class Filter {

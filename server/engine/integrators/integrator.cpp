@@ -1,5 +1,6 @@
 #include "engine/integrators/integrator.hpp"
 
+#include <algorithm>
 #include <cmath>
 #include <cstdio>
 #include <string>
@@ -47,6 +48,38 @@ Status validate(const IntegratorSettings& s) {
 
 namespace {
 
+thread_local Interrupt* current = nullptr;
+
+}  // namespace
+
+std::int64_t Interrupt::steps_allowed(std::int64_t own) const {
+  std::int64_t allowed = own;
+  if (max_steps_per_interval > 0) allowed = std::min(allowed, max_steps_per_interval);
+  if (max_steps_total > 0) allowed = std::min(allowed, std::max<std::int64_t>(0, max_steps_total - steps));
+  return allowed;
+}
+
+bool Interrupt::interval_bound_binds() const {
+  return max_steps_per_interval > 0 && (max_steps_total <= 0 || max_steps_total - steps >= max_steps_per_interval);
+}
+
+Status Interrupt::exhausted_status(std::int64_t counted) const {
+  if (exhausted) return exhausted(counted);
+  return {StatusCode::kResourceExhausted, "integration stopped after " + std::to_string(counted) + " steps, its budget"};
+}
+
+InterruptScope::InterruptScope(Interrupt& interrupt) : previous_(current) { current = &interrupt; }
+InterruptScope::~InterruptScope() { current = previous_; }
+
+Interrupt* current_interrupt() { return current; }
+
+bool is_interruption(const Status& status) {
+  return status.code() == StatusCode::kCancelled || status.code() == StatusCode::kDeadlineExceeded ||
+         status.code() == StatusCode::kResourceExhausted;
+}
+
+namespace {
+
 std::string format_number(double value) {
   char buffer[32];
   std::snprintf(buffer, sizeof buffer, "%.9g", value);
@@ -82,6 +115,17 @@ Status check_integration_result(const char* integrator_name, double t1, std::spa
 
 namespace {
 
+// A fixed-step integration's substeps counted against an interrupt's budget
+// before any is taken: they are known in advance.
+Status charge_substeps(Interrupt* interrupt, int substeps) {
+  if (interrupt == nullptr) return Status::ok();
+  if (interrupt->steps_allowed(substeps) < substeps) {
+    return interrupt->exhausted_status(interrupt->interval_bound_binds() ? substeps : interrupt->steps + substeps);
+  }
+  interrupt->steps += substeps;
+  return Status::ok();
+}
+
 // Explicit Runge-Kutta with a fixed number of equal substeps per interval.
 // Work vectors are allocated for a system size once and reused.
 class FixedStepRungeKutta final : public Integrator {
@@ -94,9 +138,12 @@ class FixedStepRungeKutta final : public Integrator {
     if (k1_.size() != n) {
       for (auto* v : {&k1_, &k2_, &k3_, &k4_, &tmp_}) v->assign(n, 0.0);
     }
+    Interrupt* interrupt = current_interrupt();
+    RICCATI_RETURN_IF_ERROR(charge_substeps(interrupt, substeps_));
     const double h = (t1 - t0) / substeps_;
     double* yv = y.data();
     for (int s = 0; s < substeps_; ++s) {
+      if (interrupt != nullptr) RICCATI_RETURN_IF_ERROR(interrupt->evaluated(order_));
       const double t = t0 + s * h;
       if (order_ == 4) {
         RICCATI_RETURN_IF_ERROR(rk4_step(rhs, t, h, yv, n));
@@ -190,8 +237,13 @@ class FixedStepDop853 final : public Integrator {
       k_.assign(kDop853Stages * n, 0.0);
       tmp_.assign(n, 0.0);
     }
+    Interrupt* interrupt = current_interrupt();
+    RICCATI_RETURN_IF_ERROR(charge_substeps(interrupt, substeps_));
     const double h = (t1 - t0) / substeps_;
-    for (int s = 0; s < substeps_; ++s) RICCATI_RETURN_IF_ERROR(step(rhs, t0 + s * h, h, y.data(), n));
+    for (int s = 0; s < substeps_; ++s) {
+      if (interrupt != nullptr) RICCATI_RETURN_IF_ERROR(interrupt->evaluated(kDop853Stages));
+      RICCATI_RETURN_IF_ERROR(step(rhs, t0 + s * h, h, y.data(), n));
+    }
     return check_integration_result("dop853", t1, y);
   }
 

@@ -71,12 +71,14 @@ std::string format_number(double value) {
 // is reported in the model's own words rather than as a bare solver flag.
 struct CallbackState {
   OdeRhs* rhs = nullptr;
+  Interrupt* interrupt = nullptr;  // the caller's, polled before each evaluation (or none)
   Status rhs_failure;          // last non-ok Status returned by rhs
   bool rhs_aborted = false;    // rhs failed unrecoverably in this call
   std::string solver_message;  // last error message SUNDIALS reported
 
-  void begin(OdeRhs& model_rhs) {
+  void begin(OdeRhs& model_rhs, Interrupt* caller_interrupt) {
     rhs = &model_rhs;
+    interrupt = caller_interrupt;
     rhs_failure = Status::ok();
     rhs_aborted = false;
     solver_message.clear();
@@ -94,7 +96,9 @@ int rhs_trampoline(sunrealtype t, N_Vector y, N_Vector ydot, void* user_data) {
   if (state.rhs_aborted) return -1;
   Status status;
   try {
-    status = state.rhs->eval(t, N_VGetArrayPointer(y), N_VGetArrayPointer(ydot));
+    // A cancellation (or deadline) is unrecoverable: the solver stops at once.
+    if (state.interrupt != nullptr) status = state.interrupt->evaluated();
+    if (status.is_ok()) status = state.rhs->eval(t, N_VGetArrayPointer(y), N_VGetArrayPointer(ydot));
   } catch (...) {
     // An exception must not unwind through SUNDIALS' C frames.
     status = internal_error("right-hand side threw an exception at t = " + format_number(t));
@@ -132,11 +136,39 @@ class SundialsIntegrator : public Integrator {
   Status integrate(OdeRhs& rhs, double t0, double t1, std::span<double> y) final {
     RICCATI_RETURN_IF_ERROR(settings_status_);
     RICCATI_RETURN_IF_ERROR(check_integration_arguments(t0, t1, y));
-    callbacks_.begin(rhs);
+    // The caller's budget bounds this call's internal steps (CVODE's and
+    // ARKODE's mxstep counts the steps of one call to reach tout).
+    Interrupt* interrupt = current_interrupt();
+    long max_steps = settings_.max_steps;
+    bool budget_binds = false, interval_binds = false;
+    if (interrupt != nullptr) {
+      const std::int64_t allowed = interrupt->steps_allowed(max_steps);
+      interval_binds = interrupt->interval_bound_binds();
+      if (allowed < 1) return interrupt->exhausted_status(interval_binds ? 0 : interrupt->steps);
+      if (allowed < max_steps) {
+        max_steps = static_cast<long>(allowed);
+        budget_binds = true;
+      }
+    }
+    callbacks_.begin(rhs, interrupt);
     RICCATI_RETURN_IF_ERROR(prepare(t0, y));
+    if (max_steps != max_steps_set_) {
+      RICCATI_RETURN_IF_ERROR(check_setup(set_max_steps(max_steps), "setting the most steps"));
+      max_steps_set_ = max_steps;
+    }
 
     double t_reached = t0;
+    const long before = interrupt != nullptr ? steps_taken() : 0;  // 0 after a re-initialisation, but not relied on
     const int flag = advance(t1, y_.get(), &t_reached);
+    if (interrupt != nullptr) {
+      const long taken = steps_taken() - before;
+      interrupt->steps += taken;
+      // Too much work (CV_TOO_MUCH_WORK, ARK_TOO_MUCH_WORK: -1) when the budget
+      // set the bound is the budget's to report.
+      if (flag == -1 && budget_binds && callbacks_.rhs_failure.is_ok()) {
+        return interrupt->exhausted_status(interval_binds ? taken : interrupt->steps);
+      }
+    }
     if (flag < 0) return solve_failure(flag, t_reached);
 
     const double* result = N_VGetArrayPointer(y_.get());
@@ -156,6 +188,9 @@ class SundialsIntegrator : public Integrator {
   virtual int reinitialize(double t0, N_Vector y) = 0;
   // Integrates to exactly t1 (a stop time, no overshoot); returns a SUNDIALS flag.
   virtual int advance(double t1, N_Vector y, double* t_reached) = 0;
+  // The most internal steps of one advance(); the internal steps since the last (re-)initialisation.
+  virtual int set_max_steps(long max_steps) = 0;
+  virtual long steps_taken() = 0;
 
   CallbackState& callbacks() { return callbacks_; }
   const IntegratorSettings& settings() const { return settings_; }
@@ -192,6 +227,7 @@ class SundialsIntegrator : public Integrator {
     std::copy(y.begin(), y.end(), N_VGetArrayPointer(y_.get()));
 
     if (solver_ready_) return check_setup(reinitialize(t0, y_.get()), "re-initialisation");
+    max_steps_set_ = settings_.max_steps;  // what create_solver sets
     Status built = create_solver(context_.get(), y_.get(), t0);
     if (!built.is_ok()) {
       destroy_solver();  // a half-built solver is never reused
@@ -221,6 +257,7 @@ class SundialsIntegrator : public Integrator {
   VectorPtr y_;
   sunindextype size_ = 0;
   bool solver_ready_ = false;
+  long max_steps_set_ = 0;  // the solver's bound on steps per advance() now
   CallbackState callbacks_;
 };
 
@@ -281,6 +318,12 @@ class CvodeIntegrator final : public SundialsIntegrator {
     return CVode(memory_.get(), t1, y, t_reached, CV_NORMAL);
   }
 
+  int set_max_steps(long max_steps) override { return CVodeSetMaxNumSteps(memory_.get(), max_steps); }
+  long steps_taken() override {
+    long steps = 0;
+    return CVodeGetNumSteps(memory_.get(), &steps) == CV_SUCCESS ? steps : 0;
+  }
+
   bool uses_adams_;
   // In dependency order: memory_ refers to the others, so it is destroyed first.
   MatrixPtr jacobian_;
@@ -316,6 +359,12 @@ class ErkStepIntegrator final : public SundialsIntegrator {
     const int flag = ERKStepSetStopTime(memory_.get(), t1);
     if (flag < 0) return flag;
     return ERKStepEvolve(memory_.get(), t1, y, t_reached, ARK_NORMAL);
+  }
+
+  int set_max_steps(long max_steps) override { return ERKStepSetMaxNumSteps(memory_.get(), max_steps); }
+  long steps_taken() override {
+    long steps = 0;
+    return ERKStepGetNumSteps(memory_.get(), &steps) == ARK_SUCCESS ? steps : 0;
   }
 
   ErkStepMemoryPtr memory_;

@@ -48,6 +48,7 @@ int http_status(StatusCode code) {
     case StatusCode::kCancelled: return 409;
     case StatusCode::kResourceExhausted: return 429;
     case StatusCode::kUnavailable: return 503;
+    case StatusCode::kDeadlineExceeded: return 504;
     case StatusCode::kInternal: return 500;
   }
   return 500;

@@ -711,6 +711,21 @@ Result<std::string> JobManager::execute(const JobRecord& job, std::stop_token st
     });
     if (pass_done && changed) renew(*changed);
   };
+  // Within a sample too: the integrator polls the job's stop (CancelJob,
+  // shutdown) and bounds a sample's steps, where the engine's own checks
+  // come between samples and iterations.
+  Interrupt interrupt;
+  interrupt.poll = [&stop]() -> Status {
+    return stop.stop_requested() ? cancelled("the job was stopped during a sample") : Status::ok();
+  };
+  interrupt.max_steps_per_interval = limits_.max_simulation_steps;
+  interrupt.exhausted = [this](std::int64_t taken) {
+    return limit_reached("max_simulation_steps", limits_.max_simulation_steps,
+                         "the step between two samples took " + std::to_string(taken) +
+                             " integration steps (an adaptive integrator's internal steps count each); loosen the "
+                             "tolerances, or raise --max-simulation-steps");
+  };
+  InterruptScope under(interrupt);
   Result<std::string> outcome = execute_job(job, run);
   if (held_back) update(job.id, [&](JobRecord& r) { apply(*held_back, r); });
   return outcome;

@@ -138,19 +138,38 @@ Result<ReloadReport> ModelCatalog::reload() {
   return report;
 }
 
-Result<std::shared_ptr<const ModelCatalog::Compiled>> ModelCatalog::compiled(const ModelRecord& record) const {
+Status ModelCatalog::check_cost(const std::string& name, const TextModelSummary& summary) const {
+  if (summary.check_operations <= static_cast<double>(limits_.max_model_check_operations)) return Status::ok();
+  return limit_reached("max_model_check_operations", limits_.max_model_check_operations,
+                       "checking the Jacobians of model \"" + name + "\" would take about " +
+                           message_number(summary.check_operations, 2) +
+                           " operations (fourth-order differences of every derivative at 3 points, from its tapes' "
+                           "sizes); make the model smaller (a dense mass matrix costs about n^5), or raise "
+                           "--max-model-check-operations");
+}
+
+Result<std::shared_ptr<const ModelCatalog::Compiled>> ModelCatalog::compiled(const ModelRecord& record,
+                                                                             const JacobianCheck* checked) const {
   const auto key = std::make_tuple(record.tenant, record.name, record.revision);
   {
     std::lock_guard lock(mu_);
     if (const auto it = cache_.find(key); it != cache_.end()) return it->second;
   }
+  // Compiled and checked outside the lock: another tenant's models are not held up.
   RICCATI_ASSIGN_OR_RETURN(TextModel text,
                            compile_text_model(record.source, record.name + "@" + std::to_string(record.revision)));
   auto c = std::make_shared<Compiled>();
   c->model = std::move(text.model);
   c->summary = std::move(text.summary);
-  Result<JacobianCheck> check = check_jacobians(*c->model, generic_points(*c->model));
-  if (check.is_ok()) c->jacobian_check = std::move(check).value();
+  if (checked != nullptr) {
+    c->jacobian_check = *checked;
+  } else if (const Status affordable = check_cost(record.name, c->summary); !affordable.is_ok()) {
+    // Stored under a higher limit: it stays usable, unchecked.
+    c->jacobian_check.detail = "not checked: " + affordable.message();
+  } else {
+    Result<JacobianCheck> check = check_jacobians(*c->model, generic_points(*c->model));
+    if (check.is_ok()) c->jacobian_check = std::move(check).value();
+  }
   std::lock_guard lock(mu_);
   // Bounded: a tenant's many uploads must not hold riccatid's memory. When
   // full, the cache starts again (a job running a model holds its own).
@@ -262,40 +281,43 @@ Result<CatalogEntry> ModelCatalog::create(const std::string& tenant, const std::
                                                   "\" is built into this riccatid (a model of its models directory): "
                                                   "give the text model another name");
   }
+  // Refused before the check when it would cost too much (the workbench
+  // sends validate_only after every key), and checked here, outside every lock.
+  RICCATI_RETURN_IF_ERROR(check_cost(name, text.summary));
+  auto checked = std::make_shared<Compiled>();
+  checked->model = std::move(text.model);
+  checked->summary = std::move(text.summary);
+  Result<JacobianCheck> check = check_jacobians(*checked->model, generic_points(*checked->model));
+  if (check.is_ok()) checked->jacobian_check = std::move(check).value();
   if (validate_only) {
-    auto c = std::make_shared<Compiled>();
-    c->model = std::move(text.model);
-    c->summary = std::move(text.summary);
-    Result<JacobianCheck> check = check_jacobians(*c->model, generic_points(*c->model));
-    if (check.is_ok()) c->jacobian_check = std::move(check).value();
     ModelRecord unstored;
     unstored.name = name;
     unstored.source = source;
     unstored.sha256 = sha256_hex(source);
-    return entry_of(unstored, c);
+    return entry_of(unstored, checked);
   }
-  std::lock_guard lock(create_mu_);
-  // The same source as the name's newest revision is that revision: a
-  // CreateModel retried (after a lost answer, or riccatid's restart) stores
-  // nothing and counts once.
-  const std::string digest = sha256_hex(source);
-  if (Result<ModelRecord> newest = store_.get_model(tenant, name, 0);
-      newest.is_ok() && !newest->deleted && newest->sha256 == digest) {
-    RICCATI_ASSIGN_OR_RETURN(const auto c, compiled(newest.value()));
-    CatalogEntry e = entry_of(newest.value(), c);
-    RICCATI_ASSIGN_OR_RETURN(const std::vector<ModelRevision> revisions, store_.list_model_revisions(tenant));
-    e.revisions = revisions_of(revisions, name);
-    return e;
-  }
-  RICCATI_RETURN_IF_ERROR(check_quota(tenant, static_cast<std::int64_t>(source.size())));
   ModelRecord record;
   record.tenant = tenant;
   record.name = name;
   record.source = source;
   record.sha256 = sha256_hex(source);
   record.created_ms = now_ms();
-  RICCATI_ASSIGN_OR_RETURN(const ModelRecord stored, store_.put_model(record));
-  RICCATI_ASSIGN_OR_RETURN(const auto c, compiled(stored));
+  Result<ModelRecord> put = [&]() -> Result<ModelRecord> {
+    std::lock_guard lock(create_mu_);  // the quota's check and the put together, nothing else
+    // The same source as the name's newest revision is that revision: a
+    // CreateModel retried (after a lost answer, or riccatid's restart)
+    // stores nothing and counts once.
+    if (Result<ModelRecord> newest = store_.get_model(tenant, name, 0);
+        newest.is_ok() && !newest->deleted && newest->sha256 == record.sha256) {
+      return newest;
+    }
+    RICCATI_RETURN_IF_ERROR(check_quota(tenant, static_cast<std::int64_t>(source.size())));
+    return store_.put_model(record);
+  }();
+  if (!put.is_ok()) return put.status();
+  const ModelRecord& stored = put.value();
+  // Compiled again under its stored name (name@revision), not checked again.
+  RICCATI_ASSIGN_OR_RETURN(const auto c, compiled(stored, &checked->jacobian_check));
   CatalogEntry e = entry_of(stored, c);
   RICCATI_ASSIGN_OR_RETURN(const std::vector<ModelRevision> revisions, store_.list_model_revisions(tenant));
   e.revisions = revisions_of(revisions, name);

@@ -72,7 +72,9 @@ class ModelCatalog {
   // model has its name; RESOURCE_EXHAUSTED naming max_tenant_models or
   // max_tenant_model_bytes when the tenant's stored models would pass them.
   // With `validate_only` the same checks but the quota's, and nothing is
-  // stored (the entry's revision is 0).
+  // stored (the entry's revision is 0). A model whose Jacobian check would
+  // cost more than max_model_check_operations is refused before it runs
+  // (RESOURCE_EXHAUSTED); compiling and checking hold no lock.
   // `origin` names the text in messages (the client's file name).
   Result<CatalogEntry> create(const std::string& tenant, const std::string& source, const std::string& origin,
                               bool validate_only = false) const;
@@ -90,7 +92,12 @@ class ModelCatalog {
     TextModelSummary summary;
     JacobianCheck jacobian_check;
   };
-  Result<std::shared_ptr<const Compiled>> compiled(const ModelRecord& record) const;
+  // The record compiled and checked (cached); `checked`: its check, done already.
+  Result<std::shared_ptr<const Compiled>> compiled(const ModelRecord& record,
+                                                   const JacobianCheck* checked = nullptr) const;
+  // RESOURCE_EXHAUSTED naming max_model_check_operations when the model's
+  // Jacobian check would cost more.
+  Status check_cost(const std::string& name, const TextModelSummary& summary) const;
   CatalogEntry entry_of(const ModelRecord& record, const std::shared_ptr<const Compiled>& c) const;
   static CatalogEntry builtin_entry(const std::shared_ptr<const ModelRegistry>& registry, const ModelPtr& model);
   Status check_quota(const std::string& tenant, std::int64_t source_bytes) const;

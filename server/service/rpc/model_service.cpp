@@ -2,6 +2,8 @@
 
 #include <spdlog/spdlog.h>
 
+#include <chrono>
+
 #include "engine/estimation/validation.hpp"
 #include "service/convert.hpp"
 #include "service/run_settings.hpp"
@@ -151,9 +153,10 @@ grpc::Status ModelServiceImpl::DeleteModel(grpc::ServerContext* context, const v
 }
 
 // A Simulate call's work is bounded before it starts (samples x substeps,
-// and how many run at once), and it stops between samples once its client
-// has gone or its deadline has passed: an RPC thread is never held by work
-// nobody waits for.
+// and how many run at once) and as it runs (every integration step, an
+// adaptive integrator's internal ones included), and it stops within a
+// sample once its client has gone or its deadline has passed: an RPC thread
+// is never held by work nobody waits for.
 grpc::Status ModelServiceImpl::Simulate(grpc::ServerContext* context, const v1::SimulateRequest* request,
                                         v1::SimulateResponse* response) {
   const Result<ModelPtr> m = models_.get(auth_.tenant(*context), request->model());
@@ -176,6 +179,36 @@ grpc::Status ModelServiceImpl::Simulate(grpc::ServerContext* context, const v1::
     return to_grpc(limit_reached("max_simulations", limits_.max_simulations,
                                  "as many simulations are running; try again when one has ended"));
   }
+  // Within a sample too: every integration step counts against the limit
+  // (an adaptive integrator's internal steps each), and the integrator polls
+  // the call's deadline and cancellation (a shutdown's too) as it goes.
+  Interrupt interrupt;
+  const auto deadline = context->deadline();
+  // IsCancelled() polls gRPC's completion queue (a wait of up to ~1.5 ms):
+  // asked every 20 ms, the clock at every poll.
+  interrupt.poll = [this, context, deadline, asked = std::chrono::steady_clock::time_point()]() mutable -> Status {
+    if (draining_.load(std::memory_order_relaxed)) {
+      return {StatusCode::kUnavailable, "riccatid is shutting down: the simulation stopped; call again, on this "
+                                        "instance once it restarts or on another"};
+    }
+    if (std::chrono::system_clock::now() >= deadline) {
+      return deadline_exceeded("the call's deadline passed during the simulation: it stopped there");
+    }
+    const auto now = std::chrono::steady_clock::now();
+    if (now - asked >= std::chrono::milliseconds(20)) {
+      asked = now;
+      if (context->IsCancelled()) return cancelled("the call was cancelled during the simulation: it stopped there");
+    }
+    return Status::ok();
+  };
+  interrupt.max_steps_total = limits_.max_simulation_steps;
+  interrupt.exhausted = [this](std::int64_t taken) {
+    return limit_reached("max_simulation_steps", limits_.max_simulation_steps,
+                         "the integrator took " + std::to_string(taken) +
+                             " steps (an adaptive integrator's internal steps count each); simulate fewer samples, "
+                             "loosen the tolerances, or raise --max-simulation-steps");
+  };
+  InterruptScope under(interrupt);
   Eigen::MatrixXd x;
   const Result<Eigen::MatrixXd> y = simulate(*m.value(), s->t, s->u, s->x0, s->theta, s->settings, &x,
                                              [context] { return context->IsCancelled(); });

@@ -24,12 +24,16 @@ class ModelServiceImpl final : public v1::ModelService::Service {
   grpc::Status DeleteModel(grpc::ServerContext*, const v1::DeleteModelRequest*, v1::DeleteModelResponse*) override;
   grpc::Status Simulate(grpc::ServerContext*, const v1::SimulateRequest*, v1::SimulateResponse*) override;
   grpc::Status ReloadModels(grpc::ServerContext*, const v1::ReloadModelsRequest*, v1::ReloadModelsResponse*) override;
+  // Shutdown: running simulations stop within a sample (UNAVAILABLE), not
+  // at the end of the grace period.
+  void drain() { draining_ = true; }
 
  private:
   const Authenticator& auth_;
   ModelCatalog& models_;
   const Limits limits_;
   std::atomic<std::int64_t> simulations_{0};  // Simulate calls running now
+  std::atomic<bool> draining_{false};
 };
 
 v1::ModelInfo to_proto(const Model& model, const JacobianCheck& jacobians);

@@ -300,12 +300,30 @@ class SessionServiceImpl::StreamReactor final : public grpc::ServerBidiReactor<g
     }
     int answered = 0;
     Status diverged;
+    // Within a measurement too: the integrator polls the stream's end (cancel,
+    // deadline, drain, CloseSession) and a sample's steps are bounded; the
+    // measurement it stops in is answered with that error and not taken.
+    interrupt_.poll = [this]() -> Status {
+      if (stopping_.load(std::memory_order_relaxed)) return cancelled("the stream ended during this measurement");
+      if (session_->closing()) return cancelled("the session was closed during this measurement");
+      return Status::ok();
+    };
+    interrupt_.max_steps_per_interval = service_.limits_.max_simulation_steps;
+    interrupt_.exhausted = [this](std::int64_t taken) {
+      return limit_reached("max_simulation_steps", service_.limits_.max_simulation_steps,
+                           "the step to this measurement took " + std::to_string(taken) +
+                               " integration steps (an adaptive integrator's internal steps count each); the "
+                               "measurement is not taken: send closer samples, loosen the tolerances, or raise "
+                               "--max-simulation-steps");
+    };
+    InterruptScope under(interrupt_);
     auto began = std::chrono::steady_clock::now();
     for (const auto& m : measurements) {
       // A batch is thousands of steps: it stops between two once the call
-      // is cancelled (deadline, client gone) or riccatid is shutting down.
-      // The measurements left are not answered; the session keeps its time.
-      if (stopping_.load(std::memory_order_relaxed)) break;
+      // is cancelled (deadline, client gone), riccatid is shutting down or
+      // the session is being closed. The measurements left are not
+      // answered; the session keeps its time.
+      if (stopping_.load(std::memory_order_relaxed) || session_->closing()) break;
       // One result per measurement, even past a divergence: those after it
       // get the divergence as their error, and the stream ends once this
       // response is written.
@@ -368,6 +386,7 @@ class SessionServiceImpl::StreamReactor final : public grpc::ServerBidiReactor<g
   int messages_ = 0;  // received so far, for the error that names one
   MessageArena arena_;
   v1::StreamResponse response_;
+  Interrupt interrupt_;  // what the integrations of a batch poll (set per batch; no allocation per measurement)
 
   std::mutex mu_;
   grpc::ByteBuffer received_;  // the read in flight fills it

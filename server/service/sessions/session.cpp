@@ -228,6 +228,7 @@ Status Session::restore(const internal::SessionSnapshot& s) {
 }
 
 void Session::close() {
+  closing_.store(true, std::memory_order_relaxed);  // first: a measurement being processed stops (closing())
   std::lock_guard lock(mu_);
   closed_ = true;
 }

@@ -7,6 +7,7 @@
 // bit for bit; session_manager.hpp decides when and where they are stored.
 #pragma once
 
+#include <atomic>
 #include <chrono>
 #include <cstdint>
 #include <functional>
@@ -64,8 +65,11 @@ class Session {
   bool snapshot_due(std::chrono::steady_clock::time_point now, std::chrono::milliseconds interval) const;
   // Puts back the state of a snapshot of this session.
   Status restore(const internal::SessionSnapshot& snapshot);
-  // No more snapshots: the session was closed or expired here.
+  // No more snapshots: the session was closed or expired here. A measurement
+  // being processed stops first (its integration polls closing()), so that
+  // close() waits for no more than that.
   void close();
+  bool closing() const { return closing_.load(std::memory_order_relaxed); }
   // Another instance holds the session now: no more snapshots, and a stream
   // attached here ends with `why`.
   void lose(const Status& why);
@@ -84,6 +88,7 @@ class Session {
   OnlineRunner runner_;
   bool streaming_ = false;
   bool closed_ = false;
+  std::atomic<bool> closing_{false};  // close() has begun (read without mu_)
   Status diverged_;             // the runner's divergence, as the session reports it
   Status lost_;                 // another instance resumed it
   google::protobuf::RepeatedPtrField<v1::Retuning> retunings_;

@@ -43,6 +43,10 @@ struct TextModelSummary {
   std::vector<std::string> f_sparsity, g_sparsity;
   std::size_t graph_nodes = 0;  // after differentiation, shared
   std::size_t tape_length = 0;  // instructions of the f-and-Jacobian tape
+  // What check_jacobians() at generic_points() costs, estimated from the
+  // tapes' sizes (operations, about nanoseconds): what a service compares
+  // with its bound before checking.
+  double check_operations = 0.0;
 };
 
 struct TextModel {
