@@ -35,6 +35,7 @@ struct Limits {
   std::int64_t max_tenant_streams = 256;               // long-lived calls open, one tenant
   std::int64_t max_tenant_models = 1000;               // stored text model revisions of one tenant
   std::int64_t max_tenant_model_bytes = 64ll << 20;    // their sources, bytes
+  std::int64_t max_tenant_event_streams = 16;          // workbench event streams open, one tenant (of 32)
 };
 
 struct LimitSpec {
@@ -80,6 +81,9 @@ inline constexpr LimitSpec kLimitSpecs[] = {
      "Most stored text model revisions of one tenant (every CreateModel is one; a deleted model's no longer count)"},
     {"max_tenant_model_bytes", &Limits::max_tenant_model_bytes,
      "All of a tenant's stored text model revisions (bytes of source; a deleted model's no longer count)"},
+    {"max_tenant_event_streams", &Limits::max_tenant_event_streams,
+     "Most workbench event streams (job and session events over HTTP) open at once by one tenant, of the 32 the "
+     "workbench serves"},
 };
 
 // RESOURCE_EXHAUSTED: "limit <key> = <limit> reached: <what>".
