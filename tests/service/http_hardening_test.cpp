@@ -385,6 +385,55 @@ TEST_F(HttpHardeningTest, SlowTlsHandshakesHoldNoWorker) {
   EXPECT_TRUE(!refused || refused->status != 200);
 }
 
+// The same front serves /metrics: slow heads there hold neither of its two
+// workers. And a head past 64 KiB is refused (431) without waiting for its end.
+TEST_F(HttpHardeningTest, MetricsAreServedPastSlowHeadsAndOversizedHeadsAreRefused) {
+  int metrics_port = 0;
+  {
+    const int fd = ::socket(AF_INET, SOCK_STREAM, 0);
+    sockaddr_in addr{};
+    addr.sin_family = AF_INET;
+    addr.sin_addr.s_addr = htonl(INADDR_LOOPBACK);
+    socklen_t len = sizeof addr;
+    ASSERT_EQ(::bind(fd, reinterpret_cast<sockaddr*>(&addr), sizeof addr), 0);
+    ASSERT_EQ(::getsockname(fd, reinterpret_cast<sockaddr*>(&addr), &len), 0);
+    metrics_port = ntohs(addr.sin_port);
+    ::close(fd);  // free again for riccatid
+  }
+  start(true, {"--metrics-listen", "127.0.0.1:" + std::to_string(metrics_port)});
+  httplib::Client metrics("127.0.0.1", metrics_port);
+  metrics.set_read_timeout(30, 0);
+  const auto timed = [&] {
+    const auto began = Clock::now();
+    auto res = metrics.Get("/metrics");
+    EXPECT_TRUE(res) << httplib::to_string(res.error());
+    if (res) {
+      EXPECT_EQ(res->status, 200);
+    }
+    return seconds_since(began);
+  };
+  double idle = 0;
+  for (int i = 0; i < 3; ++i) idle = std::max(idle, timed());
+  std::vector<Socket> slow;
+  for (int i = 0; i < 8; ++i) {
+    slow.emplace_back(metrics_port);
+    ASSERT_TRUE(slow.back().send("GET /metrics HTTP/1.1\r\n"));
+  }
+  double worst = 0;
+  for (int i = 0; i < 3; ++i) worst = std::max(worst, timed());
+  std::printf("/metrics: idle %.3f s, past 8 slow heads %.3f s\n", idle, worst);
+  EXPECT_LT(worst, 2 * idle + 1.0) << "idle " << idle << " s";
+
+  Socket big(port_);
+  ASSERT_TRUE(big.send("GET / HTTP/1.1\r\nHost: " + host() + "\r\n"));
+  for (int i = 0; i < 80 && big.send("X-Filler: " + std::string(1000, 'x') + "\r\n"); ++i) {
+  }
+  bool closed = false;
+  const std::string answer = big.read_all(5s, &closed);
+  EXPECT_EQ(status_of(answer), 431) << answer.substr(0, 300);
+  EXPECT_TRUE(closed);
+}
+
 // Item 8: without tokens, a page of another site cannot write (a foreign
 // Origin, a "simple" content type), and a DNS-rebinding name cannot read;
 // the workbench's own same-origin JSON still works.

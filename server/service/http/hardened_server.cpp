@@ -10,6 +10,7 @@
 #include <signal.h>
 #include <sys/epoll.h>
 #include <sys/eventfd.h>
+#include <sys/resource.h>
 #include <sys/socket.h>
 #include <unistd.h>
 
@@ -256,6 +257,14 @@ class HardenedServer::ConnStream final : public httplib::Stream {
 };
 
 HardenedServer::HardenedServer(HardenedOptions options) : options_(options) {
+  // Waiting connections are file descriptors: at most a quarter of the
+  // process's, so that a flood of them leaves the store and gRPC theirs.
+  max_waiting_ = options_.max_waiting;
+  rlimit files{};
+  if (::getrlimit(RLIMIT_NOFILE, &files) == 0 && files.rlim_cur != RLIM_INFINITY) {
+    max_waiting_ = std::min<std::size_t>(max_waiting_, std::max<std::size_t>(16, files.rlim_cur / 4));
+  }
+  max_waiting_per_client_ = std::min(options_.max_waiting_per_client, std::max<std::size_t>(1, max_waiting_ / 4));
   new_task_queue = [] { return new InlineQueue; };
   // Never used by the front and workers (they keep their own deadlines),
   // but httplib sets them on each socket it accepts.
@@ -384,8 +393,8 @@ void HardenedServer::front_loop() {
       "the request line and headers are over " + std::to_string(options_.max_head_bytes) + " bytes");
   const std::string too_many = plain_answer(
       503, "Service Unavailable",
-      "too many connections wait for their request's headers (at most " + std::to_string(options_.max_waiting) +
-          ", " + std::to_string(options_.max_waiting_per_client) + " from one address); try again shortly");
+      "too many connections wait for their request's headers (at most " + std::to_string(max_waiting_) +
+          ", " + std::to_string(max_waiting_per_client_) + " from one address); try again shortly");
 
   const auto drop = [&](Conn* c, const std::string* answer) {
     auto it = waiting.find(c);
@@ -503,7 +512,7 @@ void HardenedServer::front_loop() {
   const auto admit = [&](std::unique_ptr<Conn> conn) {
     if (conn->fd < 0) return;
     std::size_t& mine = per_client[conn->client];
-    if (waiting.size() >= options_.max_waiting || mine >= options_.max_waiting_per_client) {
+    if (waiting.size() >= max_waiting_ || mine >= max_waiting_per_client_) {
       if (mine == 0) per_client.erase(conn->client);
       ++heads_timed_out_;
       spdlog::warn("http connection refused client={} waiting={}: at the cap on connections waiting for a head",

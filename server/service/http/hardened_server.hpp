@@ -44,8 +44,10 @@ struct HardenedOptions {
   std::chrono::milliseconds head_timeout{10'000};
   // A kept-alive connection may wait this long for its next request's first byte.
   std::chrono::milliseconds keep_alive_idle{5'000};
-  std::size_t max_waiting = 1024;  // connections waiting for a head (more are closed at once)
-  std::size_t max_waiting_per_client = 256;  // of them from one address
+  // Connections waiting for a head (more are closed at once), at most a
+  // quarter of RLIMIT_NOFILE; and of them from one address.
+  std::size_t max_waiting = 1024;
+  std::size_t max_waiting_per_client = 256;
   std::size_t max_head_bytes = 64 * 1024;  // request line and headers
   // A read of a body that waits this long without a byte fails; and after
   // that long, a body must have come at min_body_rate bytes/s on average.
@@ -98,6 +100,8 @@ class HardenedServer final : public httplib::Server {
   void close_conn(std::unique_ptr<Conn> conn, const char* answer = nullptr);
 
   const HardenedOptions options_;
+  std::size_t max_waiting_ = 0;  // options_' caps, within the process's file descriptors
+  std::size_t max_waiting_per_client_ = 0;
   struct ssl_ctx_st* ssl_ctx_ = nullptr;
   int epoll_fd_ = -1;
   int wake_fd_ = -1;  // eventfd: conns handed to the front, or shutdown

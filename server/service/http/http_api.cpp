@@ -773,7 +773,9 @@ Result<int> HttpApi::serve(const HttpOptions& options, const SecurityConfig& sec
     return invalid_argument("TLS needs both tls_cert and tls_key");
   }
   HardenedOptions hardened;
-  hardened.workers = kMaxEventStreams + 8;
+  // Event streams and uploads hold a worker while they last: room for all
+  // of them, and 8 for the other requests.
+  hardened.workers = kMaxEventStreams + static_cast<int>(std::min<std::int64_t>(limits_.max_uploads, 64)) + 8;
   hardened.keep_alive_idle = std::chrono::seconds(2);
   server_ = std::make_unique<HardenedServer>(hardened);
   if (tls) {
