@@ -2,7 +2,8 @@
 // event streams), on a real riccatid over loopback, with raw sockets where a
 // client library would hide the attack: the token checked on the headers
 // (the body never read), chunked bodies refused, slow request heads that
-// cannot hold the server's workers (plain and TLS), cross-site writes and
+// cannot hold the server's workers (plain, TLS and /metrics), bodies that
+// stall or trickle cut, cross-site writes and
 // foreign Host names refused, multi-range requests answered once, a tenant's
 // share of the event streams, and SIGTERM with slow clients connected.
 #include <arpa/inet.h>
@@ -100,8 +101,7 @@ class Socket {
     const auto deadline = Clock::now() + timeout;
     if (closed != nullptr) *closed = false;
     for (;;) {
-      const auto left = std::chrono::duration_cast<std::chrono::milliseconds>(deadline - Clock::now());
-      if (left <= 0ms) return out;
+      const auto left = std::max(0ms, std::chrono::duration_cast<std::chrono::milliseconds>(deadline - Clock::now()));
       pollfd p{fd_, POLLIN, 0};
       if (::poll(&p, 1, static_cast<int>(left.count())) <= 0) return out;
       char buf[65536];
@@ -124,8 +124,7 @@ class Socket {
         const std::size_t length = cl != std::string::npos && cl < head_end ? std::stoul(out.substr(cl + 16)) : 0;
         if (out.size() >= head_end + 4 + length) return out;
       }
-      const auto left = std::chrono::duration_cast<std::chrono::milliseconds>(deadline - Clock::now());
-      if (left <= 0ms) return out;
+      const auto left = std::max(0ms, std::chrono::duration_cast<std::chrono::milliseconds>(deadline - Clock::now()));
       pollfd p{fd_, POLLIN, 0};
       if (::poll(&p, 1, static_cast<int>(left.count())) <= 0) return out;
       char buf[65536];
@@ -434,8 +433,50 @@ TEST_F(HttpHardeningTest, MetricsAreServedPastSlowHeadsAndOversizedHeadsAreRefus
   EXPECT_TRUE(closed);
 }
 
+// Bodies that come too slowly are cut, with a token too: one whose bytes
+// stop (10 s without one), one that trickles (under 4 KiB/s after 10 s);
+// each answered 408 saying which.
+TEST_F(HttpHardeningTest, BodiesThatStallOrTrickleAreCut) {
+  start(true);
+  Socket stalled(port_);
+  ASSERT_TRUE(stalled.send("POST /api/v1/sessions HTTP/1.1\r\nHost: " + host() + "\r\nAuthorization: Bearer " +
+                           kAlpha + "\r\nContent-Type: application/json\r\nContent-Length: 1000\r\n\r\n{"));
+  Socket trickle(port_);
+  ASSERT_TRUE(trickle.send("POST /api/v1/datasets?name=slow.csv&input_columns=F1,F2&output_columns=h1,h2 HTTP/1.1\r\n"
+                           "Host: " + host() + "\r\nAuthorization: Bearer " + kAlpha +
+                           "\r\nContent-Type: text/csv\r\nContent-Length: 100000\r\n\r\nt,F1,F2,h1,h2\n"));
+  const auto began = Clock::now();
+  std::string stalled_answer, trickle_answer;
+  // A byte every 200 ms on the trickle, until both are answered (at most 20 s).
+  const auto complete = [](const std::string& answer) {
+    const std::size_t head_end = answer.find("\r\n\r\n");
+    const std::size_t cl = answer.find("Content-Length: ");
+    return head_end != std::string::npos && cl != std::string::npos &&
+           answer.size() >= head_end + 4 + std::stoul(answer.substr(cl + 16));
+  };
+  while ((!complete(stalled_answer) || !complete(trickle_answer)) && seconds_since(began) < 20.0) {
+    stalled_answer += stalled.read_all(1ms);
+    if (!complete(trickle_answer)) {
+      trickle.send("0");
+      trickle_answer += trickle.read_all(1ms);
+    }
+    std::this_thread::sleep_for(200ms);  // the attack's pace
+  }
+  const double took = seconds_since(began);
+  std::printf("slow bodies answered within %.1f s\n", took);
+  EXPECT_EQ(status_of(stalled_answer), 408) << stalled_answer;
+  EXPECT_NE(body_of(stalled_answer).find("no byte of the body for 10"), std::string::npos) << stalled_answer;
+  EXPECT_EQ(status_of(trickle_answer), 408) << trickle_answer;
+  EXPECT_NE(body_of(trickle_answer).find("bytes/s"), std::string::npos) << trickle_answer;
+  EXPECT_GE(took, 8.0);
+  auto res = http_->Get("/api/v1/datasets", bearer(kAlpha));
+  ASSERT_TRUE(res);
+  EXPECT_EQ(res->body.find("slow.csv"), std::string::npos) << "a cut upload was stored";
+}
+
 // Item 8: without tokens, a page of another site cannot write (a foreign
-// Origin, a "simple" content type), and a DNS-rebinding name cannot read;
+// Origin, a "simple" content type), and a DNS-rebinding name cannot read
+// (/healthz, which tells nothing, answers probes by any name);
 // the workbench's own same-origin JSON still works.
 TEST_F(HttpHardeningTest, CrossSiteWritesAndForeignHostNamesAreRefused) {
   start(false);
@@ -484,11 +525,13 @@ TEST_F(HttpHardeningTest, CrossSiteWritesAndForeignHostNamesAreRefused) {
   EXPECT_EQ(res->status, 200) << res->body;
 
   // DNS rebinding: another name for this address reads nothing, pages included.
-  for (const char* path : {"/api/v1/datasets", "/", "/healthz"}) {
+  for (const char* path : {"/api/v1/datasets", "/", "/js/app.js"}) {
     answer = exchange(std::string("GET ") + path + " HTTP/1.1\r\nHost: evil.example:" + std::to_string(port_) + "\r\n\r\n");
     EXPECT_EQ(status_of(answer), 403) << path << ": " << answer;
     EXPECT_NE(body_of(answer).find("http_allowed_hosts"), std::string::npos) << answer;
   }
+  answer = exchange("GET /healthz HTTP/1.1\r\nHost: riccatid-0.riccatid:7532\r\n\r\n");
+  EXPECT_EQ(status_of(answer), 200) << answer;
   answer = exchange("GET /api/v1/datasets HTTP/1.1\r\nHost: " + host() + "\r\n\r\n");
   EXPECT_EQ(status_of(answer), 200) << answer;
   answer = exchange("GET /api/v1/datasets HTTP/1.1\r\nHost: [::1]:" + std::to_string(port_) + "\r\n\r\n");

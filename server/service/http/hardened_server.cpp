@@ -82,6 +82,8 @@ void address_of(int fd, bool peer, std::string& ip, int& port) {
 // Set by serve() around process_request: a handler asks for the connection
 // to close after its response.
 thread_local bool t_close_after = false;
+// Why the last read of a body failed, when it was too slow (else empty).
+thread_local std::string t_read_failure;
 
 std::string plain_answer(int status, const char* reason, const std::string& text) {
   return "HTTP/1.1 " + std::to_string(status) + " " + reason +
@@ -144,7 +146,7 @@ class HardenedServer::ConnStream final : public httplib::Stream {
     }
     if (!body_started_) {
       body_started_ = true;
-      body_began_ = Clock::now();
+      body_began_ = last_byte_ = Clock::now();
     }
     for (;;) {
       int want = 0;
@@ -171,10 +173,20 @@ class HardenedServer::ConnStream final : public httplib::Stream {
       }
       // The next byte's deadline: read_timeout from now, and the body's
       // least average rate after its first read_timeout.
+      const auto idle_deadline = Clock::now() + server_.options_.read_timeout;
       const auto rate_deadline =
           body_began_ + server_.options_.read_timeout +
           std::chrono::milliseconds(body_bytes_ * 1000 / std::max<std::int64_t>(1, server_.options_.min_body_rate));
-      if (!wait(want, std::min(Clock::now() + server_.options_.read_timeout, rate_deadline))) return fail();
+      if (!wait(want, std::min(idle_deadline, rate_deadline))) {
+        // Too slow (the answer can still be written), or stopping.
+        const double read_s = std::chrono::duration<double>(server_.options_.read_timeout).count();
+        t_read_failure = server_.stopping_ ? "riccatid is stopping"
+                         : Clock::now() - last_byte_ < server_.options_.read_timeout
+                             ? "the body came at under " + std::to_string(server_.options_.min_body_rate) +
+                                   " bytes/s after its first " + std::to_string(read_s).substr(0, 4) + " s"
+                             : "no byte of the body for " + std::to_string(read_s).substr(0, 4) + " s";
+        return -1;
+      }
     }
   }
 
@@ -217,6 +229,7 @@ class HardenedServer::ConnStream final : public httplib::Stream {
  private:
   ssize_t got(ssize_t n) {
     body_bytes_ += n;
+    last_byte_ = Clock::now();
     return n;
   }
   ssize_t fail() {
@@ -253,6 +266,7 @@ class HardenedServer::ConnStream final : public httplib::Stream {
   int status_ = 0;
   bool body_started_ = false;
   Clock::time_point body_began_{};
+  Clock::time_point last_byte_{};
   std::int64_t body_bytes_ = 0;
 };
 
@@ -320,6 +334,8 @@ bool HardenedServer::use_tls(const std::string& cert, const std::string& key, co
 }
 
 void HardenedServer::close_after_response() { t_close_after = true; }
+
+const std::string& HardenedServer::read_failure() { return t_read_failure; }
 
 int HardenedServer::bind_port(const std::string& host, int port) {
   const int bound = port == 0 ? bind_to_any_port(host) : (bind_to_port(host, port) ? port : -1);
@@ -591,6 +607,7 @@ void HardenedServer::serve(std::unique_ptr<Conn> conn) {
     bool connection_closed = false;
     bool has_body = false;
     t_close_after = false;
+    t_read_failure.clear();
     const bool ok = process_request(stream, last, connection_closed, [&](httplib::Request& req) {
       // More than one range is ignored (RFC 9110 allows it): httplib would
       // build the whole multipart answer in memory, a copy per range

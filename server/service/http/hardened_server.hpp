@@ -84,6 +84,9 @@ class HardenedServer final : public httplib::Server {
   // the response (a refusal that left the body unread: what follows on the
   // connection is not a request).
   static void close_after_response();
+  // From a handler whose body read failed: why, when it came too slowly
+  // ("no byte of the body for 10 s", ...), else empty.
+  static const std::string& read_failure();
 
   // How many connections were closed for a late head, or refused at the caps (for tests and the log).
   std::uint64_t heads_timed_out() const { return heads_timed_out_; }

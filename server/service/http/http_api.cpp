@@ -344,7 +344,12 @@ class HttpApi::Routes {
     server.set_error_handler(httplib::Server::HandlerWithResponse([](const Request& req, Response& res) {
       if (!res.body.empty()) return httplib::Server::HandlerResponse::Unhandled;
       std::string message;
+      if (!HardenedServer::read_failure().empty()) {  // its body too slow: the rest is not a request
+        res.status = 408;
+        res.set_header("Connection", "close");
+      }
       switch (res.status) {
+        case 408: message = "the request's body was cut (" + HardenedServer::read_failure() + ")"; break;
         case 404: message = "no such route: " + req.method + " " + req.path; break;
         case 413: message = "the request is larger than this server accepts"; break;
         default: message = "the request was refused (HTTP " + std::to_string(res.status) + ")"; break;
@@ -401,7 +406,8 @@ class HttpApi::Routes {
       return httplib::Server::HandlerResponse::Handled;
     };
     const std::string host = req.get_header_value("Host");
-    if (!host_allowed(host)) {
+    // /healthz tells nothing: probes may name the server as they like.
+    if (!host_allowed(host) && req.path != "/healthz") {
       return refuse(403, StatusCode::kFailedPrecondition,
                     "the Host \"" + printable(host) + "\" is not a name of this server (" + api_.listen_ +
                         "): a page that had its own name resolved to this address (DNS rebinding) is refused; "
@@ -611,7 +617,13 @@ class HttpApi::Routes {
     if (!room.is_ok()) {
       return fail(res, room, room.code() == StatusCode::kResourceExhausted ? 413 : 0);
     }
-    if (!read) return fail(res, Status(StatusCode::kCancelled, "the upload of " + upload.name + " was cut: nothing stored"));
+    if (!read) {
+      const std::string& slow = HardenedServer::read_failure();
+      return fail(res,
+                  Status(StatusCode::kCancelled, "the upload of " + printable(upload.name) + " was cut" +
+                                                     (slow.empty() ? "" : " (" + slow + ")") + ": nothing stored"),
+                  slow.empty() ? 0 : 408);
+    }
     const Result<DatasetRecord> stored = api_.datasets_.upload(ticket.value(), upload);
     if (!stored.is_ok()) return fail(res, stored.status());
     reply(res, to_proto(stored.value()));
