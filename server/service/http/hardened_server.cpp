@@ -98,7 +98,8 @@ struct HardenedServer::Conn {
   SSL* ssl = nullptr;
   bool handshaking = false;
   std::string client;     // the peer's address, for the per-client cap
-  std::string buffer;     // bytes read and not yet given to httplib
+  std::string buffer;     // bytes read; from `consumed` on, not yet given to httplib
+  std::size_t consumed = 0;  // (httplib reads a head a byte at a time: no erase per byte)
   std::size_t scanned = 0;  // of buffer, searched for the head's end
   Clock::time_point deadline{};
   bool awaiting_first_byte = false;  // kept alive: the idle wait, then the head's deadline
@@ -129,7 +130,7 @@ class HardenedServer::ConnStream final : public httplib::Stream {
   ConnStream(const HardenedServer& server, Conn& conn) : server_(server), conn_(conn) {}
 
   bool is_readable() const override {
-    if (!conn_.buffer.empty()) return true;
+    if (conn_.consumed < conn_.buffer.size()) return true;
     if (conn_.ssl != nullptr && SSL_pending(conn_.ssl) > 0) return true;
     return wait(POLLIN, Clock::now() + server_.options_.read_timeout);
   }
@@ -138,10 +139,14 @@ class HardenedServer::ConnStream final : public httplib::Stream {
   }
 
   ssize_t read(char* ptr, std::size_t size) override {
-    if (!conn_.buffer.empty()) {
-      const std::size_t n = std::min(size, conn_.buffer.size());
-      std::memcpy(ptr, conn_.buffer.data(), n);
-      conn_.buffer.erase(0, n);
+    if (conn_.consumed < conn_.buffer.size()) {
+      const std::size_t n = std::min(size, conn_.buffer.size() - conn_.consumed);
+      std::memcpy(ptr, conn_.buffer.data() + conn_.consumed, n);
+      conn_.consumed += n;
+      if (conn_.consumed == conn_.buffer.size()) {
+        conn_.buffer.clear();
+        conn_.consumed = 0;
+      }
       return static_cast<ssize_t>(n);
     }
     if (!body_started_) {
@@ -310,8 +315,10 @@ bool HardenedServer::use_tls(const std::string& cert, const std::string& key, co
     *error = "cannot create a TLS context";
     return false;
   }
-  // As httplib's SSLServer.
-  SSL_CTX_set_options(ctx, SSL_OP_NO_COMPRESSION | SSL_OP_NO_SESSION_RESUMPTION_ON_RENEGOTIATION);
+  // As httplib's SSLServer, and no renegotiation (a handshake is CPU that
+  // a client could ask for again and again).
+  SSL_CTX_set_options(ctx, SSL_OP_NO_COMPRESSION | SSL_OP_NO_SESSION_RESUMPTION_ON_RENEGOTIATION |
+                               SSL_OP_NO_RENEGOTIATION);
   SSL_CTX_set_min_proto_version(ctx, TLS1_2_VERSION);
   // Partial writes, and a retried write may come from another address (httplib's buffers move).
   SSL_CTX_set_mode(ctx, SSL_MODE_ENABLE_PARTIAL_WRITE | SSL_MODE_ACCEPT_MOVING_WRITE_BUFFER);
@@ -626,10 +633,13 @@ void HardenedServer::serve(std::unique_ptr<Conn> conn) {
       ::shutdown(conn->fd, SHUT_WR);
       conn->draining = true;
       conn->buffer.clear();
+      conn->consumed = 0;
       conn->deadline = Clock::now() + kDrainTime;
       return hand_to_front(std::move(conn));
     }
     if (close) return close_conn(std::move(conn));
+    conn->buffer.erase(0, conn->consumed);  // what is left: the start of the next request
+    conn->consumed = 0;
     conn->rescan();
     if (!conn->buffer.empty() && conn->head_complete()) continue;  // pipelined: the next head is here
     conn->awaiting_first_byte = conn->buffer.empty();
