@@ -277,6 +277,16 @@ TEST_F(HttpHardeningTest, TheTokenIsCheckedOnTheHeadersBeforeAnyBodyIsRead) {
     EXPECT_EQ(status_of(answer), 401) << answer;
     EXPECT_TRUE(closed);
   }
+  // Asked first (Expect: 100-continue): the 401 instead of "go on".
+  {
+    Socket s(port_);
+    ASSERT_TRUE(s.send("POST /api/v1/datasets?name=x.csv HTTP/1.1\r\nHost: " + host() +
+                       "\r\nContent-Type: text/csv\r\nContent-Length: 200000000\r\nExpect: 100-continue\r\n\r\n"));
+    bool closed = false;
+    const std::string answer = s.read_all(5s, &closed);
+    EXPECT_EQ(status_of(answer), 401) << answer;
+    EXPECT_TRUE(closed);
+  }
   // Chunked, without a token: 401; with one: 411 (a chunked body has no
   // size to check against the limit before it is read).
   for (const std::string& token : {std::string(), kAlpha}) {

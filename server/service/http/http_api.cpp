@@ -171,6 +171,11 @@ class HttpApi::Routes {
 
   void install(httplib::Server& server) {
     server.set_pre_routing_handler([this](const Request& req, Response& res) { return check_headers(req, res); });
+    // A client that asks before it sends its body (Expect: 100-continue,
+    // curl's way past 1 MB) hears a refusal instead of "go on".
+    server.set_expect_100_continue_handler([this](const Request& req, Response& res) {
+      return check_headers(req, res) == httplib::Server::HandlerResponse::Handled ? res.status : 100;
+    });
     server.Get("/healthz", [](const Request&, Response& res) { res.set_content("ok\n", "text/plain"); });
 
     server.Get("/api/v1/models", authed([this](const std::string& tenant, const Request&, Response& res) {
