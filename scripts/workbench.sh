@@ -44,7 +44,7 @@ if isinstance(meta.get("parameters"), dict):  # what it was simulated with: the 
 print(urllib.parse.urlencode(query))
 PY
 )
-  curl -fsS -H 'Authorization: Bearer -' --data-binary "@$csv" "$base/api/v1/datasets?$query" >/dev/null
+  curl -fsS -H 'Authorization: Bearer -' -H 'Content-Type: text/csv' --data-binary "@$csv" "$base/api/v1/datasets?$query" >/dev/null
   echo "workbench: loaded $name"
 done
 echo "workbench: open $base/ (Ctrl-C stops riccatid)"

@@ -98,6 +98,13 @@ int main(int argc, char** argv) {
       app.add_flag("--http-public", http_public,
                    "Serve the workbench in plain HTTP on a non-loopback --http-listen address, behind a proxy that "
                    "terminates TLS (config key http_public)");
+  std::string http_allowed_hosts;
+  auto* http_allowed_hosts_flag = app.add_option(
+      "--http-allowed-hosts", http_allowed_hosts,
+      "Host names the workbench answers to beside its listen address, localhost and loopback addresses (any IP "
+      "address when it listens off loopback), comma-separated; pages of these names may also write to it (a page "
+      "whose own name resolves to this address, DNS rebinding, is refused; \"*\": any) (config key "
+      "http_allowed_hosts)");
   std::string http_port_file;
   app.add_option("--http-port-file", http_port_file, "Write the workbench's bound port to this file once listening");
   auto* log_level =
@@ -157,6 +164,7 @@ int main(int argc, char** argv) {
   if (*metrics_public_flag) config.metrics_public = metrics_public;
   if (*http_listen) config.http_listen = flags.http_listen;
   if (*http_public_flag) config.http_public = http_public;
+  if (*http_allowed_hosts_flag) config.http_allowed_hosts = riccati::service::split_hosts(http_allowed_hosts);
   if (*tls_cert) config.security.tls_cert = flags.security.tls_cert;
   if (*tls_key) config.security.tls_key = flags.security.tls_key;
   if (*tls_client_ca) config.security.tls_client_ca = flags.security.tls_client_ca;

@@ -26,6 +26,21 @@ const LimitSpec* find_limit(const std::string& key) {
 
 }  // namespace
 
+std::vector<std::string> split_hosts(const std::string& text) {
+  std::vector<std::string> out;
+  std::size_t at = 0;
+  while (at < text.size()) {
+    std::size_t end = text.find(',', at);
+    if (end == std::string::npos) end = text.size();
+    std::string name = text.substr(at, end - at);
+    name.erase(0, name.find_first_not_of(" \t"));
+    name.erase(name.find_last_not_of(" \t") + 1);
+    if (!name.empty()) out.push_back(name);
+    at = end + 1;
+  }
+  return out;
+}
+
 Status load_config_file(const std::string& path, DaemonConfig* c) {
   RICCATI_ASSIGN_OR_RETURN(const std::string text, read_regular_file(path, "config", kMaxConfigFileBytes));
   try {
@@ -84,6 +99,8 @@ Status load_config_file(const std::string& path, DaemonConfig* c) {
         c->http_listen = v.as<std::string>();
       } else if (key == "http_public") {
         c->http_public = v.as<bool>();
+      } else if (key == "http_allowed_hosts") {
+        c->http_allowed_hosts = v.IsSequence() ? v.as<std::vector<std::string>>() : split_hosts(v.as<std::string>());
       } else if (key == "log_level") {
         c->log_level = v.as<std::string>();
       } else {
@@ -207,7 +224,7 @@ Status Daemon::start() {
     http_ = std::make_unique<HttpApi>(*auth_, *catalog_, *datasets_, *jobs_, *sessions_, *stream_slots_,
                                       config_.limits);
     std::string http_security;
-    RICCATI_ASSIGN_OR_RETURN(http_port_, http_->serve({config_.http_listen, config_.http_public}, config_.security,
+    RICCATI_ASSIGN_OR_RETURN(http_port_, http_->serve({config_.http_listen, config_.http_public, config_.http_allowed_hosts}, config_.security,
                                                       &http_security));
     spdlog::info("workbench listening address={} port={} security=\"{}\"", config_.http_listen, http_port_,
                  http_security);

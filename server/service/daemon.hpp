@@ -7,6 +7,7 @@
 #include <chrono>
 #include <memory>
 #include <string>
+#include <vector>
 
 #include "engine/models/plugin_loader.hpp"
 #include "service/auth.hpp"
@@ -50,12 +51,18 @@ struct DaemonConfig {
   // Plain HTTP off loopback (behind a proxy that terminates TLS); without
   // it, off loopback needs TLS (tls_cert, tls_key).
   bool http_public = false;
+  // Host names the workbench answers to beside its listen address, localhost
+  // and IP literals (a DNS-rebinding page's name is refused); "*": any.
+  std::vector<std::string> http_allowed_hosts;
   std::string log_level = "info";
 };
 
 // Reads a YAML config file into `config` (keys as in DaemonConfig; unknown
 // keys are an error, so a typo is not silently ignored).
 Status load_config_file(const std::string& path, DaemonConfig* config);
+
+// "a.example, b.example" -> {"a.example", "b.example"} (http_allowed_hosts as one string).
+std::vector<std::string> split_hosts(const std::string& text);
 
 class Daemon {
  public:

@@ -40,6 +40,7 @@ struct Limits {
   std::int64_t upload_idle_seconds = 60;               // an upload that sends nothing for this long is ended
   std::int64_t max_result_read_bytes = 512ll << 20;    // stored results being read at once, all tenants
   std::int64_t max_model_check_operations = 1'000'000'000;  // a text model's Jacobian check, estimated
+  std::int64_t max_tenant_event_streams = 16;          // workbench event streams open, one tenant (of 32)
 };
 
 struct LimitSpec {
@@ -98,6 +99,9 @@ inline constexpr LimitSpec kLimitSpecs[] = {
     {"max_model_check_operations", &Limits::max_model_check_operations,
      "Most operations (about nanoseconds) of a text model's Jacobian check, estimated from its size before it "
      "runs: CreateModel refuses a model past it"},
+    {"max_tenant_event_streams", &Limits::max_tenant_event_streams,
+     "Most workbench event streams (job and session events over HTTP) open at once by one tenant, of the 32 the "
+     "workbench serves"},
 };
 
 // RESOURCE_EXHAUSTED: "limit <key> = <limit> reached: <what>".

@@ -8,6 +8,8 @@
 
 #include <httplib.h>
 
+#include "service/http/hardened_server.hpp"
+
 #include <mutex>
 #include <sstream>
 #include <thread>
@@ -181,8 +183,14 @@ void Metrics::set_store(Store* store) {
 // 8 MiB stacks: prometheus-cpp's embedded civetweb runs handlers on ~100 KiB
 // stacks, which glibc's printf overflows once libquadmath, linked in with
 // Ceres, has registered its printf hooks).
+// HardenedServer: a scraper that never finishes its request's headers cannot
+// hold the two workers.
 struct Metrics::Endpoint {
-  httplib::Server server;
+  HardenedServer server{[] {
+    HardenedOptions options;
+    options.workers = 2;
+    return options;
+  }()};
   std::thread thread;
 };
 
@@ -208,7 +216,6 @@ Result<std::pair<std::string, int>> split_address(const std::string& address, co
 Result<int> Metrics::serve(const std::string& address) {
   RICCATI_ASSIGN_OR_RETURN(auto host_port, split_address(address, "metrics"));
   auto endpoint = std::make_unique<Endpoint>();
-  endpoint->server.new_task_queue = [] { return new httplib::ThreadPool(2); };
   endpoint->server.Get("/metrics", [this](const httplib::Request&, httplib::Response& response) {
     auto families = registry_->Collect();
     auto scraped = scraped_->Collect();
@@ -218,7 +225,7 @@ Result<int> Metrics::serve(const std::string& address) {
     response.set_content(text.str(), "text/plain; version=0.0.4; charset=utf-8");
   });
   const auto& [host, port] = host_port;
-  const int bound = port == 0 ? endpoint->server.bind_to_any_port(host) : (endpoint->server.bind_to_port(host, port) ? port : -1);
+  const int bound = endpoint->server.bind_port(host, port);
   if (bound < 0) return failed_precondition("cannot serve metrics on " + address + ": cannot bind (in use, or no such address)");
   endpoint->thread = std::thread([server = &endpoint->server] { server->listen_after_bind(); });
   endpoint_ = std::move(endpoint);
@@ -227,7 +234,7 @@ Result<int> Metrics::serve(const std::string& address) {
 
 void Metrics::stop_serving() {
   if (!endpoint_) return;
-  endpoint_->server.stop();
+  endpoint_->server.shutdown();
   endpoint_->thread.join();
   endpoint_.reset();
 }

@@ -1,16 +1,20 @@
 #include "service/http/http_api.hpp"
 #include "service/http/json_writer.hpp"
 
+#include <arpa/inet.h>
 #include <google/protobuf/util/json_util.h>
 #include <httplib.h>
 #include <spdlog/spdlog.h>
 
+#include <algorithm>
+#include <cctype>
 #include <charconv>
 #include <chrono>
 #include <optional>
 #include <string_view>
 
 #include "service/convert.hpp"
+#include "service/http/hardened_server.hpp"
 #include "service/http/web_assets.hpp"
 #include "service/jobs/job_convert.hpp"
 #include "service/metrics.hpp"
@@ -125,12 +129,36 @@ std::vector<std::string> split_list(const std::string& text) {
   return out;
 }
 
-// One event stream held open: its place in StreamSlots and in the server's
-// threads, while it lives.
+std::string lower(std::string text) {
+  std::transform(text.begin(), text.end(), text.begin(), [](unsigned char c) { return std::tolower(c); });
+  return text;
+}
+
+// A Content-Type's media type, lower case, without its parameters.
+std::string media_type(const std::string& content_type) {
+  std::string type = lower(content_type.substr(0, content_type.find(';')));
+  while (!type.empty() && std::isspace(static_cast<unsigned char>(type.back()))) type.pop_back();
+  while (!type.empty() && std::isspace(static_cast<unsigned char>(type.front()))) type.erase(0, 1);
+  return type;
+}
+
+// What a page of another site may send without asking the server first
+// (a CORS "simple" request).
+bool cross_site_type(const std::string& type) {
+  return type == "text/plain" || type == "application/x-www-form-urlencoded" || type == "multipart/form-data";
+}
+
+// One event stream held open: its place in StreamSlots, in the server's
+// threads and in its tenant's share of them, while it lives.
 struct EventStream {
-  EventStream(std::atomic<int>& count, StreamSlot slot) : count_(count), slot_(std::move(slot)) {}
-  ~EventStream() { --count_; }
+  EventStream(std::atomic<int>& count, std::function<void()> release, StreamSlot slot)
+      : count_(count), release_(std::move(release)), slot_(std::move(slot)) {}
+  ~EventStream() {
+    --count_;
+    release_();
+  }
   std::atomic<int>& count_;
+  std::function<void()> release_;
   StreamSlot slot_;
   Clock::time_point last_event{};
   Clock::time_point last_write = Clock::now();
@@ -146,6 +174,12 @@ class HttpApi::Routes {
   explicit Routes(HttpApi& api) : api_(api) {}
 
   void install(httplib::Server& server) {
+    server.set_pre_routing_handler([this](const Request& req, Response& res) { return check_headers(req, res); });
+    // A client that asks before it sends its body (Expect: 100-continue,
+    // curl's way past 1 MB) hears a refusal instead of "go on".
+    server.set_expect_100_continue_handler([this](const Request& req, Response& res) {
+      return check_headers(req, res) == httplib::Server::HandlerResponse::Handled ? res.status : 100;
+    });
     server.Get("/healthz", [](const Request&, Response& res) { res.set_content("ok\n", "text/plain"); });
 
     server.Get("/api/v1/models", authed([this](const std::string& tenant, const Request&, Response& res) {
@@ -325,7 +359,12 @@ class HttpApi::Routes {
     server.set_error_handler(httplib::Server::HandlerWithResponse([](const Request& req, Response& res) {
       if (!res.body.empty()) return httplib::Server::HandlerResponse::Unhandled;
       std::string message;
+      if (!HardenedServer::read_failure().empty()) {  // its body too slow: the rest is not a request
+        res.status = 408;
+        res.set_header("Connection", "close");
+      }
       switch (res.status) {
+        case 408: message = "the request's body was cut (" + HardenedServer::read_failure() + ")"; break;
         case 404: message = "no such route: " + req.method + " " + req.path; break;
         case 413: message = "the request is larger than this server accepts"; break;
         default: message = "the request was refused (HTTP " + std::to_string(res.status) + ")"; break;
@@ -363,6 +402,136 @@ class HttpApi::Routes {
 
  private:
   using Authed = std::function<void(const std::string& tenant, const Request&, Response&)>;
+
+  // On the headers, before any body is read (httplib's pre-routing
+  // handler): the Host (DNS rebinding), a write's Origin (cross-site
+  // request forgery) and Content-Type, the token, and the body's framing
+  // and size. A refusal closes the connection (its body is not read).
+  httplib::Server::HandlerResponse check_headers(const Request& req, Response& res) const {
+    const bool api = req.path.rfind("/api/", 0) == 0;
+    const auto refuse = [&](int http, StatusCode code, const std::string& message) {
+      res.status = http;
+      if (api) {
+        res.set_content(to_json(to_error(Status(code, message))), "application/json");
+      } else {
+        res.set_content(message + "\n", "text/plain");
+      }
+      res.set_header("Connection", "close");
+      HardenedServer::close_after_response();
+      return httplib::Server::HandlerResponse::Handled;
+    };
+    const std::string host = req.get_header_value("Host");
+    // /healthz tells nothing: probes may name the server as they like.
+    if (!host_allowed(host) && req.path != "/healthz") {
+      return refuse(403, StatusCode::kFailedPrecondition,
+                    "the Host \"" + printable(host) + "\" is not a name of this server (" + api_.listen_ +
+                        "): a page that had its own name resolved to this address (DNS rebinding) is refused; "
+                        "allow another name with http_allowed_hosts (--http-allowed-hosts)");
+    }
+    const bool write = req.method == "POST" || req.method == "PUT" || req.method == "PATCH" || req.method == "DELETE";
+    if (write && req.has_header("Origin")) {
+      const std::string origin = lower(req.get_header_value("Origin"));
+      const std::string own = lower(host);
+      if (host.empty() || (origin != "http://" + own && origin != "https://" + own && !origin_allowed(origin))) {
+        return refuse(403, StatusCode::kFailedPrecondition,
+                      "the Origin \"" + printable(req.get_header_value("Origin")) + "\" is not this server's (" +
+                          (api_.tls_ ? "https://" : "http://") + printable(host) +
+                          "): writes from another site's page are refused (cross-site request forgery)");
+      }
+    }
+    if (api && api_.auth_.enabled()) {
+      if (!authenticate(req, res)) {
+        res.set_header("Connection", "close");
+        HardenedServer::close_after_response();
+        return httplib::Server::HandlerResponse::Handled;
+      }
+    }
+    if (req.has_header("Transfer-Encoding")) {
+      return refuse(411, StatusCode::kInvalidArgument,
+                    "a body sent with Transfer-Encoding (\"" + printable(req.get_header_value("Transfer-Encoding")) +
+                        "\") is refused: send its size in Content-Length, so that it is checked against the limit "
+                        "(max_message_bytes, or max_dataset_bytes for an upload) before it is read");
+    }
+    const bool upload = req.method == "POST" && req.path == "/api/v1/datasets";
+    const std::string length_text = req.get_header_value("Content-Length");
+    std::int64_t length = 0;
+    if (!length_text.empty()) {
+      const auto parsed = std::from_chars(length_text.data(), length_text.data() + length_text.size(), length);
+      if (parsed.ec != std::errc() || parsed.ptr != length_text.data() + length_text.size() || length < 0) {
+        return refuse(400, StatusCode::kInvalidArgument,
+                      "Content-Length \"" + printable(length_text) + "\" is not a number of bytes");
+      }
+    }
+    if (length > 0) {
+      if (!api) {
+        return refuse(413, StatusCode::kResourceExhausted, "the workbench's pages take no body (" + req.method + " " +
+                                                               printable(req.path) + " with " +
+                                                               std::to_string(length) + " bytes)");
+      }
+      const char* key = upload ? "max_dataset_bytes" : "max_message_bytes";
+      const std::int64_t limit = upload ? api_.limits_.max_dataset_bytes : api_.limits_.max_message_bytes;
+      if (length > limit) {
+        return refuse(413, StatusCode::kResourceExhausted,
+                      limit_reached(key, limit, "the body is " + std::to_string(length) + " bytes (" + req.method +
+                                                    " " + printable(req.path) + ")")
+                          .message());
+      }
+    }
+    if (api && write && (length > 0 || req.has_header("Content-Type"))) {
+      const std::string type = media_type(req.get_header_value("Content-Type"));
+      if (upload && cross_site_type(type)) {
+        return refuse(415, StatusCode::kInvalidArgument,
+                      "an upload sent as " + type +
+                          " is refused (a type another site's page may send without asking): send the file as "
+                          "application/octet-stream (or text/csv)");
+      }
+      if (!upload && type != "application/json") {
+        return refuse(415, StatusCode::kInvalidArgument,
+                      "the body's Content-Type is \"" + printable(type) +
+                          "\": the JSON API takes application/json (another site's page may send text/plain, "
+                          "forms and multipart without asking, so they are refused)");
+      }
+    }
+    return httplib::Server::HandlerResponse::Unhandled;
+  }
+
+  // The Host header names this server: its listen address, localhost, a
+  // loopback address (any IP literal when listening off loopback), or one
+  // of http_allowed_hosts; with any port. None (HTTP/1.0) is accepted.
+  bool host_allowed(const std::string& header) const {
+    if (header.empty() || api_.any_host_) return true;
+    std::string host = lower(header);
+    if (host.front() == '[') {
+      const std::size_t close = host.find(']');
+      if (close == std::string::npos) return false;
+      host = host.substr(1, close - 1);
+    } else if (const std::size_t colon = host.rfind(':'); colon != std::string::npos && host.find(':') == colon) {
+      host = host.substr(0, colon);
+    }
+    if (std::find(api_.allowed_hosts_.begin(), api_.allowed_hosts_.end(), host) != api_.allowed_hosts_.end()) {
+      return true;
+    }
+    in_addr v4{};
+    in6_addr v6{};
+    if (inet_pton(AF_INET, host.c_str(), &v4) == 1) return api_.ip_hosts_ || (ntohl(v4.s_addr) >> 24) == 127;
+    if (inet_pton(AF_INET6, host.c_str(), &v6) == 1) return api_.ip_hosts_ || IN6_IS_ADDR_LOOPBACK(&v6);
+    return false;
+  }
+
+  // An Origin whose host an operator named in http_allowed_hosts (a
+  // proxy's public name, which need not be the Host the proxy sends on).
+  bool origin_allowed(const std::string& origin) const {
+    const std::size_t scheme = origin.find("://");
+    if (scheme == std::string::npos) return false;
+    std::string name = origin.substr(scheme + 3);
+    if (!name.empty() && name.front() == '[') {
+      name = name.substr(1, name.find(']') == std::string::npos ? 0 : name.find(']') - 1);
+    } else {
+      name = name.substr(0, name.find(':'));
+    }
+    return !name.empty() && std::find(api_.operator_hosts_.begin(), api_.operator_hosts_.end(), name) !=
+                                api_.operator_hosts_.end();
+  }
 
   // The caller's tenant, or a 401 answered.
   std::optional<std::string> authenticate(const Request& req, Response& res) const {
@@ -463,7 +632,13 @@ class HttpApi::Routes {
     if (!room.is_ok()) {
       return fail(res, room, room.code() == StatusCode::kResourceExhausted ? 413 : 0);
     }
-    if (!read) return fail(res, Status(StatusCode::kCancelled, "the upload of " + upload.name + " was cut: nothing stored"));
+    if (!read) {
+      const std::string& slow = HardenedServer::read_failure();
+      return fail(res,
+                  Status(StatusCode::kCancelled, "the upload of " + printable(upload.name) + " was cut" +
+                                                     (slow.empty() ? "" : " (" + slow + ")") + ": nothing stored"),
+                  slow.empty() ? 0 : 408);
+    }
     const Result<DatasetRecord> stored = api_.datasets_.upload(ticket.value(), upload);
     if (!stored.is_ok()) return fail(res, stored.status());
     reply(res, to_proto(stored.value()));
@@ -473,20 +648,37 @@ class HttpApi::Routes {
   // long-lived calls, 429 naming the limit past it; and one of this server's
   // threads, 503 past them.
   std::shared_ptr<EventStream> open_stream(const std::string& tenant, const std::string& what, Response& res) const {
+    {
+      std::lock_guard lock(api_.tenant_streams_mu_);
+      const std::int64_t open = api_.tenant_streams_[tenant];
+      if (open >= api_.limits_.max_tenant_event_streams) {
+        fail(res, limit_reached("max_tenant_event_streams", api_.limits_.max_tenant_event_streams,
+                                "the tenant has " + std::to_string(open) + " workbench event streams open (of the " +
+                                    std::to_string(kMaxEventStreams) + " the workbench serves)"));
+        return nullptr;
+      }
+      ++api_.tenant_streams_[tenant];
+    }
+    auto release = [this, tenant] {
+      std::lock_guard lock(api_.tenant_streams_mu_);
+      if (--api_.tenant_streams_[tenant] <= 0) api_.tenant_streams_.erase(tenant);
+    };
     Result<StreamSlot> slot = api_.stream_slots_.acquire(tenant, what);
     if (!slot.is_ok()) {
+      release();
       fail(res, slot.status());
       return nullptr;
     }
     if (++api_.streams_ > kMaxEventStreams) {
       --api_.streams_;
+      release();
       fail(res, Status(StatusCode::kUnavailable,
                        "the workbench serves " + std::to_string(kMaxEventStreams) +
                            " event streams at once (a thread each), and as many are open; try again shortly"),
            503);
       return nullptr;
     }
-    return std::make_shared<EventStream>(api_.streams_, std::move(slot).value());
+    return std::make_shared<EventStream>(api_.streams_, std::move(release), std::move(slot).value());
   }
 
   void job_events(const std::string& tenant, const std::string& id, Response& res) {
@@ -604,29 +796,37 @@ Result<int> HttpApi::serve(const HttpOptions& options, const SecurityConfig& sec
     return invalid_argument("http_listen " + options.listen +
                             " needs a tokens file: without authentication riccatid listens on loopback only");
   }
-  if (tls) {
-    if (security.tls_cert.empty() || security.tls_key.empty()) return invalid_argument("TLS needs both tls_cert and tls_key");
-    server_ = std::make_unique<httplib::SSLServer>(security.tls_cert.c_str(), security.tls_key.c_str(),
-                                                   security.tls_client_ca.empty() ? nullptr
-                                                                                  : security.tls_client_ca.c_str());
-    if (!server_->is_valid()) {
-      server_.reset();
-      return invalid_argument("http_listen: cannot use the TLS certificate " + security.tls_cert + " and key " +
-                              security.tls_key);
-    }
-  } else {
-    server_ = std::make_unique<httplib::Server>();
+  if (tls && (security.tls_cert.empty() || security.tls_key.empty())) {
+    return invalid_argument("TLS needs both tls_cert and tls_key");
   }
-  server_->new_task_queue = [] { return new httplib::ThreadPool(kMaxEventStreams + 8); };
+  HardenedOptions hardened;
+  // Event streams and uploads hold a worker while they last: room for all
+  // of them, and 8 for the other requests.
+  hardened.workers = kMaxEventStreams + static_cast<int>(std::min<std::int64_t>(limits_.max_uploads, 64)) + 8;
+  hardened.keep_alive_idle = std::chrono::seconds(2);
+  server_ = std::make_unique<HardenedServer>(hardened);
+  if (tls) {
+    std::string why;
+    if (!server_->use_tls(security.tls_cert, security.tls_key, security.tls_client_ca, &why)) {
+      server_.reset();
+      return invalid_argument("http_listen: " + why);
+    }
+  }
+  listen_ = options.listen;
+  tls_ = tls;
+  ip_hosts_ = !loopback;
+  allowed_hosts_ = {lower(host_port.first), "localhost"};
+  for (const std::string& name : options.allowed_hosts) {
+    if (name == "*") any_host_ = true;
+    allowed_hosts_.push_back(lower(name));
+    operator_hosts_.push_back(lower(name));
+  }
   server_->set_payload_max_length(
       static_cast<std::size_t>(std::max(limits_.max_dataset_bytes, limits_.max_message_bytes)));
-  server_->set_read_timeout(std::chrono::seconds(30));
-  server_->set_write_timeout(std::chrono::seconds(30));
-  server_->set_keep_alive_timeout(2);
   routes_ = std::make_unique<Routes>(*this);
   routes_->install(*server_);
   const auto& [host, port] = host_port;
-  const int bound = port == 0 ? server_->bind_to_any_port(host) : (server_->bind_to_port(host, port) ? port : -1);
+  const int bound = server_->bind_port(host, port);
   if (bound < 0) {
     server_.reset();
     return failed_precondition("cannot serve HTTP on " + options.listen + ": cannot bind (in use, or no such address)");
@@ -652,7 +852,7 @@ void HttpApi::stop() {
   if (server_ == nullptr) return;
   jobs_.set_result_listener(nullptr);
   stopping_ = true;
-  server_->stop();
+  server_->shutdown();  // waiting connections closed, workers ended (their reads and writes fail at once)
   if (thread_.joinable()) thread_.join();
   server_.reset();
   routes_.reset();

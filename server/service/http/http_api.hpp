@@ -34,8 +34,17 @@
 //                                            at most 10 a second, while the session lives
 //
 // Every /api/ call needs "Authorization: Bearer <token>" (401 without a
-// valid one; no cookies, so no cross-site request forgery); another
-// tenant's ids are 404 as over gRPC. Errors are a v1.Error in JSON with the
+// valid one, answered on the headers: the body is not read, and the
+// connection closes); another tenant's ids are 404 as over gRPC. Checked on
+// the headers of every request, with or without tokens (cross-site request
+// forgery, DNS rebinding): the Host is the listen address, a loopback name
+// or one of http_allowed_hosts (403); a write (POST, PUT, PATCH, DELETE)
+// with an Origin is from this server's own origin (403), and its body is
+// JSON (application/json; an upload anything but the types a cross-site form
+// may send: 415); no chunked bodies (411); a body past its limit is 413
+// before it is read. A Range of more than one range is ignored (the whole
+// answer, once). The server (hardened_server.hpp) gathers request heads on
+// one thread under a deadline, so slow clients cannot hold its workers. Errors are a v1.Error in JSON with the
 // HTTP status of their code; malformed JSON is 400 with protobuf's message,
 // which names the field; a body over the limits is 413. Transport as gRPC's:
 // TLS with the same certificate and key when they are given; plain HTTP on
@@ -46,7 +55,10 @@
 #include <atomic>
 #include <memory>
 #include <string>
+#include <map>
+#include <mutex>
 #include <thread>
+#include <vector>
 
 #include "engine/models/plugin_loader.hpp"
 #include "engine/status.hpp"
@@ -60,16 +72,20 @@
 #include "service/stream_slots.hpp"
 
 namespace httplib {
-class Server;
 struct Request;
 struct Response;
 }  // namespace httplib
 
 namespace riccati::service {
 
+class HardenedServer;
+
 struct HttpOptions {
   std::string listen;        // host:port; port 0: any free one
   bool plain_public = false;  // plain HTTP off loopback (http_public)
+  // Host names (without port) accepted beside the listen address, its
+  // loopback names and IP literals (http_allowed_hosts); "*": any.
+  std::vector<std::string> allowed_hosts;
 };
 
 class HttpApi {
@@ -89,7 +105,8 @@ class HttpApi {
   // Event streams take a place in StreamSlots, as gRPC's streams do
   // (max_tenant_streams, max_streams: 429 past them); each also holds one
   // of this server's threads while it lasts, so there are at most this many
-  // at once (503 past it), leaving threads for the other requests.
+  // at once (503 past it), leaving threads for the other requests; one
+  // tenant at most max_tenant_event_streams of them (429).
   static constexpr int kMaxEventStreams = 32;
   // Results' JSON kept once written (rendered_results.hpp), at most this
   // many bytes in all; written when a job ends here, or at the first GET.
@@ -108,10 +125,19 @@ class HttpApi {
   // JSON as its job ends (set while serving).
   std::shared_ptr<RenderedResults> rendered_results_ = std::make_shared<RenderedResults>(kRenderedResultBytes);
   std::unique_ptr<Routes> routes_;  // the handlers, which the server calls
-  std::unique_ptr<httplib::Server> server_;
+  std::unique_ptr<HardenedServer> server_;
   std::thread thread_;
   std::atomic<bool> stopping_{false};
   std::atomic<int> streams_{0};
+  std::mutex tenant_streams_mu_;
+  std::map<std::string, std::int64_t> tenant_streams_;  // event streams open per tenant
+  // What the pre-routing checks accept (serve()).
+  std::vector<std::string> allowed_hosts_;  // lower case, without port
+  std::vector<std::string> operator_hosts_;  // http_allowed_hosts alone (Origins accepted by name)
+  bool any_host_ = false;                   // "*" among them
+  bool ip_hosts_ = false;                   // any IP literal (listening off loopback)
+  bool tls_ = false;
+  std::string listen_;
 };
 
 }  // namespace riccati::service
