@@ -251,6 +251,7 @@ void Daemon::shutdown(std::chrono::milliseconds grace) {
     // the next start.
     if (http_ != nullptr) http_->stop();  // its event streams end at once
     model_service_->drain();  // simulations stop within a sample
+    dataset_service_->drain();  // uploads still sending stop (nothing of them stored)
     session_service_->drain(deadline);
     job_service_->drain(deadline);
     sessions_->shutdown();

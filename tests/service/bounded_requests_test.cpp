@@ -10,8 +10,10 @@
 #include <sqlite3.h>
 #include <sys/stat.h>
 
+#include <atomic>
 #include <chrono>
 #include <fstream>
+#include <future>
 #include <sstream>
 #include <thread>
 
@@ -107,7 +109,9 @@ class BoundedRequests : public ::testing::Test {
           v1::GetJobRequest get;
           get.set_id(id);
           const grpc::Status s = jobs_->GetJob(as(tenant).get(), get, &job);
-          return s.ok() && job.state() != v1::JOB_STATE_QUEUED && job.state() != v1::JOB_STATE_RUNNING;
+          // Ended: not queued, running, or cancelling (a cancelled job that has not stopped yet).
+          return s.ok() && (job.state() == v1::JOB_STATE_SUCCEEDED || job.state() == v1::JOB_STATE_FAILED ||
+                            job.state() == v1::JOB_STATE_CANCELLED);
         },
         testing::kSanitized ? 600s : 120s, "job " + id + " ends"));
     return job;
@@ -161,7 +165,8 @@ TEST_F(BoundedRequests, RequestIdsAreBoundedAndARefusedSubmitStoresNothing) {
   // Refused once, accepted now: a new job (its id was never claimed).
   v1::IdentificationSpec retried = testing::hensen_spec(ds, 1);
   retried.set_request_id("refused-0");
-  ASSERT_TRUE(submit("alpha", retried, &job).ok());
+  s = submit("alpha", retried, &job);
+  ASSERT_TRUE(s.ok()) << s.error_message();
   EXPECT_NE(job.id(), first.id());
   wait_for_end("alpha", job.id());
   stop();
@@ -518,6 +523,149 @@ TEST_F(BoundedRequests, ASessionKeepsItsNewestRetunings) {
   ASSERT_EQ(info.retunings_size(), 32);
   EXPECT_DOUBLE_EQ(info.retunings(31).r().scalar(), 40e-3);
   EXPECT_DOUBLE_EQ(info.retunings(0).r().scalar(), 9e-3);
+}
+
+// The target, for this file's attacks together: while tenant alpha
+// sends 20 MB request ids, holds its upload share with idle uploads, creates
+// and deletes models, asks for full-covariance batches past the message
+// limit and reads a large result over and over, tenant beta's health check
+// and one-pass identification stay within twice their idle time (and a
+// second's slack on this 2-core machine, where the attack's client shares
+// the daemon's cores), riccatid's memory stays bounded, and SIGTERM ends it.
+TEST_F(BoundedRequests, AnotherTenantIsServedWhileOneAttacksAndSigtermEndsItAll) {
+  start({"--max-tenant-uploads", "2", "--upload-idle-seconds", "30", "--max-message-bytes", std::to_string(32 << 20),
+         "--max-result-read-bytes", std::to_string(4 << 20)});
+  const std::string beta_ds = upload("beta", "two_tank.csv");
+  const std::string alpha_ds = upload("alpha", "two_tank.csv");
+  // A result of about 3 MB for alpha to read (20 passes of traces).
+  v1::Job big;
+  ASSERT_TRUE(submit("alpha", testing::hensen_spec(alpha_ds, 40), &big).ok());
+  ASSERT_EQ(wait_for_end("alpha", big.id()).state(), v1::JOB_STATE_SUCCEEDED);
+
+  auto health = [&] {
+    double took = 0;
+    EXPECT_TRUE(testing::health_check(daemon_->channel(), &took).ok());
+    return took;
+  };
+  auto one_pass = [&] {
+    const auto began = std::chrono::steady_clock::now();
+    v1::Job job;
+    EXPECT_TRUE(submit("beta", testing::hensen_spec(beta_ds, 1), &job).ok());
+    EXPECT_EQ(wait_for_end("beta", job.id()).state(), v1::JOB_STATE_SUCCEEDED);
+    return std::chrono::duration<double>(std::chrono::steady_clock::now() - began).count();
+  };
+  double idle_health = 0, idle_pass = 0;
+  for (int i = 0; i < 3; ++i) {
+    idle_health = std::max(idle_health, health());
+    idle_pass = std::max(idle_pass, one_pass());
+  }
+
+  std::atomic<bool> attacking{true};
+  std::vector<std::thread> attackers;
+  attackers.emplace_back([&] {  // request ids of 20 MB
+    v1::IdentificationSpec spec = testing::hensen_spec(alpha_ds, 1);
+    spec.set_request_id(std::string(20 << 20, 'r'));
+    while (attacking) {
+      v1::Job job;
+      (void)submit("alpha", spec, &job);
+    }
+  });
+  attackers.emplace_back([&] {  // models created and deleted
+    const std::string source = read_text(std::string(RICCATI_SOURCE_DIR) + "/models/text/two_tank.yaml");
+    for (int i = 0; attacking; ++i) {
+      v1::CreateModelRequest create;
+      create.set_source(source + "# " + std::to_string(i) + std::string(100 << 10, '#') + "\n");
+      v1::ModelInfo info;
+      (void)models_->CreateModel(as("alpha").get(), create, &info);
+      v1::DeleteModelRequest remove;
+      remove.set_name("two_tank_text");
+      v1::DeleteModelResponse removed;
+      (void)models_->DeleteModel(as("alpha").get(), remove, &removed);
+    }
+  });
+  for (int reader = 0; reader < 4; ++reader) {
+    attackers.emplace_back([&] {  // the large result, read over and over
+      while (attacking) {
+        v1::GetResultRequest get;
+        get.set_job_id(big.id());
+        v1::JobResult result;
+        (void)jobs_->GetResult(as("alpha").get(), get, &result);
+      }
+    });
+  }
+  attackers.emplace_back([&] {  // full-covariance batches past the message limit
+    v1::SessionInfo session;
+    ASSERT_TRUE(sessions_->CreateSession(as("alpha").get(), testing::two_tank_session(), &session).ok());
+    v1::StreamRequest batch;
+    for (int k = 0; k < 4096; ++k) testing::add_measurement(batch, 1.0 + k, {0.0, 0.0}, {1.0, 1.0});
+    while (attacking) {
+      auto ctx = as("alpha");
+      auto stream = sessions_->Stream(ctx.get());
+      v1::StreamRequest open;
+      open.mutable_open()->set_session_id(session.id());
+      open.mutable_open()->set_full_covariance(true);
+      stream->Write(open);
+      stream->Write(batch);
+      stream->WritesDone();
+      v1::StreamResponse response;
+      while (stream->Read(&response)) {
+      }
+      (void)stream->Finish();
+    }
+  });
+  // Alpha's upload share held by uploads that send nothing.
+  std::vector<std::unique_ptr<grpc::ClientContext>> held_contexts;
+  std::vector<std::unique_ptr<grpc::ClientWriter<v1::UploadDatasetRequest>>> held;
+  std::vector<v1::DatasetInfo> held_info(2);
+  for (int i = 0; i < 2; ++i) {
+    held_contexts.push_back(as("alpha"));
+    held.push_back(datasets_->UploadDataset(held_contexts.back().get(), &held_info[static_cast<std::size_t>(i)]));
+    held.back()->Write(testing::upload_header("held.csv", {"F1", "F2"}, {"h1", "h2"}));
+  }
+  std::this_thread::sleep_for(1s);  // the attack under way
+
+  double worst_health = 0, worst_pass = 0;
+  for (int i = 0; i < 3; ++i) {
+    worst_health = std::max(worst_health, health());
+    worst_pass = std::max(worst_pass, one_pass());
+  }
+  EXPECT_FALSE(upload("beta", "two_tank_noisy.csv").empty()) << "another tenant's upload, while alpha holds its share";
+  const long peak_kib = daemon_->peak_rss_kib();
+  std::printf("idle: health %.3f s, one pass %.3f s; under attack: health %.3f s, one pass %.3f s; peak RSS %ld MiB\n",
+              idle_health, idle_pass, worst_health, worst_pass, peak_kib / 1024);
+  RecordProperty("idle_health_s", std::to_string(idle_health));
+  RecordProperty("attacked_health_s", std::to_string(worst_health));
+  RecordProperty("idle_one_pass_s", std::to_string(idle_pass));
+  RecordProperty("attacked_one_pass_s", std::to_string(worst_pass));
+  const double slack = testing::kSanitized ? 10.0 : 1.0;
+  EXPECT_LT(worst_health, 2 * idle_health + slack);
+  EXPECT_LT(worst_pass, 2 * idle_pass + slack);
+  if (!testing::kSanitized) {
+    // The limits it runs under: 32 MiB messages (several in flight), 4 MiB of
+    // results read at once (a few times that while converted), the stores'
+    // and gRPC's own: well under 1 GiB, where the reported attacks took several.
+    EXPECT_LT(peak_kib, 1024 * 1024) << "riccatid's peak resident memory under the attack";
+  }
+
+  // SIGTERM while it all goes on: out within the grace period.
+  const auto stopping = std::chrono::steady_clock::now();
+  const int status = daemon_->stop();
+  const double stop_s = std::chrono::duration<double>(std::chrono::steady_clock::now() - stopping).count();
+  std::printf("SIGTERM under the attack: exit after %.2f s\n", stop_s);
+  RecordProperty("attacked_sigterm_s", std::to_string(stop_s));
+  attacking = false;
+  for (auto& w : held) {
+    w->WritesDone();
+    (void)w->Finish();
+  }
+  for (std::thread& t : attackers) t.join();
+  EXPECT_EQ(status, 0) << daemon_->exit_report();
+  // riccatid's own shutdown (drains, workers, the store) ends within the
+  // grace period; the process itself may take up to 10 s more, rarely: a
+  // gRPC executor thread polling with a 10 s timeout is joined in
+  // grpc_shutdown when the server is destroyed (seen in 3 of about 30 runs
+  // under this attack; docs/operations.md). That is the bound asserted here.
+  EXPECT_LT(stop_s, testing::kSanitized ? 30.0 : 16.0) << "SIGTERM under attack took " << stop_s << " s";
 }
 
 // Item 15: files read at start are regular files of bounded size. A FIFO

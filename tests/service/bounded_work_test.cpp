@@ -118,18 +118,7 @@ class BoundedWork : public ::testing::Test {
     return std::chrono::duration_cast<std::chrono::milliseconds>(Clock::now() - t0);
   }
 
-  grpc::Status health_check() {
-    grpc::GenericStub stub(daemon_->channel());
-    grpc::ClientContext ctx;
-    ctx.set_deadline(std::chrono::system_clock::now() + 5s);
-    grpc::Slice empty("");
-    const grpc::ByteBuffer request(&empty, 1);
-    grpc::ByteBuffer response;
-    std::promise<grpc::Status> done;
-    stub.UnaryCall(&ctx, "/grpc.health.v1.Health/Check", grpc::StubOptions(), &request, &response,
-                   [&](grpc::Status st) { done.set_value(st); });
-    return done.get_future().get();
-  }
+  grpc::Status health_check() { return testing::health_check(daemon_->channel(), nullptr, 5s); }
 
   v1::SimulateRequest stiff_simulation(int samples) {
     v1::SimulateRequest request;

@@ -4,6 +4,7 @@
 
 #include <fcntl.h>
 
+#include <grpcpp/generic/generic_stub.h>
 #include <grpcpp/grpcpp.h>
 #include <gtest/gtest.h>
 #include <signal.h>
@@ -19,6 +20,7 @@
 #include <cstring>
 #include <filesystem>
 #include <fstream>
+#include <future>
 #include <limits>
 #include <memory>
 #include <stdexcept>
@@ -306,6 +308,26 @@ struct Outcome {
   int exit_code;
   std::string output;
 };
+
+// A gRPC health check of the daemon as a whole ("" service: SERVING when
+// it answers), and how long it took in `seconds` if given. The generic stub
+// sends the empty request without a copy of grpc.health.v1 in proto/.
+inline grpc::Status health_check(const std::shared_ptr<grpc::Channel>& channel, double* seconds = nullptr,
+                                 std::chrono::seconds deadline = std::chrono::seconds(30)) {
+  grpc::GenericStub stub(channel);
+  grpc::ClientContext ctx;
+  ctx.set_deadline(std::chrono::system_clock::now() + deadline);
+  grpc::Slice empty("");
+  const grpc::ByteBuffer request(&empty, 1);
+  grpc::ByteBuffer response;
+  std::promise<grpc::Status> done;
+  const auto began = std::chrono::steady_clock::now();
+  stub.UnaryCall(&ctx, "/grpc.health.v1.Health/Check", grpc::StubOptions(), &request, &response,
+                 [&](grpc::Status st) { done.set_value(st); });
+  const grpc::Status status = done.get_future().get();
+  if (seconds != nullptr) *seconds = std::chrono::duration<double>(std::chrono::steady_clock::now() - began).count();
+  return status;
+}
 
 inline Outcome riccatid(const std::string& args) {
   const std::string command = "timeout 60 " + std::string(RICCATI_DAEMON_BIN) + " " + args + " 2>&1";

@@ -212,18 +212,8 @@ class HttpHardeningTest : public ::testing::Test {
 
   // How long a gRPC health check takes (it must answer SERVING).
   double timed_health_check() {
-    grpc::GenericStub stub(daemon_->channel());
-    grpc::ClientContext ctx;
-    ctx.set_deadline(std::chrono::system_clock::now() + std::chrono::seconds(30));
-    grpc::Slice empty("");
-    const grpc::ByteBuffer request(&empty, 1);
-    grpc::ByteBuffer response;
-    std::promise<grpc::Status> done;
-    const auto began = Clock::now();
-    stub.UnaryCall(&ctx, "/grpc.health.v1.Health/Check", grpc::StubOptions(), &request, &response,
-                   [&](grpc::Status st) { done.set_value(st); });
-    const grpc::Status s = done.get_future().get();
-    const double took = seconds_since(began);
+    double took = 0;
+    const grpc::Status s = testing::health_check(daemon_->channel(), &took);
     EXPECT_TRUE(s.ok()) << s.error_message();
     return took;
   }

@@ -53,6 +53,21 @@ TEST(ResultReads, AWaitingReadGoesOnceRoomIsGivenBack) {
   EXPECT_TRUE(got.load());
 }
 
+TEST(ResultReads, AtShutdownAWaitingReadEndsAtOnce) {
+  ResultReads reads(2 * kMiB, 60s);
+  auto first = reads.acquire(2 * kMiB);
+  ASSERT_TRUE(first.is_ok());
+  std::thread stopper([&] {
+    std::this_thread::sleep_for(50ms);
+    reads.stop();
+  });
+  const auto began = std::chrono::steady_clock::now();
+  const auto waiting = reads.acquire(2 * kMiB);
+  stopper.join();
+  EXPECT_EQ(waiting.status().code(), StatusCode::kUnavailable);
+  EXPECT_LT(std::chrono::steady_clock::now() - began, 10s) << "the waiting read held the stop";
+}
+
 TEST(ResultReads, AReadLargerThanTheBudgetGoesAlone) {
   ResultReads reads(2 * kMiB, 20ms);
   auto huge = reads.acquire(10 * kMiB);

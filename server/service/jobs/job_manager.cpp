@@ -79,6 +79,7 @@ Status JobManager::start() {
 }
 
 void JobManager::shutdown() {
+  result_reads_.stop();
   {
     std::lock_guard lock(mu_);
     if (stopping_ && workers_.empty()) return;

@@ -31,7 +31,9 @@ class ResultReads {
   Result<std::shared_ptr<const void>> acquire(std::int64_t bytes) {
     if (bytes < kSmall) return std::shared_ptr<const void>();
     std::unique_lock lock(mu_);
-    const bool room = changed_.wait_for(lock, wait_, [&] { return reading_ == 0 || reading_ + bytes <= max_bytes_; });
+    const bool room = changed_.wait_for(
+        lock, wait_, [&] { return stopping_ || reading_ == 0 || reading_ + bytes <= max_bytes_; });
+    if (stopping_) return Status(StatusCode::kUnavailable, "riccatid is shutting down: read the result again later");
     if (!room) {
       return limit_reached("max_result_read_bytes", max_bytes_,
                            "results of " + std::to_string(reading_) + " bytes are being read, and this one is " +
@@ -39,6 +41,16 @@ class ResultReads {
     }
     reading_ += bytes;
     return std::shared_ptr<const void>(nullptr, [this, bytes](const void*) { release(bytes); });
+  }
+
+  // Shutdown: reads waiting for room end at once (UNAVAILABLE), so that
+  // they do not hold the server's stop.
+  void stop() {
+    {
+      std::lock_guard lock(mu_);
+      stopping_ = true;
+    }
+    changed_.notify_all();
   }
 
  private:
@@ -55,6 +67,7 @@ class ResultReads {
   std::mutex mu_;
   std::condition_variable changed_;
   std::int64_t reading_ = 0;
+  bool stopping_ = false;
 };
 
 }  // namespace riccati::service

@@ -71,6 +71,10 @@ class DatasetServiceImpl::UploadReactor final : public grpc::ServerReadReactor<v
     touched();
     {
       std::lock_guard lock(service_.uploads_mu_);
+      if (service_.draining_) {
+        end_with({grpc::StatusCode::UNAVAILABLE, "riccatid is shutting down: upload again later"});
+        return;
+      }
       service_.uploads_.insert(this);
     }
     service_.uploads_changed_.notify_all();
@@ -136,6 +140,10 @@ class DatasetServiceImpl::UploadReactor final : public grpc::ServerReadReactor<v
     if (now_ms - last_read_ms_.load() < idle_ms || idle_.exchange(true)) return;
     context_->TryCancel();
   }
+  // Shutdown (the registry locked).
+  void cancel_for_drain() {
+    if (!draining_.exchange(true)) context_->TryCancel();
+  }
 
  private:
   // Gives back the upload's room and place before the client hears the
@@ -156,6 +164,10 @@ class DatasetServiceImpl::UploadReactor final : public grpc::ServerReadReactor<v
   // The client is done sending, or gone.
   void end() {
     leave_watch();
+    if (draining_) {
+      return end_with({grpc::StatusCode::UNAVAILABLE,
+                       "riccatid is shutting down: the upload of " + upload_.name + " was stopped, nothing stored"});
+    }
     if (idle_) {
       const std::int64_t idle_s = service_.datasets_.limits().upload_idle_seconds;
       return end_with({grpc::StatusCode::DEADLINE_EXCEEDED,
@@ -193,7 +205,18 @@ class DatasetServiceImpl::UploadReactor final : public grpc::ServerReadReactor<v
   std::thread storing_;
   std::atomic<std::int64_t> last_read_ms_{0};  // steady clock: the last message's arrival
   std::atomic<bool> idle_{false};              // ended by the idle watch
+  std::atomic<bool> draining_{false};          // ended by shutdown
 };
+
+void DatasetServiceImpl::drain() {
+  std::lock_guard lock(uploads_mu_);
+  draining_ = true;
+  // A copy: a cancelled upload may leave the set inside TryCancel.
+  const std::vector<UploadReactor*> reading(uploads_.begin(), uploads_.end());
+  for (UploadReactor* upload : reading) {
+    if (uploads_.count(upload) != 0) upload->cancel_for_drain();
+  }
+}
 
 DatasetServiceImpl::DatasetServiceImpl(const Authenticator& auth, DatasetManager& datasets, StreamSlots& slots)
     : auth_(auth), datasets_(datasets), slots_(slots), idle_watch_([this] { watch_idle_uploads(); }) {}

@@ -29,6 +29,9 @@ class DatasetServiceImpl final : public v1::DatasetService::WithCallbackMethod_U
   grpc::Status DeleteDataset(grpc::ServerContext*, const v1::DeleteDatasetRequest*,
                              v1::DeleteDatasetResponse*) override;
   grpc::Status GetDatasetData(grpc::ServerContext*, const v1::GetDatasetRequest*, v1::DatasetData*) override;
+  // Shutdown: uploads still sending are ended now (nothing of them is
+  // stored) rather than holding the server's stop to its grace period.
+  void drain();
 
  private:
   class UploadReactor;
@@ -44,6 +47,7 @@ class DatasetServiceImpl final : public v1::DatasetService::WithCallbackMethod_U
   std::condition_variable_any uploads_changed_;
   std::set<UploadReactor*> uploads_;  // reading their bytes
   bool stopping_ = false;
+  bool draining_ = false;
   std::thread idle_watch_;
 };
 
