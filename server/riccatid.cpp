@@ -9,6 +9,7 @@
 // (as ReloadModels); sessions and jobs keep the models they started with.
 #include <CLI/CLI.hpp>
 #include <absl/synchronization/mutex.h>
+#include <grpc/grpc.h>
 #include <csignal>
 #include <cstdio>
 #include <algorithm>
@@ -39,6 +40,12 @@ int main(int argc, char** argv) {
   // lock-order graph under one global lock: a few per cent of a stream's CPU,
   // and contention between the streams' threads (docs/benchmarks.md).
   absl::SetMutexDeadlockDetectionMode(absl::OnDeadlockCycle::kIgnore);
+  // gRPC's library stays initialised to the end of the process: the last
+  // grpc_shutdown (when the server is destroyed at stop) joins gRPC's
+  // executor threads, and one of them polling with a 10 s timeout held
+  // SIGTERM's exit that long (rarely, under load). By then the daemon has
+  // drained, stopped its workers and stored what it holds.
+  grpc_init();
   CLI::App app{"riccatid: the riccati estimation daemon"};
   std::string config_file, port_file;
   DaemonConfig flags;

@@ -531,7 +531,8 @@ TEST_F(BoundedRequests, ASessionKeepsItsNewestRetunings) {
 // limit and reads a large result over and over, tenant beta's health check
 // and one-pass identification stay within twice their idle time (and a
 // second's slack on this 2-core machine, where the attack's client shares
-// the daemon's cores), riccatid's memory stays bounded, and SIGTERM ends it.
+// the daemon's cores), riccatid's memory stays bounded, and SIGTERM ends it
+// within its 5 s grace.
 TEST_F(BoundedRequests, AnotherTenantIsServedWhileOneAttacksAndSigtermEndsItAll) {
   start({"--max-tenant-uploads", "2", "--upload-idle-seconds", "30", "--max-message-bytes", std::to_string(32 << 20),
          "--max-result-read-bytes", std::to_string(4 << 20)});
@@ -660,12 +661,10 @@ TEST_F(BoundedRequests, AnotherTenantIsServedWhileOneAttacksAndSigtermEndsItAll)
   }
   for (std::thread& t : attackers) t.join();
   EXPECT_EQ(status, 0) << daemon_->exit_report();
-  // riccatid's own shutdown (drains, workers, the store) ends within the
-  // grace period; the process itself may take up to 10 s more, rarely: a
-  // gRPC executor thread polling with a 10 s timeout is joined in
-  // grpc_shutdown when the server is destroyed (seen in 3 of about 30 runs
-  // under this attack; docs/operations.md). That is the bound asserted here.
-  EXPECT_LT(stop_s, testing::kSanitized ? 30.0 : 16.0) << "SIGTERM under attack took " << stop_s << " s";
+  // Within the 5 s grace and a little. (It took 10 s more in 3 of about 30
+  // runs before riccatid kept gRPC initialised to its end: destroying the
+  // server joined a gRPC executor thread polling with a 10 s timeout.)
+  EXPECT_LT(stop_s, testing::kSanitized ? 30.0 : 6.5) << "SIGTERM under attack took " << stop_s << " s";
 }
 
 // Item 15: files read at start are regular files of bounded size. A FIFO
