@@ -10,6 +10,7 @@
 #include <sqlite3.h>
 #include <sys/stat.h>
 
+#include <algorithm>
 #include <atomic>
 #include <chrono>
 #include <fstream>
@@ -568,11 +569,16 @@ TEST_F(BoundedRequests, AnotherTenantIsServedWhileOneAttacksAndSigtermEndsItAll)
         120s, "beta's one-pass job succeeds", 2ms));
     return std::chrono::duration<double>(std::chrono::steady_clock::now() - began).count();
   };
-  double idle_health = 0, idle_pass = 0;
-  for (int i = 0; i < 3; ++i) {
-    idle_health = std::max(idle_health, health());
-    idle_pass = std::max(idle_pass, one_pass());
-  }
+  // Medians of 5: the first call after a pause can take 50 ms with no
+  // attack at all (measured on a 16-core machine with the attack off).
+  auto median_of_5 = [](auto call) {
+    std::vector<double> took;
+    for (int i = 0; i < 5; ++i) took.push_back(call());
+    std::sort(took.begin(), took.end());
+    return took[2];
+  };
+  const double idle_health = median_of_5(health);
+  const double idle_pass = median_of_5(one_pass);
 
   std::atomic<bool> attacking{true};
   std::vector<std::thread> attackers;
@@ -638,14 +644,12 @@ TEST_F(BoundedRequests, AnotherTenantIsServedWhileOneAttacksAndSigtermEndsItAll)
   }
   std::this_thread::sleep_for(1s);  // the attack under way
 
-  double worst_health = 0, worst_pass = 0;
-  for (int i = 0; i < 3; ++i) {
-    worst_health = std::max(worst_health, health());
-    worst_pass = std::max(worst_pass, one_pass());
-  }
+  const double worst_health = median_of_5(health);
+  const double worst_pass = median_of_5(one_pass);
   EXPECT_FALSE(upload("beta", "two_tank_noisy.csv").empty()) << "another tenant's upload, while alpha holds its share";
   const long peak_kib = daemon_->peak_rss_kib();
-  std::printf("idle: health %.3f s, one pass %.3f s; under attack: health %.3f s, one pass %.3f s; peak RSS %ld MiB\n",
+  std::printf("medians idle: health %.4f s, one pass %.3f s; under attack: health %.4f s, one pass %.3f s; peak RSS "
+              "%ld MiB\n",
               idle_health, idle_pass, worst_health, worst_pass, peak_kib / 1024);
   RecordProperty("idle_health_s", std::to_string(idle_health));
   RecordProperty("attacked_health_s", std::to_string(worst_health));
