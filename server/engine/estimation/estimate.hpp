@@ -1,5 +1,5 @@
 // What the identification methods that find an optimum share (output error,
-// maximum likelihood; IDENTIFICATION.md): the unknowns and their bounds, the
+// maximum likelihood; docs/identification.md): the unknowns and their bounds, the
 // experiments, the optimiser's settings, how a run is watched and stopped,
 // and the result with its uncertainty.
 //

@@ -1,5 +1,5 @@
 // Maximum likelihood with the continuous-discrete EKF as predictor (the
-// prediction-error method of CTSM-R; IDENTIFICATION.md): the parameters, and
+// prediction-error method of CTSM-R; docs/identification.md): the parameters, and
 // the initial states and noise levels asked for, that minimise the negative
 // log-likelihood of the one-step innovations
 //

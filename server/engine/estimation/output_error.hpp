@@ -1,4 +1,4 @@
-// Output error (simulation error, as MATLAB's nlgreyest; IDENTIFICATION.md):
+// Output error (simulation error, as MATLAB's nlgreyest; docs/identification.md):
 // the parameters, and the initial states asked for, that minimise
 //
 //     1/2 sum_e sum_k || W^1/2 m_k (g(x(t_k; theta, x0_e), theta, u_k) - y_k) ||^2

@@ -1,5 +1,5 @@
 // The model simulated over a record together with its forward sensitivities:
-// the variational equations integrated alongside the states (IDENTIFICATION.md),
+// the variational equations integrated alongside the states (docs/identification.md),
 //
 //     x' = f(x, theta, u, t),              x(t0) = x0
 //     S' = f_x S + [0  f_theta],           S(t0) = [I  0],   S = [dx/dx0  dx/dtheta]

@@ -10,7 +10,7 @@
 namespace riccati {
 namespace {
 
-constexpr double kRelativeEigenvalue = 1e-8;  // IDENTIFICATION.md
+constexpr double kRelativeEigenvalue = 1e-8;  // docs/identification.md
 constexpr double kCorrelation = 0.99;
 constexpr double kZ95 = 1.959963984540054;
 

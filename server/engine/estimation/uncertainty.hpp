@@ -1,4 +1,4 @@
-// How sure an estimate is (IDENTIFICATION.md, Uncertainty): the covariance of
+// How sure an estimate is (docs/identification.md, "What an estimate comes with"): the covariance of
 // the free unknowns from the information at the optimum, their standard
 // errors, correlations and 95 % confidence intervals, and the unknowns the
 // data cannot tell apart, named. Never NaN: an unknown the data do not

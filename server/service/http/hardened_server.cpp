@@ -456,6 +456,14 @@ void HardenedServer::front_loop() {
     c->registered = true;
     c->events = events;
   };
+  // A non-blocking TLS call that could not finish (`result` its return):
+  // watch for what it waits for (true), or the connection failed (false).
+  const auto tls_waits = [&](Conn* c, int result) -> bool {
+    const int e = SSL_get_error(c->ssl, result);
+    if (e != SSL_ERROR_WANT_READ && e != SSL_ERROR_WANT_WRITE) return false;
+    watch(c, e == SSL_ERROR_WANT_READ ? EPOLLIN : EPOLLOUT);
+    return true;
+  };
   // Reads what there is; false when the connection is to be dropped.
   const auto progress = [&](Conn* c) -> bool {
     if (c->draining) {
@@ -478,18 +486,7 @@ void HardenedServer::front_loop() {
     if (c->handshaking) {
       ERR_clear_error();
       const int r = SSL_accept(c->ssl);
-      if (r != 1) {
-        const int e = SSL_get_error(c->ssl, r);
-        if (e == SSL_ERROR_WANT_READ) {
-          watch(c, EPOLLIN);
-          return true;
-        }
-        if (e == SSL_ERROR_WANT_WRITE) {
-          watch(c, EPOLLOUT);
-          return true;
-        }
-        return false;
-      }
+      if (r != 1) return tls_waits(c, r);
       c->handshaking = false;
     }
     char chunk[16 * 1024];
@@ -498,18 +495,7 @@ void HardenedServer::front_loop() {
       if (c->ssl != nullptr) {
         ERR_clear_error();
         const int r = SSL_read(c->ssl, chunk, sizeof chunk);
-        if (r <= 0) {
-          const int e = SSL_get_error(c->ssl, r);
-          if (e == SSL_ERROR_WANT_READ) {
-            watch(c, EPOLLIN);
-            return true;
-          }
-          if (e == SSL_ERROR_WANT_WRITE) {
-            watch(c, EPOLLOUT);
-            return true;
-          }
-          return false;
-        }
+        if (r <= 0) return tls_waits(c, r);
         n = r;
       } else {
         n = ::recv(c->fd, chunk, sizeof chunk, 0);

@@ -287,7 +287,7 @@ class SessionServiceImpl::StreamReactor final : public grpc::ServerBidiReactor<g
     }
     // The answer is one message too: bounded before any of it is computed
     // (a full covariance is nz^2 values a measurement).
-    const std::int64_t per_result = session_->result_bytes(full_covariance_);
+    const std::int64_t per_result = result_bytes_;
     if (measurements.size() * per_result > service_.limits_.max_message_bytes) {
       const std::int64_t fits = std::max<std::int64_t>(1, service_.limits_.max_message_bytes / per_result);
       return {false, to_grpc(limit_reached(
@@ -353,6 +353,8 @@ class SessionServiceImpl::StreamReactor final : public grpc::ServerBidiReactor<g
     if (!found.is_ok()) return to_grpc(found.status());
     const Status attached = found.value()->attach();
     if (!attached.is_ok()) return to_grpc(attached);
+    // A result's size is fixed by the session's sizes: read once, not per message.
+    result_bytes_ = found.value()->result_bytes(full_covariance_);
     std::lock_guard lock(mu_);  // end_if_on() reads it from another thread
     session_ = found.value();
     return std::nullopt;
@@ -379,6 +381,7 @@ class SessionServiceImpl::StreamReactor final : public grpc::ServerBidiReactor<g
   bool registered_ = false;
   std::shared_ptr<Session> session_;
   bool full_covariance_ = false;
+  std::int64_t result_bytes_ = 0;  // at most one measurement's answer (Session::result_bytes)
   // The filtering stage's own: the message it parses, where it parses it,
   // and the response it fills (all reused, so that a steady stream of
   // batches up to about a hundred measurements does not allocate).
