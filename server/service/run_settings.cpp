@@ -3,9 +3,17 @@
 #include <algorithm>
 
 #include "engine/filters/filter_kinds.hpp"
+#include "riccati/settings_schema.hpp"
 #include "service/convert.hpp"
 
 namespace riccati::service {
+
+Status check_settings_apply(const google::protobuf::Message& request, std::string_view filter) {
+  const std::string kind = filter.empty() ? api::choice_of(request, "filter.kind") : std::string(filter);
+  const std::string misplaced = api::misplaced_setting(request, api::choice_of(request, "method"), kind);
+  if (!misplaced.empty()) return invalid_argument(misplaced);
+  return Status::ok();
+}
 
 Result<IntegratorSettings> from_proto(const v1::IntegratorSettings& s) {
   IntegratorSettings out;
@@ -157,6 +165,7 @@ Result<InitialEstimate> initial_estimate_from_proto(const v1::InitialState& init
 }
 
 Result<OnlineRunner> online_runner_from_proto(const ModelPtr& model, const v1::CreateSessionRequest& request) {
+  RICCATI_RETURN_IF_ERROR(check_settings_apply(request));
   RICCATI_ASSIGN_OR_RETURN(const FilterSettings settings, from_proto(request.filter(), *model));
   RICCATI_ASSIGN_OR_RETURN(InitialEstimate initial,
                            initial_estimate_from_proto(request.initial_state(), request.theta0(), request.p0(),

@@ -14,6 +14,13 @@
 
 namespace riccati::service {
 
+// A setting given where the request's method or its filter kind does not
+// take it, as the proto's schema says (riccati/settings_schema.hpp):
+// INVALID_ARGUMENT naming the field, the method or kind it applies to and
+// the one asked for. `filter`: the kind's short name where the request does
+// not say it (a session's, for a retuning).
+Status check_settings_apply(const google::protobuf::Message& request, std::string_view filter = {});
+
 Result<IntegratorSettings> from_proto(const v1::IntegratorSettings& s);
 Result<HoldOrder> from_proto(v1::HoldOrder hold);
 Result<FilterSettings> from_proto(const v1::FilterSettings& s, const Model& model);

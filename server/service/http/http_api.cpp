@@ -13,6 +13,7 @@
 #include <optional>
 #include <string_view>
 
+#include "riccati/settings_schema.hpp"
 #include "service/convert.hpp"
 #include "service/http/hardened_server.hpp"
 #include "service/http/web_assets.hpp"
@@ -182,6 +183,12 @@ class HttpApi::Routes {
     });
     server.Get("/healthz", [](const Request&, Response& res) { res.set_content("ok\n", "text/plain"); });
 
+    // The requests' settings (riccati/settings_schema.hpp): what the
+    // workbench makes its forms from. The same for every tenant.
+    server.Get("/api/v1/schema", authed([](const std::string&, const Request&, Response& res) {
+      static const std::string schema = api::settings_schema_json();
+      res.set_content(schema, "application/json");
+    }));
     server.Get("/api/v1/models", authed([this](const std::string& tenant, const Request&, Response& res) {
       const auto entries = api_.models_.list(tenant);
       if (!entries.is_ok()) return fail(res, entries.status());

@@ -14,6 +14,7 @@
 #include "service/jobs/job_convert.hpp"
 #include "service/jobs/identification_job.hpp"
 #include "service/jobs/job_execution.hpp"
+#include "service/run_settings.hpp"
 
 namespace riccati::service {
 
@@ -120,6 +121,7 @@ Result<JobRecord> JobManager::submit_identification(const std::string& tenant, c
   if (passes > limits_.max_passes) {
     return limit_reached("max_passes", limits_.max_passes, "the job asks for " + std::to_string(passes) + " passes");
   }
+  RICCATI_RETURN_IF_ERROR(check_settings_apply(spec));
   RICCATI_ASSIGN_OR_RETURN(const IdentificationJob plan, identification_from_proto(spec, *model));
   std::vector<DatasetRecord> datasets;
   for (const ExperimentSpec& e : plan.experiments) {
@@ -143,6 +145,7 @@ Result<JobRecord> JobManager::submit_identification(const std::string& tenant, c
 Result<JobRecord> JobManager::submit_smoothing(const std::string& tenant, const v1::SmoothingSpec& spec) {
   RICCATI_ASSIGN_OR_RETURN(const ResolvedModel resolved, models_.resolve(tenant, spec.model()));
   const ModelPtr& model = resolved.model;
+  RICCATI_RETURN_IF_ERROR(check_settings_apply(spec));
   RICCATI_ASSIGN_OR_RETURN(const SmootherSettings settings, from_proto(spec, *model));
   RICCATI_ASSIGN_OR_RETURN(const DatasetRecord dataset, store_.get_dataset(tenant, spec.dataset_id()));
   const Eigen::Index end = settings.end_sample < 0 ? dataset.samples : settings.end_sample;

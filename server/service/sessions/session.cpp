@@ -2,6 +2,7 @@
 
 #include <spdlog/spdlog.h>
 
+#include "riccati/settings_schema.hpp"
 #include "service/convert.hpp"
 #include "service/ids.hpp"
 #include "service/run_settings.hpp"
@@ -126,6 +127,7 @@ Status Session::retune(const v1::RetuneSessionRequest& request) {
   }
   std::lock_guard lock(mu_);
   if (!diverged_.is_ok()) return failed_precondition("session " + id_ + " diverged: " + diverged_.message());
+  RICCATI_RETURN_IF_ERROR(check_settings_apply(request, api::choice_of(request_, "filter.kind")));
   v1::FilterSettings filter = request_.filter();
   if (request.has_q()) *filter.mutable_q() = request.q();
   if (request.has_r()) *filter.mutable_r() = request.r();
