@@ -125,6 +125,16 @@ const std::vector<SettingField>& settings_of(const Descriptor& request) {
   return it->second;
 }
 
+std::string_view implied_method(const Descriptor& request) {
+  if (&request == v1::CreateSessionRequest::descriptor() || &request == v1::SmoothingSpec::descriptor()) return "filter";
+  return {};
+}
+
+bool offered(const Descriptor& request, const SettingField& s) {
+  const std::string_view method = implied_method(request);
+  return method.empty() || s.setting->methods_size() == 0 || contains(s.setting->methods(), method);
+}
+
 const SettingField* find_setting(const Descriptor& request, std::string_view path) {
   for (const SettingField& s : settings_of(request)) {
     if (s.path == path) return &s;
@@ -177,6 +187,7 @@ std::string choice_of(const Message& request, std::string_view path) {
 }
 
 std::string misplaced_setting(const Message& request, std::string_view method, std::string_view filter) {
+  if (method.empty()) method = implied_method(*request.GetDescriptor());
   for (const SettingField& s : settings_of(*request.GetDescriptor())) {
     if (!is_given(request, s)) continue;
     const v1::Setting& o = *s.setting;
@@ -212,6 +223,7 @@ std::string settings_schema_json() {
   for (const Descriptor* request : setting_requests()) {
     ListValue* list = (*requests->mutable_fields())[std::string(request->name())].mutable_list_value();
     for (const SettingField& s : settings_of(*request)) {
+      if (!offered(*request, s)) continue;
       Struct* item = list->add_values()->mutable_struct_value();
       auto& f = *item->mutable_fields();
       const v1::Setting& o = *s.setting;

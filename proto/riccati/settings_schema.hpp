@@ -49,6 +49,12 @@ struct SettingField {
 
 // Every setting of a request type, in the order of its fields.
 const std::vector<SettingField>& settings_of(const google::protobuf::Descriptor& request);
+// The method a request without a method setting stands for: "filter" for
+// sessions and smoothing (they run a filter); empty for the others.
+std::string_view implied_method(const google::protobuf::Descriptor& request);
+// Whether a client offers the setting for the request: not one that only
+// methods the request cannot have take (initial_state.estimate of a session).
+bool offered(const google::protobuf::Descriptor& request, const SettingField& s);
 // The setting at `path` of `request`, or null.
 const SettingField* find_setting(const google::protobuf::Descriptor& request, std::string_view path);
 // The setting whose flag is `flag` ("--q"), or null.
