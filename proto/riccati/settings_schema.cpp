@@ -241,7 +241,14 @@ std::string settings_schema_json() {
       if (o.filters_size() > 0) f["filters"] = strings(o.filters());
       if (o.has_minimum()) f["minimum"].set_number_value(o.minimum());
       if (o.has_maximum()) f["maximum"].set_number_value(o.maximum());
-      if (s.kind == ValueKind::kChoice) f["choices"] = strings(enum_choice_names(*s.field->enum_type()));
+      if (s.kind == ValueKind::kChoice) {
+        f["choices"] = strings(enum_choice_names(*s.field->enum_type()));
+        // The same values as the JSON mapping names them ("FILTER_KIND_EKF"), in
+        // the same order: what a client sends in a request's JSON.
+        std::vector<std::string> values;
+        for (const auto* v : enum_choices(*s.field->enum_type())) values.emplace_back(v->name());
+        f["values"] = strings(values);
+      }
     }
   }
   (*root.mutable_fields())["methods"] = strings(enum_choice_names(*v1::IdentificationMethod_descriptor()));

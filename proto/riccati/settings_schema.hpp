@@ -86,7 +86,8 @@ std::string misplaced_setting(const google::protobuf::Message& request, std::str
 
 // The schema of the requests that take settings, as JSON (GET /api/v1/schema):
 // {"requests": {"IdentificationSpec": [{"path": ..., "flag": ..., "keyword": ...,
-// "kind": ..., "help": ..., "choices": [...], ...}, ...], ...},
+// "kind": ..., "help": ..., "choices": [...], "values": [...] (a choice's JSON
+// names), ...}, ...], ...},
 //  "methods": [...], "filters": [...]}.
 std::string settings_schema_json();
 

@@ -76,7 +76,9 @@ def wait_for_file(path, process, what):
     raise RuntimeError(f"riccatid did not write {what}")
 
 
-class Workbench(unittest.TestCase):
+class WorkbenchCase(unittest.TestCase):
+    """A riccatid with a tokens file and a headless Chromium, for each test class; the helpers the tests share."""
+
     @classmethod
     def setUpClass(cls):
         cls.dir = tempfile.mkdtemp(prefix="riccati-web-")
@@ -187,6 +189,41 @@ class Workbench(unittest.TestCase):
                                     if r.find_element(By.CSS_SELECTOR, "td.name").text == name])
         return rows[0].get_attribute("data-id")
 
+    def fill_settings(self, settings):
+        """Fills the Identify form as the CLI's flags would be given: [(flag, value), ...], value None for a
+        switch or a names flag given alone; a repeated flag's values joined by commas, as the field takes them."""
+        joined = {}
+        for flag, value in settings:
+            joined[flag] = value if flag not in joined else f"{joined[flag]}, {value}"
+        for flag, value in joined.items():
+            if flag == "--experiment":
+                for dataset in value.split(", "):
+                    self.find("#experiment-add").click()
+                    added = self.driver.find_elements(By.CSS_SELECTOR, "#experiments select")[-1]
+                    Select(added).select_by_value(dataset)
+                continue
+            if flag in ("--exclude", "--output-limit"):
+                self.find("#" + flag[2:]).send_keys(value)
+                continue
+            control = self.find(f'.settings-form [data-flag="{flag}"]:not(.setting)')
+            if control.tag_name == "select":
+                Select(control).select_by_value(value)
+            elif value is None:  # a switch, or a names flag alone: its implicit value
+                box = control if control.get_attribute("type") == "checkbox" else \
+                    self.driver.find_element(By.ID, control.get_attribute("id") + "-implicit")
+                box.click()
+            else:
+                control.clear()
+                control.send_keys(value)
+
+    def sign_in(self):
+        self.driver.get(self.base)
+        self.find("#token").send_keys(TOKEN)
+        self.find("#signin-button").click()
+        self.find("#signout")
+
+
+class Workbench(WorkbenchCase):
     # -- the tests, in the order a user goes ---------------------------------
     def test_1_sign_in(self):
         self.driver.get(self.base)
@@ -238,16 +275,11 @@ class Workbench(unittest.TestCase):
 
     def test_4_identify(self):
         self.go(f"identify?dataset={Workbench.dataset}&model=two_tank")
-        self.find("#theta0-A1")
+        self.find('[data-flag="--theta0"]')
         self.shot("identify")
         # Hensen's settings (examples/two_tank_hensen.yaml), three passes.
-        fields = {"passes": 3, "theta0-A1": 20, "theta0-A2": 20, "theta0-k1": 1, "theta0-k2": 1,
-                  "p0-h1": 0, "p0-h2": 0, "p0-A1": 10, "p0-A2": 10, "p0-k1": 10, "p0-k2": 10,
-                  "r-h1": 1e-3, "r-h2": 1e-3, "substeps": 10}
-        for field, value in fields.items():
-            element = self.driver.find_element(By.ID, field)
-            element.clear()
-            element.send_keys(str(value))
+        self.fill_settings([("--passes", "3"), ("--theta0", "20,20,1,1"), ("--p0", "0,0,10,10,10,10"),
+                            ("--r", "1e-3"), ("--substeps", "10")])
         self.find("#identify-submit").click()
         job = self.wait_job()
         Workbench.job = job
@@ -386,16 +418,24 @@ class Workbench(unittest.TestCase):
         self.shot("session")
 
 
-def main():
-    global ARGS
+def main_args():
+    """The options of the web tests (this file's and forms_test.py's); the rest are unittest's."""
+    global ARGS, REST
     parser = argparse.ArgumentParser()
     parser.add_argument("--riccatid", required=True)
     parser.add_argument("--riccati", required=True)
     parser.add_argument("--models-dir", required=True)
     parser.add_argument("--source-dir", required=True)
     parser.add_argument("--screenshots", default="")
-    ARGS, rest = parser.parse_known_args()
-    unittest.main(argv=[sys.argv[0]] + rest, verbosity=2)
+    ARGS, REST = parser.parse_known_args()
+
+
+REST = []
+
+
+def main():
+    main_args()
+    unittest.main(argv=[sys.argv[0]] + REST, verbosity=2)
 
 
 if __name__ == "__main__":
