@@ -1,27 +1,39 @@
-"""Keyword arguments, named as the CLI's flags (client/cli/settings.cpp), into requests.
+"""Keyword arguments into requests, made from the API's schema.
 
-A flag's name without its dashes, the others as underscores: --p0 is p0,
---first-sample is first_sample, --no-joseph is no_joseph. Values:
+A request's settings are its fields with the riccati.v1.setting option
+(proto/riccati/v1/common.proto), found by walking its descriptor as
+riccati/settings_schema.cpp does: an annotated field is a setting, a singular
+message field is walked into (filter.q, filter.ukf.alpha, initial_state.estimate).
+A setting's keyword is its CLI flag without the dashes, '-' as '_' (--p0 is
+p0, --first-sample first_sample, --estimate-r estimate_r), so a field added
+to the proto with the option is a keyword here with no change to this file.
 
-- covariances (p0, q, r, v, w, r0): one number (the whole diagonal), a list
+Values, by the kind of the field:
+
+- covariance (p0, q, r, v, w, r0): one number (the whole diagonal), a list
   (the diagonal) or a square matrix (rows); whether the size fits the model
   is riccatid's to say, as for the CLI;
-- enum settings (filter, hold, integrator, inversion, weights, form, method,
-  estimate): the names the CLI takes ("ekf", "cvode-bdf", "oe", ...), listed
-  from the API's descriptors, so a value added to the proto is known here;
-- x0: "first" (each state with an output of its name starts at its first
-  measurement; the default) or a list of numbers;
-- bound: {name: (lower, upper)} (None for a side left as the model's);
-  fix: {name: value or None} or a list of names (held at theta0);
-  output_limit: {output: (lower, upper)}; exclude: [(first, end), ...] of
-  experiment 1 or [(experiment, first, end), ...]; log_scale: names;
-  estimate_x0 (identify): True (all) or state names.
+- choices (filter, hold, integrator, method, ...): the names the CLI takes
+  ("ekf", "cvode-bdf", "oe"), read from the enums' descriptors;
+- initial state (x0): "first" or a list of numbers;
+- bounds (bound): {name: (lower, upper)}, None for a side left as the
+  model's, or "NAME=LO:HI" strings; fixed (fix): {name: value or None}, a
+  list of names (held at theta0) or "NAME[=VALUE]" strings;
+- names (log_scale, estimate_x0): a list, a comma-separated string, or True
+  for the flag given alone (its implicit value, "all");
+- numbers: a number or a list; counts: whole numbers; switches: True.
+
+A keyword left out (or None) is not sent: riccatid's default stands. Whether
+a setting applies to the method or filter kind asked for is riccatid's to
+say, in the same words for every client.
 """
+import difflib
 import numbers
 
 import numpy as np
+from google.protobuf.descriptor import FieldDescriptor
 
-from .v1 import common_pb2, jobs_pb2, sessions_pb2
+from .v1 import common_pb2
 
 # --------------------------------------------------------------------------- enums
 
@@ -65,6 +77,87 @@ def enum_name(enum, number):
     return enum_value_name(value) if value is not None and number != 0 else ""
 
 
+# --------------------------------------------------------------------------- the schema
+
+
+class Setting:
+    """A request's field with the riccati.v1.setting option."""
+
+    def __init__(self, chain, option):
+        self.chain = list(chain)  # the fields from the request's down to this one
+        self.field = self.chain[-1]
+        self.path = ".".join(f.name for f in self.chain)
+        self.option = option
+        self.keyword = option.flag.lstrip("-").replace("-", "_")
+        self.kind = _kind(self.field)
+
+    def __repr__(self):
+        return f"<Setting {self.path} ({self.keyword}, {self.kind})>"
+
+
+def _kind(field):
+    # As value_kind() in riccati/settings_schema.cpp.
+    repeated = field.label == FieldDescriptor.LABEL_REPEATED
+    if field.type == FieldDescriptor.TYPE_MESSAGE:
+        special = {("riccati.v1.Covariance", False): "covariance", ("riccati.v1.InitialState", False): "initial_state",
+                   ("riccati.v1.ParameterBound", True): "bounds", ("riccati.v1.FixedParameter", True): "fixed"}
+        return special.get((field.message_type.full_name, repeated), "text")
+    if field.cpp_type in (FieldDescriptor.CPPTYPE_DOUBLE, FieldDescriptor.CPPTYPE_FLOAT):
+        return "numbers" if repeated else "number"
+    if field.cpp_type in (FieldDescriptor.CPPTYPE_UINT32, FieldDescriptor.CPPTYPE_UINT64):
+        return "count"
+    if field.cpp_type == FieldDescriptor.CPPTYPE_BOOL:
+        return "switch"
+    if field.cpp_type == FieldDescriptor.CPPTYPE_ENUM:
+        return "choice"
+    if field.cpp_type == FieldDescriptor.CPPTYPE_STRING:
+        return "names" if repeated else "text"
+    return "text"
+
+
+def _walk(descriptor, chain, out):
+    for field in descriptor.fields:
+        chain.append(field)
+        options = field.GetOptions()
+        if options.HasExtension(common_pb2.setting):
+            out.append(Setting(chain, options.Extensions[common_pb2.setting]))
+        # Into singular messages, which may hold settings; the bound keeps a recursive type finite.
+        if (field.type == FieldDescriptor.TYPE_MESSAGE and field.label != FieldDescriptor.LABEL_REPEATED
+                and len(chain) < 8):
+            _walk(field.message_type, chain, out)
+        chain.pop()
+
+
+# Requests without a method setting that run a filter: their settings of other methods are not offered.
+_IMPLIED_METHOD = {"riccati.v1.CreateSessionRequest": "filter", "riccati.v1.SmoothingSpec": "filter"}
+_SCHEMAS = {}
+
+
+def settings_of(message_type):
+    """{keyword: Setting} of a request type (a generated message class or its descriptor), in field order."""
+    descriptor = getattr(message_type, "DESCRIPTOR", message_type)
+    if descriptor.full_name not in _SCHEMAS:
+        found = []
+        _walk(descriptor, [], found)
+        method = _IMPLIED_METHOD.get(descriptor.full_name)
+        _SCHEMAS[descriptor.full_name] = {s.keyword: s for s in found
+                                          if not method or not s.option.methods or method in s.option.methods}
+    return _SCHEMAS[descriptor.full_name]
+
+
+def check_keywords(given, allowed, command):
+    """A TypeError naming each keyword that is not a setting, with the close ones, as Python does for a function."""
+    unknown = [k for k in given if k not in allowed]
+    if not unknown:
+        return
+    parts = []
+    for k in unknown:
+        close = difflib.get_close_matches(k, list(allowed), n=3, cutoff=0.6)
+        parts.append(f"{k!r}" + (f" (did you mean {' or '.join(close)}?)" if close else ""))
+    raise TypeError(f"{command}() got {'an unknown setting' if len(unknown) == 1 else 'unknown settings'} "
+                    f"{', '.join(parts)}; it takes {', '.join(sorted(allowed))}")
+
+
 # --------------------------------------------------------------------------- values
 
 
@@ -98,7 +191,7 @@ def covariance(value, keyword):
 
 def initial_state(x0, keyword="x0"):
     out = common_pb2.InitialState()
-    if x0 is None or (isinstance(x0, str) and x0 == "first"):
+    if isinstance(x0, str) and x0 == "first":
         out.first_measurement = True
     elif isinstance(x0, str):
         raise ValueError(f"{keyword}: give \"first\" or a list of numbers, not {x0!r}")
@@ -107,15 +200,17 @@ def initial_state(x0, keyword="x0"):
     return out
 
 
-def _names(value, keyword):
+def _names(value, keyword, implicit=""):
+    if value is True:
+        if not implicit:
+            raise TypeError(f"{keyword}: expected names, not True")
+        return [implicit]
     if isinstance(value, str):
         return [n.strip() for n in value.split(",") if n.strip()]
-    if value is True:
-        return ["all"]
     try:
         return [str(n) for n in value]
     except TypeError:
-        raise TypeError(f"{keyword}: expected names") from None
+        raise TypeError(f"{keyword}: expected names, not {value!r}") from None
 
 
 def _range(value, keyword, name):
@@ -132,89 +227,97 @@ def _uint(value, keyword):
     return int(value)
 
 
-# --------------------------------------------------------------------------- settings
-
-FILTER_KEYWORDS = ("filter", "hold", "integrator", "substeps", "rtol", "atol", "q", "r", "inversion", "no_joseph",
-                   "weights", "alpha", "beta", "kappa", "v", "w", "r0", "form", "hold_outputs")
-RUN_KEYWORDS = FILTER_KEYWORDS + ("x0", "theta0", "p0")
-IDENTIFY_KEYWORDS = RUN_KEYWORDS + (
-    "passes", "first_sample", "end_sample", "method", "init_passes", "bound", "fix", "log_scale", "estimate_x0",
-    "experiment", "exclude", "output_limit", "output_sigma", "estimate_q", "estimate_r", "max_iterations",
-    "function_tolerance", "gradient_tolerance", "parameter_tolerance")
-SMOOTH_KEYWORDS = RUN_KEYWORDS + ("first_sample", "end_sample")
-VALIDATE_KEYWORDS = ("x0", "hold", "integrator", "substeps", "rtol", "atol", "estimate", "estimate_x0")
-
-
-def check_keywords(given, allowed, command):
-    unknown = sorted(set(given) - set(allowed))
-    if unknown:
-        raise TypeError(f"{command}() got unknown settings {', '.join(unknown)} (it takes {', '.join(allowed)})")
-
-
-def integrator_settings(kw):
-    out = common_pb2.IntegratorSettings()
-    if kw.get("integrator") is not None:
-        out.kind = enum_number(common_pb2.IntegratorKind.DESCRIPTOR, kw["integrator"], "integrator")
-    if kw.get("substeps") is not None:
-        out.substeps = _uint(kw["substeps"], "substeps")
-    if kw.get("rtol") is not None:
-        out.rtol = float(kw["rtol"])
-    if kw.get("atol") is not None:
-        out.atol = float(kw["atol"])
+def _text_ranges(value, keyword, form):
+    """{name: (lower, upper)} from a dict, or from "NAME=LO:HI" strings (one, or a list) as the CLI takes them."""
+    if isinstance(value, dict):
+        return value
+    out = {}
+    for item in [value] if isinstance(value, str) else value:
+        name, _, rest = str(item).partition("=")
+        lower, colon, upper = rest.partition(":")
+        if not name.strip() or not colon:
+            raise ValueError(f"{keyword}: {item!r} is not {form}")
+        out[name.strip()] = tuple(float(v) if v.strip() else None for v in (lower, upper))
     return out
 
 
-def filter_settings(kw):
-    out = common_pb2.FilterSettings()
-    if kw.get("filter") is not None:
-        out.kind = enum_number(common_pb2.FilterKind.DESCRIPTOR, kw["filter"], "filter")
-    if kw.get("hold") is not None:
-        out.hold = enum_number(common_pb2.HoldOrder.DESCRIPTOR, kw["hold"], "hold")
-    integrator = integrator_settings(kw)
-    if integrator.ByteSize() > 0:
-        out.integrator.CopyFrom(integrator)
-    for key, field in (("q", out.q), ("r", out.r)):
-        if kw.get(key) is not None:
-            field.CopyFrom(covariance(kw[key], key))
-    if kw.get("inversion") is not None:
-        out.inversion = enum_number(common_pb2.GainInversion.DESCRIPTOR, kw["inversion"], "inversion")
-    if kw.get("no_joseph"):
-        out.short_covariance_update = True
-    if kw.get("weights") is not None:
-        out.ukf.weights = enum_number(common_pb2.SigmaWeights.DESCRIPTOR, kw["weights"], "weights")
-    for key in ("alpha", "beta", "kappa"):
-        if kw.get(key) is not None:
-            setattr(out.ukf, key, float(kw[key]))
-    for key in ("v", "w", "r0"):
-        if kw.get(key) is not None:
-            getattr(out.optimal, key).CopyFrom(covariance(kw[key], key))
-    if kw.get("form") is not None:
-        out.optimal.form = enum_number(common_pb2.OptimalForm.DESCRIPTOR, kw["form"], "form")
-    if kw.get("hold_outputs"):
-        out.optimal.hold_outputs = True
-    return out
-
-
-def fill_run(request, model, kw):
-    """What a job and a session share: model, filter, initial state, theta0 and P0."""
-    request.model = model
-    request.filter.CopyFrom(filter_settings(kw))
-    request.initial_state.CopyFrom(initial_state(kw.get("x0")))
-    if kw.get("theta0") is not None:
-        request.theta0.extend(_floats(kw["theta0"], "theta0"))
-    if kw.get("p0") is not None:
-        request.p0.CopyFrom(covariance(kw["p0"], "p0"))
-
-
-def sample_mask(kw, experiment):
-    out = jobs_pb2.SampleMask()
-    for output, value in (kw.get("output_limit") or {}).items():
-        lower, upper = _range(value, "output_limit", output)
-        limit = out.limits.add(output=output)
+def ranges(value, keyword, add, name_field="name"):
+    for name, limits in _text_ranges(value, keyword, f"{name_field.upper()}=LO:HI").items():
+        lower, upper = _range(limits, keyword, name)
+        item = add(**{name_field: name})
         if lower is not None:
-            limit.lower = float(lower)
+            item.lower = float(lower)
         if upper is not None:
-            limit.upper = float(upper)
+            item.upper = float(upper)
+
+
+def _fixed(value, keyword, repeated):
+    if isinstance(value, str):
+        value = _names(value, keyword)
+    if not isinstance(value, dict):
+        value = dict(n.split("=", 1) if "=" in n else (n, None) for n in value)
+    for name, at in value.items():
+        item = repeated.add(name=name.strip())
+        if at is not None:
+            item.value = float(at)
+
+
+def set_setting(request, s, value):
+    """Writes `value` (as the keyword takes it) into the request at the setting's path."""
+    holder = request
+    for f in s.chain[:-1]:
+        holder = getattr(holder, f.name)
+    name, keyword = s.field.name, s.keyword
+    if s.kind == "number":
+        setattr(holder, name, float(value))
+    elif s.kind == "count":
+        setattr(holder, name, _uint(value, keyword))
+    elif s.kind == "switch":
+        if not isinstance(value, bool):
+            raise TypeError(f"{keyword}: expected True or False, not {value!r}")
+        setattr(holder, name, value)
+    elif s.kind == "text":
+        setattr(holder, name, str(value))
+    elif s.kind == "choice":
+        setattr(holder, name, enum_number(s.field.enum_type, value, keyword))
+    elif s.kind == "numbers":
+        getattr(holder, name).extend(_floats(value, keyword))
+    elif s.kind == "names":
+        getattr(holder, name).extend(_names(value, keyword, s.option.implicit))
+    elif s.kind == "covariance":
+        getattr(holder, name).CopyFrom(covariance(value, keyword))
+    elif s.kind == "initial_state":
+        getattr(holder, name).MergeFrom(initial_state(value, keyword))  # beside initial_state.estimate
+    elif s.kind == "bounds":
+        ranges(value, keyword, getattr(holder, name).add)
+    elif s.kind == "fixed":
+        _fixed(value, keyword, getattr(holder, name))
+    else:
+        raise TypeError(f"{keyword}: a {s.kind} setting cannot be given from Python")
+
+
+def fill(request, kw):
+    """Every keyword of `kw` that is a setting of the request, written in; the keywords that are not."""
+    schema = settings_of(request)
+    rest = {}
+    for keyword, value in kw.items():
+        if keyword not in schema:
+            rest[keyword] = value
+        elif value is not None and value is not False:
+            set_setting(request, schema[keyword], value)
+    return rest
+
+
+# --------------------------------------------------------------------------- what the schema does not hold
+
+# Structure rather than settings, as the CLI's --experiment, --exclude and --output-limit.
+IDENTIFY_EXTRAS = ("experiment", "exclude", "output_limit")
+
+
+def sample_mask(request_mask, kw, experiment):
+    """Experiment `experiment`'s (1-based) mask: every output limit, and its excluded ranges."""
+    if kw.get("output_limit"):
+        ranges(kw["output_limit"], "output_limit", request_mask.limits.add, name_field="output")
     for span in kw.get("exclude") or ():
         span = tuple(span)
         if len(span) == 2:
@@ -222,96 +325,12 @@ def sample_mask(kw, experiment):
         if len(span) != 3:
             raise ValueError(f"exclude: expected (first, end) or (experiment, first, end), not {span!r}")
         if span[0] == experiment:
-            out.excluded.add(first=_uint(span[1], "exclude"), end=_uint(span[2], "exclude"))
-    return out
+            request_mask.excluded.add(first=_uint(span[1], "exclude"), end=_uint(span[2], "exclude"))
 
 
-def estimation_settings(kw):
-    out = jobs_pb2.EstimationSettings()
-    if kw.get("output_sigma") is not None:
-        out.output_sigma.extend(_floats(kw["output_sigma"], "output_sigma"))
-    if kw.get("estimate_q"):
-        out.estimate_process_noise = True
-    if kw.get("estimate_r"):
-        out.estimate_measurement_noise = True
-    if kw.get("max_iterations") is not None:
-        out.max_iterations = _uint(kw["max_iterations"], "max_iterations")
-    for key in ("function", "gradient", "parameter"):
-        if kw.get(key + "_tolerance") is not None:
-            setattr(out, key + "_tolerance", float(kw[key + "_tolerance"]))
-    return out
-
-
-def identification_spec(model, dataset_id, more_datasets, kw):
-    spec = jobs_pb2.IdentificationSpec()
-    fill_run(spec, model, kw)
-    spec.dataset_id = dataset_id
-    for key in ("passes", "first_sample", "end_sample", "init_passes"):
-        if kw.get(key) is not None:
-            setattr(spec, key, _uint(kw[key], key))
-    if kw.get("method") is not None:
-        spec.method = enum_number(jobs_pb2.IdentificationMethod.DESCRIPTOR, kw["method"], "method")
-    for name, value in (kw.get("bound") or {}).items():
-        lower, upper = _range(value, "bound", name)
-        bound = spec.bounds.add(name=name)
-        if lower is not None:
-            bound.lower = float(lower)
-        if upper is not None:
-            bound.upper = float(upper)
-    fix = kw.get("fix") or {}
-    if isinstance(fix, str):
-        fix = _names(fix, "fix")
-    for name in fix:
-        fixed = spec.fixed.add(name=name)
-        if isinstance(fix, dict) and fix[name] is not None:
-            fixed.value = float(fix[name])
-    if kw.get("log_scale") is not None:
-        spec.log_scale.extend(_names(kw["log_scale"], "log_scale"))
-    if kw.get("estimate_x0"):
-        spec.initial_state.estimate.extend(_names(kw["estimate_x0"], "estimate_x0"))
-    mask = sample_mask(kw, 1)
-    if mask.ByteSize() > 0:
-        spec.mask.CopyFrom(mask)
-    for e, dataset in enumerate(more_datasets, 2):
-        experiment = spec.experiments.add(dataset_id=dataset)
-        experiment.initial_state.CopyFrom(spec.initial_state)
-        mask = sample_mask(kw, e)
-        if mask.ByteSize() > 0:
-            experiment.mask.CopyFrom(mask)
-    estimation = estimation_settings(kw)
-    if estimation.ByteSize() > 0:
-        spec.estimation.CopyFrom(estimation)
-    return spec
-
-
-def smoothing_spec(model, dataset_id, kw, full_covariance=False):
-    spec = jobs_pb2.SmoothingSpec()
-    fill_run(spec, model, kw)
-    spec.dataset_id = dataset_id
-    for key in ("first_sample", "end_sample"):
-        if kw.get(key) is not None:
-            setattr(spec, key, _uint(kw[key], key))
-    spec.full_covariance = bool(full_covariance)
-    return spec
-
-
-def session_request(model, kw):
-    request = sessions_pb2.CreateSessionRequest()
-    fill_run(request, model, kw)
-    return request
-
-
-def validation_spec(model, dataset_id, kw):
-    spec = jobs_pb2.ValidationSpec(model=model, dataset_id=dataset_id)
-    spec.initial_state.CopyFrom(initial_state(kw.get("x0")))
-    if kw.get("hold") is not None:
-        spec.hold = enum_number(common_pb2.HoldOrder.DESCRIPTOR, kw["hold"], "hold")
-    integrator = integrator_settings(kw)
-    if integrator.ByteSize() > 0:
-        spec.integrator.CopyFrom(integrator)
-    if kw.get("estimate") is not None:
-        spec.estimate = enum_number(jobs_pb2.EstimateChoice.DESCRIPTOR, kw["estimate"], "estimate")
-    if kw.get("estimate_x0"):
-        spec.estimate_x0_samples = _uint(kw["estimate_x0"], "estimate_x0")
-        spec.initial_state.estimate.append("all")
-    return spec
+def check_experiments(kw, count):
+    for span in kw.get("exclude") or ():
+        span = tuple(span)
+        if len(span) == 3 and not 1 <= span[0] <= count:
+            raise ValueError(f"exclude: there is no experiment {span[0]} (1 is the dataset"
+                             + (f", 2 to {count} the experiment= records" if count > 1 else "") + ")")

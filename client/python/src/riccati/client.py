@@ -10,7 +10,7 @@ from . import _connection, _data, _settings, errors, results
 from .jobs import Job
 from .sessions import Session
 from .v1 import datasets_pb2, datasets_pb2_grpc, jobs_pb2, jobs_pb2_grpc, models_pb2, models_pb2_grpc
-from .v1 import sessions_pb2_grpc
+from .v1 import sessions_pb2, sessions_pb2_grpc
 
 _CHUNK = 64 * 1024
 
@@ -117,28 +117,72 @@ class Client:
                                                  models_pb2.GetModelRequest(name=name))
         return self._model_cache[name]
 
-    def simulate(self, model, t, u, x0, theta=None, hold=None, integrator=None, substeps=None, rtol=None,
-                 atol=None):
-        """Open-loop simulation: a DataFrame indexed by t with the outputs, then the states."""
+    def simulate(self, model, t, u, x0, params=None, estimate=None, **settings):
+        """Open-loop simulation: a DataFrame indexed by t with the outputs, then the states.
+
+        params: what the CLI's --params takes (see parameters()); None: the
+        model's defaults. Settings as `riccati simulate`'s flags: hold,
+        integrator, substeps, rtol, atol, max_steps."""
+        _settings.check_keywords(settings, _settings.settings_of(models_pb2.SimulateRequest), "simulate")
         info = self.model(model)
         t = np.asarray(t, dtype=float)
         u = np.asarray(u, dtype=float).reshape(len(t), -1) if np.size(u) else np.zeros((len(t), 0))
         request = models_pb2.SimulateRequest(model=model, t=t.tolist(), x0=np.atleast_1d(x0).astype(float).tolist())
-        if theta is not None:
-            request.theta.extend(np.atleast_1d(theta).astype(float).tolist())
+        if params is not None or estimate is not None:
+            request.theta.extend(self.parameters(model, params, estimate))
         request.u.rows, request.u.cols = u.shape[1], len(t)
         request.u.values.extend(u.T.flatten(order="F").tolist())
-        kw = {"hold": hold, "integrator": integrator, "substeps": substeps, "rtol": rtol, "atol": atol}
-        if hold is not None:
-            request.hold = _settings.enum_number(_settings.common_pb2.HoldOrder.DESCRIPTOR, hold, "hold")
-        integrator_settings = _settings.integrator_settings(kw)
-        if integrator_settings.ByteSize() > 0:
-            request.integrator.CopyFrom(integrator_settings)
+        _settings.fill(request, settings)
         response = self._call("simulating " + model, self._models.Simulate, request)
         y = results.matrix(response.y)
         x = results.matrix(response.x)
         return pd.DataFrame(np.column_stack([y.T, x.T]), index=pd.Index(t, name="t"),
                             columns=list(info.output_names) + list(info.state_names))
+
+    def parameters(self, model, params, estimate=None):
+        """Parameter values from what the CLI's --params takes: an identification's
+        Job, result or job id (its estimate: for the iterated filter the mean over
+        its last pass, or with estimate="final" the estimate at its end), a YAML
+        file with theta: [...], "10,5,0.0791,0.1342", a list, or a Series by
+        parameter name."""
+        job_id = None
+        if isinstance(params, Job):
+            job_id = params.id
+        elif isinstance(params, results._Result):
+            job_id = params.job_id
+        elif isinstance(params, str) and params.startswith("job-"):
+            job_id = params
+        if job_id is not None:
+            r = self._call("result of job " + job_id, self._jobs.GetResult, jobs_pb2.GetResultRequest(job_id=job_id))
+            if r.HasField("estimation"):
+                if estimate is not None:  # as riccatid says of a validation asking the same
+                    raise ValueError(f"estimate: job {job_id} is an output-error or likelihood identification, "
+                                     "with one estimate; the choice is the iterated filter's")
+                return list(r.estimation.theta)
+            if not r.HasField("identification"):
+                raise ValueError(f"params: job {job_id} is not an identification")
+            final = estimate is not None and _settings.enum_number(
+                jobs_pb2.EstimateChoice.DESCRIPTOR, estimate, "estimate") == jobs_pb2.ESTIMATE_CHOICE_FINAL
+            return list(r.identification.theta if final else r.identification.theta_mean)
+        if estimate is not None:
+            raise ValueError(f"estimate chooses among an identification job's estimates; params {params!r} is not one")
+        if isinstance(params, str) and os.path.isfile(params):
+            import yaml  # Debian's python3-yaml; only for a parameter file
+            with open(params) as f:
+                theta = (yaml.safe_load(f) or {}).get("theta")
+            if theta is None:
+                raise ValueError(f"params: {params} has no theta: [...]")
+            params = theta
+        elif isinstance(params, str):
+            try:
+                params = [float(v) for v in params.split(",")]
+            except ValueError:
+                raise ValueError(f"params: {params!r} is not a list of numbers (give a job, its id, a YAML file "
+                                 "or numbers)") from None
+        if isinstance(params, pd.Series):
+            names = list(self.model(model).param_names)
+            params = params.reindex(names) if set(params.index) == set(names) else params
+        return np.atleast_1d(np.asarray(params, dtype=float)).tolist()
 
     # ------------------------------------------------------------ datasets
 
@@ -222,17 +266,28 @@ class Client:
 
         ds: a Dataset, its id, or data to upload (see upload(); inputs and
         outputs name its columns). The settings are keywords named as the CLI's
-        flags of `riccati identify` (see riccati._settings): method, filter,
-        passes, theta0, p0, q, r, x0, hold, integrator, substeps, bound, fix,
-        experiment (more records: datasets, ids or data), ...
+        flags of `riccati identify`, made from the API's schema (see
+        riccati._settings): method, filter, passes, theta0, p0, q, r, x0, hold,
+        integrator, substeps, bound, fix, log_scale, estimate_x0, output_sigma,
+        estimate_r, ...; and experiment (more records: datasets, ids or data),
+        exclude and output_limit.
 
         request_id (default: a new UUID) names the request: a retry with it
         (this client retries once riccatid is unreachable or the deadline
         passed) gets the job the first try made."""
-        _settings.check_keywords(settings, _settings.IDENTIFY_KEYWORDS, "identify")
+        _settings.check_keywords(settings, [*_settings.settings_of(jobs_pb2.IdentificationSpec),
+                                            *_settings.IDENTIFY_EXTRAS], "identify")
         dataset = self._dataset_id(ds, inputs, outputs, model)
         more = [self._dataset_id(e, inputs, outputs, model) for e in settings.get("experiment") or ()]
-        spec = _settings.identification_spec(model, dataset, more, settings)
+        spec = jobs_pb2.IdentificationSpec(model=model, dataset_id=dataset)
+        extras = _settings.fill(spec, settings)
+        _settings.check_experiments(extras, 1 + len(more))
+        _settings.sample_mask(spec.mask, extras, 1)
+        for e, dataset in enumerate(more, 2):
+            experiment = spec.experiments.add(dataset_id=dataset)
+            if spec.HasField("initial_state"):  # each experiment starts as the first, as the CLI sends them
+                experiment.initial_state.CopyFrom(spec.initial_state)
+            _settings.sample_mask(experiment.mask, extras, e)
         spec.request_id = request_id or str(uuid.uuid4())
         return Job(self, self._create("submitting the identification", self._jobs.SubmitIdentification, spec))
 
@@ -246,22 +301,21 @@ class Client:
         """Submits a validation: the model simulated with `params` over the dataset's inputs.
 
         params: an identification's Job, its id or its result (riccatid takes
-        its estimate, as estimate= chooses), or parameter values (a list, or a
-        Series by name). Settings as `riccati validate`'s flags: x0, hold,
-        integrator, substeps, rtol, atol, estimate, estimate_x0 (samples)."""
-        _settings.check_keywords(settings, _settings.VALIDATE_KEYWORDS, "validate")
-        spec = _settings.validation_spec(model, self._dataset_id(ds, inputs, outputs, model), settings)
+        its estimate, as estimate= chooses), or what else the CLI's --params
+        takes (values, a YAML file; see parameters()). Settings as `riccati
+        validate`'s flags: x0, hold, integrator, substeps, rtol, atol,
+        estimate, estimate_x0 (states, or True: all) and x0_samples."""
+        _settings.check_keywords(settings, _settings.settings_of(jobs_pb2.ValidationSpec), "validate")
+        spec = jobs_pb2.ValidationSpec(model=model, dataset_id=self._dataset_id(ds, inputs, outputs, model))
+        _settings.fill(spec, settings)
         if isinstance(params, Job):
             spec.identification_job_id = params.id
         elif isinstance(params, results._Result):
             spec.identification_job_id = params.job_id
-        elif isinstance(params, str):
+        elif isinstance(params, str) and params.startswith("job-"):
             spec.identification_job_id = params
         else:
-            if isinstance(params, pd.Series):
-                names = list(self.model(model).param_names)
-                params = params.reindex(names) if set(params.index) == set(names) else params
-            spec.theta.values.extend(np.atleast_1d(np.asarray(params, dtype=float)).tolist())
+            spec.theta.values.extend(self.parameters(model, params))
         spec.request_id = request_id or str(uuid.uuid4())
         return Job(self, self._create("submitting the validation", self._jobs.SubmitValidation, spec))
 
@@ -269,12 +323,18 @@ class Client:
         """Validates and waits: a ValidationResult (.fits, .to_frame())."""
         return self.submit_validation(model, ds, params, **settings).result(progress)
 
-    def submit_smoothing(self, model, ds, inputs=None, outputs=None, full_covariance=False, request_id=None,
+    def submit_smoothing(self, model, ds, inputs=None, outputs=None, request_id=None, params=None, estimate=None,
                          **settings):
-        """Submits fixed-interval smoothing (the EKF's RTS smoother, or the UKF's); settings as `riccati smooth`."""
-        _settings.check_keywords(settings, _settings.SMOOTH_KEYWORDS, "smooth")
-        spec = _settings.smoothing_spec(model, self._dataset_id(ds, inputs, outputs, model), settings,
-                                        full_covariance)
+        """Submits fixed-interval smoothing (the EKF's RTS smoother, or the UKF's); settings as
+        `riccati smooth`'s flags. params: the parameters it starts from, as the CLI's --params
+        (a job, its id or result, with estimate= choosing; values; see parameters()), instead of theta0."""
+        _settings.check_keywords(settings, _settings.settings_of(jobs_pb2.SmoothingSpec), "smooth")
+        if params is not None and settings.get("theta0") is not None:
+            raise TypeError("smooth(): give params or theta0, not both")
+        spec = jobs_pb2.SmoothingSpec(model=model, dataset_id=self._dataset_id(ds, inputs, outputs, model))
+        _settings.fill(spec, settings)
+        if params is not None or estimate is not None:
+            spec.theta0.extend(self.parameters(model, params, estimate))
         spec.request_id = request_id or str(uuid.uuid4())
         return Job(self, self._create("submitting the smoothing", self._jobs.SubmitSmoothing, spec))
 
@@ -286,8 +346,9 @@ class Client:
     def session(self, model, close=True, full_covariance=False, batch=100, request_id=None, **settings):
         """Creates a filter session (use it in a `with` block); settings as
         `riccati stream`'s flags: filter, x0, theta0, p0, q, r, hold, integrator, ..."""
-        _settings.check_keywords(settings, _settings.RUN_KEYWORDS, "session")
-        request = _settings.session_request(model, settings)
+        _settings.check_keywords(settings, _settings.settings_of(sessions_pb2.CreateSessionRequest), "session")
+        request = sessions_pb2.CreateSessionRequest(model=model)
+        _settings.fill(request, settings)
         request.request_id = request_id or str(uuid.uuid4())
         info = self._create("creating the session", self._sessions.CreateSession, request)
         return Session(self, info, self.model(model), close=close, full_covariance=full_covariance, batch=batch)
