@@ -22,6 +22,9 @@ const kGroups = [['method', 'Method'], ['filter', 'Filter'], ['initial', 'Initia
 // What a field's text does not parse as, naming the setting and the text.
 export class FormError extends Error {}
 
+// The settings whose choice decides which others are shown: the method and the filter kind.
+const kDriving = ['method', 'filter.kind'];
+
 const fieldId = (s) => 'set-' + s.path.replaceAll('.', '-');
 const applies = (list, value) => !list || list.length === 0 || list.includes(value);
 
@@ -158,7 +161,9 @@ export function settingsForm(schema, request) {
     if (s.group && !groups.some(([g]) => g === s.group)) groups.push([s.group, s.group[0].toUpperCase() + s.group.slice(1)]);
   }
   const sets = groups.map(([g, title]) => {
-    const members = settings.filter((s) => (s.group || '') === g).map((s) => fields.get(s.path).element);
+    // The choices the others' showing follows (method, filter kind) first in their groups.
+    const members = settings.filter((s) => (s.group || '') === g)
+      .sort((a, b) => kDriving.includes(b.path) - kDriving.includes(a.path)).map((s) => fields.get(s.path).element);
     return members.length ? h('fieldset', {'data-group': g}, h('legend', {}, title), h('div', {class: 'settings'}, members)) : null;
   }).filter(Boolean);
   const element = h('div', {class: 'settings-form', 'data-request': request}, sets);
@@ -168,15 +173,15 @@ export function settingsForm(schema, request) {
     if (!f) return '';
     return document.getElementById(fieldId(f.s))?.value || f.s.default || '';
   };
-  const method = () => chosen('method');
-  const filter = () => chosen('filter.kind');
+  const method = () => chosen(kDriving[0]);
+  const filter = () => chosen(kDriving[1]);
   const shown = (s) => applies(s.methods, method()) && applies(s.filters, filter());
 
   function update() {
     for (const {s, element: e} of fields.values()) e.hidden = !shown(s);
     for (const set of sets) set.hidden = [...set.querySelectorAll('.setting')].every((e) => e.hidden);
   }
-  for (const path of ['method', 'filter.kind']) {
+  for (const path of kDriving) {
     const f = fields.get(path);
     if (f) f.element.querySelector('select').addEventListener('change', update);
   }
