@@ -105,3 +105,15 @@ def test_smooth_takes_params_as_the_cli(client, two_tank_csv):
         client.smooth("two_tank", ds, params=truth, theta0=truth, **run)
     with pytest.raises(ValueError, match="not one"):
         client.smooth("two_tank", ds, params=truth, estimate="final", **run)
+
+
+def test_validate_fits_the_initial_states_it_is_told(client, two_tank_csv):
+    ds = client.upload(two_tank_csv, **IO)
+    truth = [10, 5, 0.0791, 0.1342]
+    fit = client.validate("two_tank", ds, truth, x0=[0.1, 0.1], estimate_x0=True, x0_samples=200)
+    spec = client.job(fit.job_id).proto.validation
+    assert list(spec.initial_state.estimate) == ["all"] and spec.estimate_x0_samples == 200
+    # From a wrong start, the states fitted on 200 samples: the record simulated as it was made.
+    assert (fit.fits["fit_percent"] > 99).all(), fit.fits
+    given = client.validate("two_tank", ds, "10,5,0.0791,0.1342", x0=[0.1, 0.1])
+    assert (given.fits["fit_percent"] < fit.fits["fit_percent"]).all()
