@@ -156,7 +156,9 @@ class Forms(wb.WorkbenchCase):
         sigma = self.driver.find_element(By.CSS_SELECTOR, '.setting[data-flag="--output-sigma"]')
         self.assertTrue(passes.is_displayed())
         self.assertFalse(sigma.is_displayed())  # oe's, and the method is riccatid's default, filter
-        self.fill_settings([("--passes", "7"), ("--r", "1e-3"), ("--method", "oe"), ("--theta0", "20,20,1,1")])
+        # R in full (rows separated by ';'), and a bound at infinity (JSON's "Infinity").
+        self.fill_settings([("--passes", "7"), ("--r", "1e-3, 0; 0, 1e-3"), ("--method", "oe"),
+                            ("--theta0", "20,20,1,1"), ("--bound", "A1=1:inf")])
         self.assertFalse(passes.is_displayed())
         self.assertTrue(sigma.is_displayed())
         # The filter kind's settings follow the kind: the UKF's appear for it only.
@@ -170,10 +172,11 @@ class Forms(wb.WorkbenchCase):
         spec = given(self.api("/jobs/" + job)["identification"])
         self.assertNotIn("passes", spec)  # typed, then hidden: not sent
         self.assertEqual(spec["method"], "IDENTIFICATION_METHOD_OE")
-        self.assertEqual(spec["filter"], {"kind": "FILTER_KIND_EKF", "r": {"scalar": 0.001}})
+        self.assertEqual(spec["filter"], {"kind": "FILTER_KIND_EKF",
+                                          "r": {"full": {"rows": 2, "cols": 2, "values": [1e-3, 0, 0, 1e-3]}}})
+        self.assertEqual(spec["bounds"], [{"name": "A1", "lower": 1, "upper": "Infinity"}])
         # Nothing left empty was sent: no client-side defaults (P0, x0, substeps are riccatid's).
-        self.assertEqual(sorted(k for k in spec if k != "requestId"),
-                         ["datasetId", "filter", "method", "model", "theta0"])
+        self.assertEqual(sorted(spec), ["bounds", "datasetId", "filter", "method", "model", "theta0"])
 
     def test_6_a_misplaced_setting_gets_riccatids_message_everywhere(self):
         message = "passes applies to method filter only, not to oe"

@@ -37,7 +37,9 @@ function number(text, what) {
   if (!/^[+-]?(\d+\.?\d*|\.\d+)([eE][+-]?\d+)?$/.test(t) && !/^[+-]?(inf|infinity|nan)$/i.test(t)) {
     throw new FormError(`${what}: "${t}" is not a number`);
   }
-  return Number(/^[+-]?inf/i.test(t) ? t.replace(/inf(inity)?/i, 'Infinity') : t);
+  const v = Number(/^[+-]?inf/i.test(t) ? t.replace(/inf(inity)?/i, 'Infinity') : t);
+  // JSON has no infinity or NaN: protobuf's JSON mapping writes them as these strings.
+  return Number.isFinite(v) ? v : (Number.isNaN(v) ? 'NaN' : (v > 0 ? 'Infinity' : '-Infinity'));
 }
 
 function count(text, what) {
