@@ -106,5 +106,26 @@ TEST(RunSettings, SettingsOfAnotherKindAreRefusedNamingTheField) {
       << settings.status().message();
 }
 
+// An initial state given neither as "first" nor as values is "first", the
+// default the schema documents: a form or keyword left empty sends nothing.
+TEST(RunSettings, AnInitialStateLeftOutStartsAtTheFirstMeasurement) {
+  const ModelPtr two_tank = models().find("two_tank");
+  const google::protobuf::RepeatedField<double> theta0;
+  const auto absent =
+      initial_estimate_from_proto(v1::InitialState(), theta0, v1::Covariance(), two_tank_ekf(), *two_tank);
+  ASSERT_TRUE(absent.is_ok()) << absent.status().message();
+  EXPECT_EQ(absent.value().mode, InitialState::kFirstMeasurement);
+  v1::InitialState first;
+  first.set_first_measurement(true);
+  const auto given = initial_estimate_from_proto(first, theta0, v1::Covariance(), two_tank_ekf(), *two_tank);
+  ASSERT_TRUE(given.is_ok());
+  EXPECT_TRUE(absent.value().P0.isApprox(given.value().P0));  // its default P0 too: 0 for the measured levels
+  v1::InitialState values;
+  values.add_x0(0.4);
+  const auto short_x0 = initial_estimate_from_proto(values, theta0, v1::Covariance(), two_tank_ekf(), *two_tank);
+  ASSERT_FALSE(short_x0.is_ok());
+  EXPECT_NE(short_x0.status().message().find("initial_state.x0"), std::string::npos) << short_x0.status().message();
+}
+
 }  // namespace
 }  // namespace riccati::service
