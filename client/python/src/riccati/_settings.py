@@ -128,18 +128,21 @@ def _walk(descriptor, chain, out):
         chain.pop()
 
 
-# Requests without a method setting that run a filter: their settings of other methods are not offered.
-_IMPLIED_METHOD = {"riccati.v1.CreateSessionRequest": "filter", "riccati.v1.SmoothingSpec": "filter"}
 _SCHEMAS = {}
 
 
 def settings_of(message_type):
-    """{keyword: Setting} of a request type (a generated message class or its descriptor), in field order."""
+    """{keyword: Setting} of a request type (a generated message class or its descriptor), in field order.
+
+    A request that has a filter kind but no method (a session, smoothing) runs
+    the filter: the settings of the other methods only are not offered for it,
+    as riccati/settings_schema.cpp's offered()."""
     descriptor = getattr(message_type, "DESCRIPTOR", message_type)
     if descriptor.full_name not in _SCHEMAS:
         found = []
         _walk(descriptor, [], found)
-        method = _IMPLIED_METHOD.get(descriptor.full_name)
+        paths = {s.path for s in found}
+        method = "filter" if "filter.kind" in paths and "method" not in paths else ""
         _SCHEMAS[descriptor.full_name] = {s.keyword: s for s in found
                                           if not method or not s.option.methods or method in s.option.methods}
     return _SCHEMAS[descriptor.full_name]
