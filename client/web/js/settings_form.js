@@ -133,31 +133,32 @@ function input(s) {
   }
 }
 
+// {element, control, implicit}: the setting's part of the form, its input, and the box of its implicit value.
 function field(s) {
   const control = input(s);
   const unit = s.unit ? ` [${s.unit}]` : '';
   // A names setting with an implicit value ("all") has a box for it, as the CLI's flag given alone.
   const implicit = s.kind === 'names' && s.implicit
-    ? h('label', {class: 'inline'}, h('input', {type: 'checkbox', id: fieldId(s) + '-implicit',
-      'data-implicit': s.implicit, onchange: (e) => { control.disabled = e.target.checked; }}), s.implicit)
+    ? h('input', {type: 'checkbox', id: fieldId(s) + '-implicit', 'data-implicit': s.implicit,
+      onchange: (e) => { control.disabled = e.target.checked; }})
     : null;
-  return h('div', {class: 'setting', 'data-path': s.path, 'data-flag': s.flag},
+  const element = h('div', {class: 'setting', 'data-path': s.path, 'data-flag': s.flag},
     h('label', {for: fieldId(s), class: s.kind === 'switch' ? 'inline' : ''},
       s.kind === 'switch' ? control : null,
       h('code', {}, s.flag), ' ', s.help + unit),
-    s.kind === 'switch' ? null : h('div', {class: 'row'}, control, implicit),
+    s.kind === 'switch' ? null
+      : h('div', {class: 'row'}, control, implicit ? h('label', {class: 'inline'}, implicit, s.implicit) : null),
     s.default && s.default.length > kShortDefault && s.kind !== 'choice'
       ? h('div', {class: 'muted default'}, `default: ${s.default}`) : null);
+  return {element, control, implicit};
 }
 
 // settingsForm(schema, 'IdentificationSpec') -> {element, update(), value()}.
 // The method and the filter kind are settings too (paths "method" and
 // "filter.kind"); what is shown follows their choice, or riccatid's default.
-// `extra(method)`: hand-made parts (experiments, masks) shown in the group
-// "data", given the method.
 export function settingsForm(schema, request) {
   const settings = (schema.requests || {})[request] || [];
-  const fields = new Map(settings.map((s) => [s.path, {s, element: field(s)}]));
+  const fields = new Map(settings.map((s) => [s.path, {s, ...field(s)}]));
   const groups = [...kGroups];
   for (const s of settings) {
     if (s.group && !groups.some(([g]) => g === s.group)) groups.push([s.group, s.group[0].toUpperCase() + s.group.slice(1)]);
@@ -172,8 +173,7 @@ export function settingsForm(schema, request) {
 
   const chosen = (path) => {
     const f = fields.get(path);
-    if (!f) return '';
-    return document.getElementById(fieldId(f.s))?.value || f.s.default || '';
+    return f ? f.control.value || f.s.default || '' : '';
   };
   const method = () => chosen(kDriving[0]);
   const filter = () => chosen(kDriving[1]);
@@ -185,16 +185,15 @@ export function settingsForm(schema, request) {
   }
   for (const path of kDriving) {
     const f = fields.get(path);
-    if (f) f.element.querySelector('select').addEventListener('change', update);
+    if (f) f.control.addEventListener('change', update);
   }
 
   // The request's settings in the proto's JSON mapping: only the fields
   // shown and filled. Throws a FormError naming the flag of text that does not parse.
   function value() {
     const out = {};
-    for (const {s} of fields.values()) {
+    for (const {s, control, implicit} of fields.values()) {
       if (!shown(s)) continue;
-      const control = document.getElementById(fieldId(s));
       let v;
       if (s.kind === 'switch') {
         v = control.checked ? true : undefined;
@@ -202,7 +201,7 @@ export function settingsForm(schema, request) {
         // The JSON mapping names an enum value by its proto name: the schema lists them beside the choices.
         v = control.value === '' ? undefined : (s.values || [])[s.choices.indexOf(control.value)];
         if (control.value !== '' && v === undefined) throw new FormError(`${s.flag}: riccatid's schema lists no JSON name for "${control.value}"`);
-      } else if (document.getElementById(fieldId(s) + '-implicit')?.checked) {
+      } else if (implicit && implicit.checked) {
         v = [s.implicit];
       } else {
         v = parse(s, control.value, s.flag);
