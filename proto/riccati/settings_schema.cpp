@@ -132,7 +132,12 @@ std::string_view implied_method(const Descriptor& request) {
 
 bool offered(const Descriptor& request, const SettingField& s) {
   const std::string_view method = implied_method(request);
-  return method.empty() || s.setting->methods_size() == 0 || contains(s.setting->methods(), method);
+  if (!method.empty() && s.setting->methods_size() > 0 && !contains(s.setting->methods(), method)) return false;
+  // A smoother runs the EKF or the UKF: not the optimal filter's settings.
+  if (&request == v1::SmoothingSpec::descriptor() && s.setting->filters_size() > 0) {
+    return contains(s.setting->filters(), "ekf") || contains(s.setting->filters(), "ukf");
+  }
+  return true;
 }
 
 const SettingField* find_setting(const Descriptor& request, std::string_view path) {
@@ -195,8 +200,8 @@ std::string misplaced_setting(const Message& request, std::string_view method, s
       return s.path + " applies to method " + joined(o.methods(), "and") + " only, not to " + std::string(method);
     }
     if (!filter.empty() && o.filters_size() > 0 && !contains(o.filters(), filter)) {
-      return s.path + " applies to the " + joined(o.filters(), "and") + " filter only, not to the " +
-             std::string(filter) + " filter";
+      return s.path + " applies to the " + joined(o.filters(), "and") + (o.filters_size() > 1 ? " filters" : " filter") +
+             " only, not to the " + std::string(filter) + " filter";
     }
   }
   return {};
