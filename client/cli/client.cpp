@@ -4,6 +4,8 @@
 #include <chrono>
 #include <cstdio>
 
+#include "settings.hpp"
+
 namespace riccati::cli {
 
 int exit_code_for(grpc::StatusCode code) {
@@ -61,7 +63,9 @@ int Client::fail(const std::string& what, const grpc::Status& status) const {
   if (message.rfind("cannot reach riccatid", 0) == 0) {
     std::fprintf(stderr, "riccati: %s\n", message.c_str());
   } else {
-    std::fprintf(stderr, "riccati: %s: %s\n", what.c_str(), message.c_str());
+    // riccatid names the request's fields; the flags that set them go beside.
+    const std::string told = status.error_code() == grpc::StatusCode::INVALID_ARGUMENT ? with_flags(message) : message;
+    std::fprintf(stderr, "riccati: %s: %s\n", what.c_str(), told.c_str());
   }
   return exit_code_for(status.error_code());
 }

@@ -235,8 +235,6 @@ int main(int argc, char** argv) {
       ->check(CLI::IsMember({"table", "json", "csv"}))
       ->capture_default_str();
   smooth_cmd->add_option("--output,-o", sm.output, "Write to this file");
-  smooth_cmd->add_flag("--full-covariance", sm.full_covariance,
-                       "Also the smoothed covariances at every sample (in the JSON; large)");
   const RunFlags sm_flags(smooth_cmd, Command::kSmooth);
 
   SimulateOptions sim;

@@ -1,235 +1,166 @@
 #include "settings.hpp"
 
-#include <yaml-cpp/yaml.h>
+#include <google/protobuf/descriptor.h>
+#include <google/protobuf/reflection.h>
 
 #include <algorithm>
+#include <cctype>
 #include <charconv>
 #include <limits>
+#include <set>
 #include <sstream>
 #include <type_traits>
 #include <variant>
 
 #include "riccati/enum_names.hpp"
+#include "riccati/settings_schema.hpp"
 
 namespace riccati::cli {
 
 namespace {
 
+using google::protobuf::Descriptor;
 using google::protobuf::EnumDescriptor;
+using google::protobuf::FieldDescriptor;
+using google::protobuf::Message;
+using google::protobuf::Reflection;
+using api::SettingField;
+using api::ValueKind;
 
 template <typename T>
 using Member = std::optional<T> RunSettings::*;
 using Names = std::vector<std::string> RunSettings::*;
 
-// Where a setting goes in RunSettings; its type says how the value is read.
-// (int: an enum's number, with the enum's descriptor in the setting.)
-using Target = std::variant<Member<std::string>, Member<int>, Member<double>, Member<std::uint64_t>, Member<bool>,
-                            Member<std::vector<double>>, Member<v1::Covariance>, Member<v1::InitialState>, Names,
-                            Member<std::vector<NamedRange>>, Member<std::vector<NamedValue>>,
+// Where one of the CLI's own settings goes in RunSettings; its type says how
+// the value is read.
+using Target = std::variant<Member<std::string>, Member<std::vector<double>>, Names, Member<std::vector<NamedRange>>,
                             Member<std::vector<SampleSpan>>>;
 
-struct Setting {
-  std::string key;                   // in the job file; "integrator.kind" is kind: under integrator:
-  std::vector<std::string> aliases;  // other spellings of the key ("integrator": the kind alone)
-  std::string flag;                  // CLI11's names of the flag
-  unsigned commands = 0;             // the commands whose flags include it (a bit per Command)
+struct OwnSetting {
+  std::string key;    // in the job file
+  std::string flag;   // CLI11's names of the flag
+  unsigned commands;  // the commands whose flags include it (a bit per Command)
   std::string help;
   Target target;
-  const EnumDescriptor* choices = nullptr;  // enum settings: the API enum
-  bool flag_value = true;                   // bool settings: what the flag sets
-  std::string form;      // how a value is written, for --help ("NAME=LO:HI"); empty: its type's name
-  std::string implicit;  // lists of names: the value of the flag given alone ("all"); empty: it needs one
+  std::string form;  // how a value is written, for --help; empty: its type's name
 };
 
 constexpr unsigned bit(Command c) { return static_cast<unsigned>(c); }
 constexpr unsigned kIdentify = bit(Command::kIdentify);
 constexpr unsigned kValidate = bit(Command::kValidate);
 constexpr unsigned kSmooth = bit(Command::kSmooth);
-constexpr unsigned kFilter = kIdentify | bit(Command::kStream);    // runs of a filter from theta0, any kind
-constexpr unsigned kKalman = kFilter | kSmooth;                    // runs of a filter (smooth: the EKF or UKF)
-constexpr unsigned kColumns = kKalman | kValidate;                 // runs on measured data
-constexpr unsigned kSimulation = kColumns | bit(Command::kSimulate);  // runs that integrate the model
-constexpr unsigned kParams = kValidate | bit(Command::kSimulate) | kSmooth;  // commands with --params
-constexpr unsigned kRetune = bit(Command::kRetune);  // what RetuneSession changes: Q, R, V, W
+constexpr unsigned kColumns = kIdentify | bit(Command::kStream) | kSmooth | kValidate;  // runs on measured data
 
-// Every setting, once. The job-file reader and the flags are made from it.
-const std::vector<Setting>& settings() {
-  static const std::vector<Setting> table = {
-      {.key = "model", .flag = "--model,-m", .commands = kSimulation, .help = "Model name",
-       .target = &RunSettings::model},
-      {.key = "data", .flag = "--data,-d", .commands = kIdentify | kValidate | kSmooth,
-       .help = "Dataset id, or a local CSV/MAT file to upload", .target = &RunSettings::data},
-      {.key = "inputs", .flag = "--inputs", .commands = kColumns, .help = "Input columns, in the model's order",
-       .target = &RunSettings::inputs},
-      {.key = "outputs", .flag = "--outputs", .commands = kColumns, .help = "Output columns, in the model's order",
-       .target = &RunSettings::outputs},
-      {.key = "filter", .flag = "--filter", .commands = kKalman, .help = "Filter kind (default ekf)",
-       .target = &RunSettings::filter, .choices = v1::FilterKind_descriptor()},
-      {.key = "passes", .flag = "--passes", .commands = kIdentify, .help = "Passes over the data",
-       .target = &RunSettings::passes},
-      {.key = "x0", .flag = "--x0", .commands = kColumns,
-       .help = "Initial state: first (the first measurement, the default) or a list", .target = &RunSettings::x0},
-      {.key = "theta0", .flag = "--theta0", .commands = kFilter, .help = "Initial parameters (default: the model's)",
-       .target = &RunSettings::theta0},
-      {.key = "P0", .aliases = {"p0"}, .flag = "--p0", .commands = kKalman,
-       .help = "Initial variances of [x; theta] (one value: all; default: 0 for a state that starts at its "
-               "measurement, 1 for another, theta0_i^2 for parameter i)",
-       .target = &RunSettings::p0},
-      {.key = "Q", .aliases = {"q"}, .flag = "--q", .commands = kKalman | kRetune,
-       .help = "Process noise intensities of [x; theta] (one value: all)", .target = &RunSettings::q},
-      {.key = "R", .aliases = {"r"}, .flag = "--r", .commands = kKalman | kRetune,
-       .help = "Measurement noise variances (one value: all)", .target = &RunSettings::r},
-      {.key = "hold", .flag = "--hold", .commands = kSimulation, .help = "Input hold", .target = &RunSettings::hold,
-       .choices = v1::HoldOrder_descriptor()},
-      {.key = "integrator.kind", .aliases = {"integrator"}, .flag = "--integrator", .commands = kSimulation,
-       .help = "Integrator", .target = &RunSettings::integrator, .choices = v1::IntegratorKind_descriptor()},
-      {.key = "integrator.substeps", .flag = "--substeps", .commands = kSimulation,
-       .help = "Fixed-step integrators: steps per sample", .target = &RunSettings::substeps},
-      {.key = "integrator.rtol", .flag = "--rtol", .commands = kSimulation,
-       .help = "Adaptive integrators: relative tolerance", .target = &RunSettings::rtol},
-      {.key = "integrator.atol", .flag = "--atol", .commands = kSimulation,
-       .help = "Adaptive integrators: absolute tolerance", .target = &RunSettings::atol},
-      {.key = "inversion", .flag = "--inversion", .commands = kKalman, .help = "Gain solve",
-       .target = &RunSettings::inversion, .choices = v1::GainInversion_descriptor()},
-      {.key = "joseph", .flag = "--no-joseph", .commands = kKalman, .help = "EKF: short covariance update",
-       .target = &RunSettings::joseph, .flag_value = false},
-      {.key = "ukf.weights", .flag = "--weights", .commands = kKalman, .help = "UKF weights",
-       .target = &RunSettings::weights, .choices = v1::SigmaWeights_descriptor()},
-      {.key = "ukf.alpha", .flag = "--alpha", .commands = kKalman, .help = "UKF scaled weights: alpha",
-       .target = &RunSettings::alpha},
-      {.key = "ukf.beta", .flag = "--beta", .commands = kKalman, .help = "UKF scaled weights: beta",
-       .target = &RunSettings::beta},
-      {.key = "ukf.kappa", .flag = "--kappa", .commands = kKalman, .help = "UKF kappa", .target = &RunSettings::kappa},
-      {.key = "optimal.V", .aliases = {"optimal.v"}, .flag = "--v", .commands = kFilter | kRetune,
-       .help = "Optimal filter: weights of the equations of motion, inputs, outputs", .target = &RunSettings::v},
-      {.key = "optimal.W", .aliases = {"optimal.w"}, .flag = "--w", .commands = kFilter | kRetune,
-       .help = "Optimal filter: weights of the states and parameters", .target = &RunSettings::w},
-      {.key = "optimal.R0", .aliases = {"optimal.r0"}, .flag = "--r0", .commands = kFilter,
-       .help = "Optimal filter: confidence in x0 and theta0 (instead of --p0)", .target = &RunSettings::r0},
-      {.key = "optimal.form", .flag = "--form", .commands = kFilter, .help = "Optimal filter: form",
-       .target = &RunSettings::form, .choices = v1::OptimalForm_descriptor()},
-      {.key = "optimal.hold_outputs", .flag = "--hold-outputs", .commands = kFilter,
-       .help = "Optimal filter: hold outputs over a step (strict real time)", .target = &RunSettings::hold_outputs},
-      {.key = "first_sample", .flag = "--first-sample", .commands = kIdentify | kSmooth,
-       .help = "First sample used, 0-based (identify: a trial on a slice of the data; default 0)",
-       .target = &RunSettings::first_sample},
-      {.key = "end_sample", .flag = "--end-sample", .commands = kIdentify | kSmooth,
-       .help = "Sample after the last used, 0-based (default 0: to the end)", .target = &RunSettings::end_sample},
-      {.key = "truth", .flag = "--truth", .commands = kIdentify, .help = "True parameters, to print the error",
-       .target = &RunSettings::truth},
-      // Output error and maximum likelihood.
-      {.key = "method", .flag = "--method", .commands = kIdentify,
-       .help = "How the parameters are found: the iterated filter's passes (the default), output error (the "
-               "simulated outputs' squared errors) or maximum likelihood (the EKF's or UKF's innovations)",
-       .target = &RunSettings::method, .choices = v1::IdentificationMethod_descriptor()},
-      {.key = "init_passes", .flag = "--init-passes", .commands = kIdentify,
-       .help = "oe, ml: passes of the iterated filter (--filter, --p0, --q, --r) first; their estimate (the mean "
-               "over the last pass, within the bounds) starts the optimiser (default 0: it starts at --theta0)",
-       .target = &RunSettings::init_passes},
-      {.key = "bounds", .flag = "--bound", .commands = kIdentify,
-       .help = "A parameter's bounds, in its unit; LO or HI may be left empty (the model's bound stays). "
-               "Repeatable. The filter method holds its estimate within them",
-       .target = &RunSettings::bounds, .form = "NAME=LO:HI"},
-      {.key = "fixed", .flag = "--fix", .commands = kIdentify,
-       .help = "Hold a parameter fixed: at its --theta0 (NAME) or at VALUE. Repeatable",
-       .target = &RunSettings::fixed, .form = "NAME[=VALUE]"},
-      {.key = "log_scale", .flag = "--log-scale", .commands = kIdentify,
-       .help = "oe, ml: estimate these parameters as log(theta), for positive ones spanning decades (each needs "
-               "a positive lower bound). Names, comma-separated or repeated",
-       .target = &RunSettings::log_scale, .form = "NAME"},
-      {.key = "estimate_x0", .flag = "--estimate-x0", .commands = kIdentify,
-       .help = "oe, ml: estimate these initial states, starting from --x0, in every experiment: names, "
-               "comma-separated, or all (the flag alone: all)",
-       .target = &RunSettings::estimate_x0, .form = "[STATE,...|all]", .implicit = "all"},
-      {.key = "experiments", .flag = "--experiment", .commands = kIdentify,
-       .help = "oe, ml: another record of the system, a dataset id or a local file (uploaded with --inputs and "
-               "--outputs), with the same parameters and its own initial state (as --x0 and --estimate-x0 say). "
-               "Repeatable: experiments 2, 3, ... in order; --data is experiment 1",
-       .target = &RunSettings::experiments, .form = "DATA"},
-      {.key = "exclude", .flag = "--exclude", .commands = kIdentify,
-       .help = "Leave samples FIRST to END-1 (0-based) of experiment E out (E: 1, the default, is --data; 2, 3, ... "
-               "the --experiment records). Repeatable",
-       .target = &RunSettings::exclude, .form = "[E@]FIRST:END"},
-      {.key = "output_limits", .flag = "--output-limit", .commands = kIdentify,
-       .help = "An output's saturation, in its unit: samples where it is at or below LO, or at or above HI, are "
-               "left out, in every experiment; LO or HI may be left empty. Repeatable",
-       .target = &RunSettings::output_limits, .form = "OUTPUT=LO:HI"},
-      {.key = "estimation.output_sigma", .flag = "--output-sigma", .commands = kIdentify,
-       .help = "oe: each output's noise standard deviation, in its unit, when known: the residuals are weighted by "
-               "1/sigma and the covariance is absolute (default: every output weighted 1, the covariance scaled "
-               "by the residuals' variance)",
-       .target = &RunSettings::output_sigma},
-      {.key = "estimation.estimate_q", .flag = "--estimate-q", .commands = kIdentify,
-       .help = "ml: also estimate the diagonal of the states' process noise Q, from --q (positive for every state)",
-       .target = &RunSettings::estimate_q},
-      {.key = "estimation.estimate_r", .flag = "--estimate-r", .commands = kIdentify,
-       .help = "ml: also estimate the diagonal of the measurement noise R, from --r",
-       .target = &RunSettings::estimate_r},
-      {.key = "estimation.max_iterations", .flag = "--max-iterations", .commands = kIdentify,
-       .help = "oe, ml: the optimiser's iterations at most (default 200)", .target = &RunSettings::max_iterations},
-      {.key = "estimation.function_tolerance", .flag = "--function-tolerance", .commands = kIdentify,
-       .help = "oe, ml: stop when an iteration changes the criterion by less than this, relatively (default 1e-14)",
-       .target = &RunSettings::function_tolerance},
-      {.key = "estimation.gradient_tolerance", .flag = "--gradient-tolerance", .commands = kIdentify,
-       .help = "oe, ml: stop when the largest gradient entry is below this, relatively (default 1e-14)",
-       .target = &RunSettings::gradient_tolerance},
-      {.key = "estimation.parameter_tolerance", .flag = "--parameter-tolerance", .commands = kIdentify,
-       .help = "oe, ml: stop when an iteration changes the unknowns by less than this, relatively (default 1e-12)",
-       .target = &RunSettings::parameter_tolerance},
-      // Which estimate --params takes, and validate's fitted initial states.
-      {.key = "estimate", .flag = "--estimate", .commands = kParams,
-       .help = "Which estimate of an iterated-filter job --params takes: the mean over its last pass (the default, "
-               "as the 1999 toolbox reports) or the estimate at its end; oe and ml jobs have one",
-       .target = &RunSettings::estimate, .choices = v1::EstimateChoice_descriptor()},
-      {.key = "estimate_x0_samples", .flag = "--estimate-x0", .commands = kValidate,
-       .help = "Fit every initial state (from --x0) by output error on the first M samples, the parameters held, "
-               "then simulate the whole record from them (default: x0 as given)",
-       .target = &RunSettings::x0_samples, .form = "M"},
+// The CLI's own settings: what the requests cannot hold as the user gives it
+// (a file to upload, columns to pick, the truth to print, more experiments
+// and their masks, which the CLI spreads over the request's experiments).
+const std::vector<OwnSetting>& own_settings() {
+  static const std::vector<OwnSetting> table = {
+      {"model", "--model,-m", kColumns | bit(Command::kSimulate), "Model name", &RunSettings::model},
+      {"data", "--data,-d", kIdentify | kValidate | kSmooth, "Dataset id, or a local CSV/MAT file to upload",
+       &RunSettings::data},
+      {"inputs", "--inputs", kColumns, "Input columns, in the model's order", &RunSettings::inputs},
+      {"outputs", "--outputs", kColumns, "Output columns, in the model's order", &RunSettings::outputs},
+      {"truth", "--truth", kIdentify, "True parameters, to print the error", &RunSettings::truth},
+      {"experiments", "--experiment", kIdentify,
+       "oe, ml: another record of the system, a dataset id or a local file (uploaded with --inputs and --outputs), "
+       "with the same parameters and its own initial state (as --x0 and --estimate-x0 say). Repeatable: experiments "
+       "2, 3, ... in order; --data is experiment 1",
+       &RunSettings::experiments, "DATA"},
+      {"exclude", "--exclude", kIdentify,
+       "Leave samples FIRST to END-1 (0-based) of experiment E out (E: 1, the default, is --data; 2, 3, ... the "
+       "--experiment records). Repeatable",
+       &RunSettings::exclude, "[E@]FIRST:END"},
+      {"output_limits", "--output-limit", kIdentify,
+       "An output's saturation, in its unit: samples where it is at or below LO, or at or above HI, are left out, in "
+       "every experiment; LO or HI may be left empty. Repeatable",
+       &RunSettings::output_limits, "OUTPUT=LO:HI"},
   };
   return table;
 }
 
-const Setting* find_setting(std::string_view key) {
-  for (const Setting& setting : settings()) {
+const OwnSetting* find_own(std::string_view key) {
+  for (const OwnSetting& setting : own_settings()) {
     if (setting.key == key) return &setting;
-    for (const std::string& alias : setting.aliases) {
-      if (alias == key) return &setting;
+  }
+  return nullptr;
+}
+
+// The request a command's settings are: identify's are an IdentificationSpec's, ...
+const Descriptor& request_of(Command command) {
+  switch (command) {
+    case Command::kIdentify: return *v1::IdentificationSpec::descriptor();
+    case Command::kStream: return *v1::CreateSessionRequest::descriptor();
+    case Command::kValidate: return *v1::ValidationSpec::descriptor();
+    case Command::kSimulate: return *v1::SimulateRequest::descriptor();
+    case Command::kSmooth: return *v1::SmoothingSpec::descriptor();
+    case Command::kRetune: return *v1::RetuneSessionRequest::descriptor();
+  }
+  return *v1::IdentificationSpec::descriptor();
+}
+
+// The settings whose flags `command` has: its request's, and for the
+// commands whose --params may name a job, the validation's --estimate.
+std::vector<const SettingField*> command_settings(Command command) {
+  const Descriptor& request = request_of(command);
+  std::vector<const SettingField*> out;
+  for (const SettingField& s : api::settings_of(request)) {
+    if (api::offered(request, s)) out.push_back(&s);
+  }
+  if (command == Command::kSmooth || command == Command::kSimulate) {
+    out.push_back(api::find_setting(*v1::ValidationSpec::descriptor(), "estimate"));
+  }
+  return out;
+}
+
+// Job-file keys of earlier versions, as the settings' paths.
+std::string_view current_key(std::string_view key) {
+  static const std::map<std::string_view, std::string_view> renamed = {
+      {"filter", "filter.kind"},
+      {"integrator", "integrator.kind"},
+      {"x0", "initial_state"},
+      {"estimate_x0", "initial_state.estimate"},
+      {"estimation.estimate_q", "estimation.estimate_process_noise"},
+      {"estimation.estimate_r", "estimation.estimate_measurement_noise"},
+  };
+  const auto it = renamed.find(key);
+  return it == renamed.end() ? key : it->second;
+}
+
+// The request setting a job-file key names: its path in any request (the
+// filter's also without `filter.`), case aside (P0, Q, optimal.V).
+const SettingField* setting_for_key(std::string key) {
+  std::transform(key.begin(), key.end(), key.begin(), [](unsigned char c) { return std::tolower(c); });
+  const std::string path(current_key(key));
+  for (const Descriptor* request : api::setting_requests()) {
+    for (const std::string& prefix : {std::string(), std::string("filter.")}) {
+      if (const SettingField* s = api::find_setting(*request, prefix + path)) return s;
     }
   }
   return nullptr;
 }
 
-// The keys grouped under `group` in a job file ("kind, substeps, rtol, atol"); empty: it is no group.
+// The keys grouped under `group` ("kind, substeps, rtol, atol, max_steps"):
+// the next part of the settings' paths under it; empty: it is no group.
 std::string group_keys(std::string_view group) {
-  std::string keys;
-  for (const Setting& setting : settings()) {
-    const std::string_view key = setting.key;
-    if (key.size() > group.size() && key.starts_with(group) && key[group.size()] == '.') {
-      keys += (keys.empty() ? "" : ", ") + std::string(key.substr(group.size() + 1));
+  std::vector<std::string> keys;
+  const auto add = [&](std::string_view path) {
+    if (path.size() <= group.size() || !path.starts_with(group) || path[group.size()] != '.') return;
+    std::string_view key = path.substr(group.size() + 1);
+    key = key.substr(0, key.find('.'));
+    if (std::find(keys.begin(), keys.end(), key) == keys.end()) keys.emplace_back(key);
+  };
+  for (const Descriptor* request : api::setting_requests()) {
+    for (const SettingField& s : api::settings_of(*request)) {
+      add(s.path);
+      if (s.path.starts_with("filter.")) add(std::string_view(s.path).substr(7));
     }
   }
-  return keys;
+  std::string out;
+  for (const std::string& key : keys) out += (out.empty() ? "" : ", ") + key;
+  return out;
 }
 
-// How --help shows the value a flag takes.
-std::string type_name(const Setting& setting) {
-  if (!setting.form.empty()) return setting.form;
-  if (std::holds_alternative<Member<double>>(setting.target)) return "FLOAT";
-  if (std::holds_alternative<Member<std::uint64_t>>(setting.target)) return "UINT";
-  return "TEXT";
-}
-
-// Settings whose flag is repeated (or given a comma-separated list), one item each.
-bool takes_items(const Target& target) {
-  return std::holds_alternative<Names>(target) || std::holds_alternative<Member<std::vector<NamedRange>>>(target) ||
-         std::holds_alternative<Member<std::vector<NamedValue>>>(target) ||
-         std::holds_alternative<Member<std::vector<SampleSpan>>>(target);
-}
-
-std::string help_of(const Setting& setting) {
-  if (setting.choices == nullptr) return setting.help;
-  return setting.help + " (" + api::enum_choice_list(*setting.choices) + ")";
-}
 
 // ------------------------------------------------------------ values
 
@@ -502,21 +433,127 @@ bool read(const YAML::Node& node, std::vector<Item>* out, std::string* error) {
   return true;
 }
 
-bool read_value(const Setting& setting, const YAML::Node& node, RunSettings* s, std::string* error) {
+
+// ------------------------------------------------------------ request settings
+
+// A count for a uint32 field: past its range is past riccatid's limits too,
+// and riccatid says so.
+uint32_t saturated(std::uint64_t count) {
+  return static_cast<uint32_t>(std::min<std::uint64_t>(count, std::numeric_limits<uint32_t>::max()));
+}
+
+// Reads `node` into the setting's field of `request`; false with what is wrong.
+bool write_setting(const SettingField& s, const YAML::Node& node, Message* request, std::string* error) {
+  Message* holder = api::mutable_holder(request, s);
+  const Reflection* r = holder->GetReflection();
+  const FieldDescriptor* f = s.field;
+  switch (s.kind) {
+    case ValueKind::kNumber: {
+      double v = 0.0;
+      if (!read(node, &v, error)) return false;
+      r->SetDouble(holder, f, v);
+      return true;
+    }
+    case ValueKind::kCount: {
+      std::uint64_t v = 0;
+      if (!read(node, &v, error)) return false;
+      if (f->cpp_type() == FieldDescriptor::CPPTYPE_UINT32) {
+        r->SetUInt32(holder, f, saturated(v));
+      } else {
+        r->SetUInt64(holder, f, v);
+      }
+      return true;
+    }
+    case ValueKind::kSwitch: {
+      bool v = false;
+      if (!read(node, &v, error)) return false;
+      r->SetBool(holder, f, v);
+      return true;
+    }
+    case ValueKind::kText: {
+      std::string v;
+      if (!read(node, &v, error)) return false;
+      r->SetString(holder, f, v);
+      return true;
+    }
+    case ValueKind::kChoice: {
+      int v = 0;
+      if (!read_choice(node, *f->enum_type(), &v, error)) return false;
+      r->SetEnumValue(holder, f, v);
+      return true;
+    }
+    case ValueKind::kNumbers: {
+      std::vector<double> v;
+      if (!read(node, &v, error)) return false;
+      r->ClearField(holder, f);
+      for (const double x : v) r->AddDouble(holder, f, x);
+      return true;
+    }
+    case ValueKind::kNames: {
+      std::vector<std::string> v;
+      if (!read(node, &v, error)) return false;
+      r->ClearField(holder, f);
+      for (const std::string& x : v) r->AddString(holder, f, x);
+      return true;
+    }
+    case ValueKind::kCovariance: {
+      v1::Covariance v;
+      if (!read(node, &v, error)) return false;
+      r->MutableMessage(holder, f)->CopyFrom(v);
+      return true;
+    }
+    case ValueKind::kInitialState: {
+      v1::InitialState v;
+      if (!read(node, &v, error)) return false;
+      auto* state = static_cast<v1::InitialState*>(r->MutableMessage(holder, f));
+      state->clear_first_measurement();  // what estimate names stays
+      state->clear_x0();
+      state->MergeFrom(v);
+      return true;
+    }
+    case ValueKind::kBounds: {
+      std::vector<NamedRange> v;
+      if (!read(node, &v, error)) return false;
+      r->ClearField(holder, f);
+      for (const NamedRange& item : v) {
+        auto* bound = static_cast<v1::ParameterBound*>(r->AddMessage(holder, f));
+        bound->set_name(item.name);
+        if (item.lower) bound->set_lower(*item.lower);
+        if (item.upper) bound->set_upper(*item.upper);
+      }
+      return true;
+    }
+    case ValueKind::kFixed: {
+      std::vector<NamedValue> v;
+      if (!read(node, &v, error)) return false;
+      r->ClearField(holder, f);
+      for (const NamedValue& item : v) {
+        auto* fixed = static_cast<v1::FixedParameter*>(r->AddMessage(holder, f));
+        fixed->set_name(item.name);
+        if (item.value) fixed->set_value(*item.value);
+      }
+      return true;
+    }
+  }
+  return false;
+}
+
+// Whether `node` is a value of the setting (read into a request of its own).
+bool check_value(const SettingField& s, const YAML::Node& node, std::string* error) {
+  const Descriptor* request = s.chain.front()->containing_type();
+  std::unique_ptr<Message> scratch(google::protobuf::MessageFactory::generated_factory()->GetPrototype(request)->New());
+  return write_setting(s, node, scratch.get(), error);
+}
+
+bool read_own(const OwnSetting& setting, const YAML::Node& node, RunSettings* s, std::string* error) {
   return std::visit(
       [&](auto member) {
         auto& to = s->*member;
         if constexpr (std::is_same_v<decltype(member), Names>) {
           return read(node, &to, error);
         } else {
-          using Value = typename std::remove_reference_t<decltype(to)>::value_type;
-          Value value{};
-          bool ok = false;
-          if constexpr (std::is_same_v<Value, int>) {
-            ok = read_choice(node, *setting.choices, &value, error);
-          } else {
-            ok = read(node, &value, error);
-          }
+          typename std::remove_reference_t<decltype(to)>::value_type value{};
+          const bool ok = read(node, &value, error);
           if (ok) to = std::move(value);
           return ok;
         }
@@ -524,29 +561,17 @@ bool read_value(const Setting& setting, const YAML::Node& node, RunSettings* s, 
       setting.target);
 }
 
-// A flag's text as a job file would have it: commas make a list, for the
-// settings that take one.
-YAML::Node written(const Setting& setting, const std::string& text) {
-  const bool takes_list = std::holds_alternative<Member<std::vector<double>>>(setting.target) ||
-                          std::holds_alternative<Member<v1::Covariance>>(setting.target) ||
-                          std::holds_alternative<Member<v1::InitialState>>(setting.target);
-  if (!takes_list || text.find(',') == std::string::npos) return YAML::Node(text);
-  YAML::Node list(YAML::NodeType::Sequence);
-  std::stringstream items(text);
-  for (std::string item; std::getline(items, item, ',');) list.push_back(item);
-  return list;
-}
-
 // One key of a job file (under `group`, if any): a setting, or a group of them.
 bool read_entry(const std::string& group, const YAML::Node& key_node, const YAML::Node& value, RunSettings* s,
                 std::string* error) {
   const std::string key = (group.empty() ? "" : group + ".") + key_node.Scalar();
   const std::string where = in_quotes(key) + " (line " + std::to_string(key_node.Mark().line + 1) + ")";
-  const Setting* setting = find_setting(key);
-  const std::string grouped = group.empty() ? group_keys(key) : "";
-  if (!grouped.empty() && (value.IsMap() || setting == nullptr)) {
-    if (!value.IsMap()) {
-      *error = "key " + where + ": expected a map (" + grouped + ")";
+  std::string lower = key;
+  std::transform(lower.begin(), lower.end(), lower.begin(), [](unsigned char c) { return std::tolower(c); });
+  const std::string grouped = group_keys(lower);
+  if (value.IsMap()) {
+    if (grouped.empty()) {
+      *error = "key " + where + ": a map, but no settings are grouped under it";
       return false;
     }
     for (const auto& entry : value) {
@@ -554,15 +579,94 @@ bool read_entry(const std::string& group, const YAML::Node& key_node, const YAML
     }
     return true;
   }
-  if (setting == nullptr) {
-    *error = "unknown key " + where + (group.empty() ? "" : " (expected " + group_keys(group) + ")");
+  if (const OwnSetting* own = group.empty() ? find_own(key) : nullptr) {
+    if (!read_own(*own, value, s, error)) {
+      *error = "key " + where + ": " + *error;
+      return false;
+    }
+    return true;
+  }
+  if (lower == "joseph") {  // earlier job files: the Joseph form on (true) or off
+    bool joseph = true;
+    if (!read(value, &joseph, error)) {
+      *error = "key " + where + ": " + *error;
+      return false;
+    }
+    s->given["--no-joseph"] = YAML::Node(joseph ? "false" : "true");
+    return true;
+  }
+  const SettingField* setting = setting_for_key(key);
+  if (setting == nullptr && !grouped.empty()) {
+    *error = "key " + where + ": expected a map (" + grouped + ")";
     return false;
   }
-  if (!read_value(*setting, value, s, error)) {
+  if (setting == nullptr) {
+    std::string keys = group;
+    std::transform(keys.begin(), keys.end(), keys.begin(), [](unsigned char c) { return std::tolower(c); });
+    keys = group.empty() ? "" : group_keys(keys);
+    *error = "unknown key " + where + (keys.empty() ? "" : " (expected " + keys + ")");
+    return false;
+  }
+  if (!check_value(*setting, value, error)) {
     *error = "key " + where + ": " + *error;
     return false;
   }
+  s->given[setting->setting->flag()] = YAML::Clone(value);
   return true;
+}
+
+// How --help shows the value a flag takes.
+std::string type_name(const SettingField& s) {
+  if (!s.setting->form().empty()) return s.setting->form();
+  switch (s.kind) {
+    case ValueKind::kNumber: return "FLOAT";
+    case ValueKind::kCount: return "UINT";
+    case ValueKind::kNumbers: return "X,...";
+    case ValueKind::kCovariance: return "V|V,...";
+    case ValueKind::kNames: return "NAME";
+    case ValueKind::kChoice: return "CHOICE";
+    default: return "TEXT";
+  }
+}
+
+std::string list_of(const google::protobuf::RepeatedPtrField<std::string>& names) {
+  std::string out;
+  for (const std::string& n : names) out += (out.empty() ? "" : ", ") + n;
+  return out;
+}
+
+// The help of a request setting: what it is, its choices, its default,
+// its unit and where it applies.
+std::string help_of(const SettingField& s) {
+  const v1::Setting& o = *s.setting;
+  std::string help = o.help();
+  if (s.kind == ValueKind::kChoice) help += " (" + api::enum_choice_list(*s.field->enum_type()) + ")";
+  if (s.kind == ValueKind::kNames || s.kind == ValueKind::kBounds || s.kind == ValueKind::kFixed) {
+    help += ". Repeatable, or comma-separated";
+  }
+  std::vector<std::string> notes;
+  if (!o.unit().empty()) notes.push_back("unit: " + o.unit());
+  if (!o.default_value().empty()) notes.push_back("default " + o.default_value());
+  if (o.methods_size() > 0) notes.push_back("method " + list_of(o.methods()));
+  if (o.filters_size() > 0) notes.push_back("filter " + list_of(o.filters()));
+  for (std::size_t i = 0; i < notes.size(); ++i) help += (i == 0 ? " [" : "; ") + notes[i];
+  if (!notes.empty()) help += "]";
+  return help;
+}
+
+std::string own_type_name(const OwnSetting& setting) {
+  if (!setting.form.empty()) return setting.form;
+  return std::holds_alternative<Member<std::vector<double>>>(setting.target) ? "X,..." : "TEXT";
+}
+
+// A flag's text as a job file would have it: commas make a list, for the
+// settings that take one.
+YAML::Node written(bool takes_list, const std::string& text) {
+  if (!takes_list || text.find(',') == std::string::npos) return YAML::Node(text);
+  YAML::Node list(YAML::NodeType::Sequence);
+  std::stringstream items(text);
+  for (std::string item; std::getline(items, item, ',');) list.push_back(item);
+  return list;
 }
 
 }  // namespace
@@ -589,28 +693,42 @@ bool load_job_file(const std::string& path, RunSettings* s, std::string* error) 
 }
 
 struct RunFlags::Flag {
-  const Setting* setting;
+  const OwnSetting* own = nullptr;      // one of the CLI's own settings,
+  const SettingField* field = nullptr;  // or a request's
   CLI::Option* option = nullptr;
   std::string text;
-  std::vector<std::string> names;
+  std::vector<std::string> items;
   bool on = false;
 };
 
 RunFlags::RunFlags(CLI::App* cmd, Command command) {
-  for (const Setting& setting : settings()) {
+  for (const OwnSetting& setting : own_settings()) {
     if ((setting.commands & bit(command)) == 0) continue;
-    Flag& flag = flags_.emplace_back(Flag{&setting});
-    if (std::holds_alternative<Member<bool>>(setting.target)) {
-      flag.option = cmd->add_flag(setting.flag, flag.on, help_of(setting));
-    } else if (takes_items(setting.target)) {
+    Flag& flag = flags_.emplace_back(Flag{.own = &setting});
+    const Target& t = setting.target;
+    if (std::holds_alternative<Member<std::string>>(t) || std::holds_alternative<Member<std::vector<double>>>(t)) {
+      flag.option = cmd->add_option(setting.flag, flag.text, setting.help)->type_name(own_type_name(setting));
+    } else {
       // One item per occurrence (or a comma-separated list); never the next word.
-      flag.option = cmd->add_option(setting.flag, flag.names, help_of(setting))
+      flag.option = cmd->add_option(setting.flag, flag.items, setting.help)
                         ->delimiter(',')
                         ->allow_extra_args(false)
-                        ->type_name(type_name(setting));
-      if (!setting.implicit.empty()) flag.option->expected(0, 1);
+                        ->type_name(own_type_name(setting));
+    }
+  }
+  for (const SettingField* s : command_settings(command)) {
+    Flag& flag = flags_.emplace_back(Flag{.field = s});
+    const std::string& name = s->setting->flag();
+    if (s->kind == ValueKind::kSwitch) {
+      flag.option = cmd->add_flag(name, flag.on, help_of(*s));
+    } else if (s->kind == ValueKind::kNames || s->kind == ValueKind::kBounds || s->kind == ValueKind::kFixed) {
+      flag.option = cmd->add_option(name, flag.items, help_of(*s))
+                        ->delimiter(',')
+                        ->allow_extra_args(false)
+                        ->type_name(type_name(*s));
+      if (!s->setting->implicit().empty()) flag.option->expected(0, 1);
     } else {
-      flag.option = cmd->add_option(setting.flag, flag.text, help_of(setting))->type_name(type_name(setting));
+      flag.option = cmd->add_option(name, flag.text, help_of(*s))->type_name(type_name(*s));
     }
   }
 }
@@ -620,32 +738,56 @@ RunFlags::~RunFlags() = default;
 bool RunFlags::apply(RunSettings* s, std::string* error) const {
   for (const Flag& flag : flags_) {
     if (flag.option->count() == 0) continue;
-    const Setting& setting = *flag.setting;
-    if (const auto* member = std::get_if<Member<bool>>(&setting.target)) {
-      s->**member = setting.flag_value;
-    } else if (const auto* names = std::get_if<Names>(&setting.target)) {
-      // The flag without a value (CLI11 gives one empty text).
-      const bool alone = !setting.implicit.empty() &&
-                         std::all_of(flag.names.begin(), flag.names.end(), [](const std::string& n) { return n.empty(); });
-      s->**names = alone ? std::vector<std::string>{setting.implicit} : flag.names;
-    } else if (takes_items(setting.target)) {
-      YAML::Node items(YAML::NodeType::Sequence);
-      for (const std::string& item : flag.names) items.push_back(item);
-      if (!read_value(setting, items, s, error)) {
-        *error = flag.option->get_name() + ": " + *error;
-        return false;
-      }
-    } else if (!read_value(setting, written(setting, flag.text), s, error)) {
+    const auto failed = [&] {
       *error = flag.option->get_name() + ": " + *error;
       return false;
+    };
+    if (flag.own != nullptr) {
+      const Target& t = flag.own->target;
+      YAML::Node node;
+      if (std::holds_alternative<Member<std::string>>(t) || std::holds_alternative<Member<std::vector<double>>>(t)) {
+        node = written(std::holds_alternative<Member<std::vector<double>>>(t), flag.text);
+      } else {
+        node = YAML::Node(YAML::NodeType::Sequence);
+        for (const std::string& item : flag.items) node.push_back(item);
+      }
+      if (!read_own(*flag.own, node, s, error)) return failed();
+      continue;
     }
+    const SettingField& field = *flag.field;
+    YAML::Node node;
+    switch (field.kind) {
+      case ValueKind::kSwitch:
+        node = YAML::Node("true");
+        break;
+      case ValueKind::kNames:
+      case ValueKind::kBounds:
+      case ValueKind::kFixed: {
+        // The flag without a value (CLI11 gives one empty text): its implicit value.
+        const bool alone = !field.setting->implicit().empty() &&
+                           std::all_of(flag.items.begin(), flag.items.end(), [](const std::string& i) { return i.empty(); });
+        node = YAML::Node(YAML::NodeType::Sequence);
+        if (alone) {
+          node.push_back(field.setting->implicit());
+        } else {
+          for (const std::string& item : flag.items) node.push_back(item);
+        }
+        break;
+      }
+      default:
+        node = written(field.kind == ValueKind::kNumbers || field.kind == ValueKind::kCovariance ||
+                           field.kind == ValueKind::kInitialState,
+                       flag.text);
+    }
+    if (!check_value(field, node, error)) return failed();
+    s->given[field.setting->flag()] = node;
   }
   return true;
 }
 
 void RunFlags::require(std::string_view key) {
   for (Flag& flag : flags_) {
-    if (flag.setting->key == key) flag.option->required();
+    if (flag.own != nullptr && flag.own->key == key) flag.option->required();
   }
 }
 
@@ -688,64 +830,38 @@ bool parse_named_list(const std::string& text, std::map<std::string, double>* ou
   return true;
 }
 
-namespace {
-
-// A count for a uint32 field: past its range is past riccatid's limits too,
-// and riccatid says so.
-uint32_t saturated(std::uint64_t count) {
-  return static_cast<uint32_t>(std::min<std::uint64_t>(count, std::numeric_limits<uint32_t>::max()));
+bool check_identification(const RunSettings& s, std::string* error) {
+  const std::uint64_t experiments = 1 + s.experiments.size();
+  for (const SampleSpan& span : s.exclude.value_or(std::vector<SampleSpan>{})) {
+    if (span.experiment <= experiments) continue;
+    *error = "--exclude " + std::to_string(span.experiment) + "@" + std::to_string(span.first) + ":" +
+             std::to_string(span.end) + ": there is no experiment " + std::to_string(span.experiment) + " (1 is --data" +
+             (experiments == 2   ? ", 2 the --experiment record"
+              : experiments > 2 ? ", 2 to " + std::to_string(experiments) + " the --experiment records"
+                                : "") +
+             ")";
+    return false;
+  }
+  return true;
 }
 
-}  // namespace
-
-std::optional<v1::IntegratorSettings> to_integrator(const RunSettings& s) {
-  if (!s.integrator && !s.substeps && !s.rtol && !s.atol) return std::nullopt;
-  v1::IntegratorSettings out;
-  if (s.integrator) out.set_kind(static_cast<v1::IntegratorKind>(*s.integrator));
-  if (s.substeps) out.set_substeps(saturated(*s.substeps));
-  if (s.rtol) out.set_rtol(*s.rtol);
-  if (s.atol) out.set_atol(*s.atol);
-  return out;
-}
-
-v1::FilterSettings to_filter_settings(const RunSettings& s) {
-  v1::FilterSettings out;
-  if (s.filter) out.set_kind(static_cast<v1::FilterKind>(*s.filter));
-  if (s.hold) out.set_hold(static_cast<v1::HoldOrder>(*s.hold));
-  if (auto integrator = to_integrator(s)) *out.mutable_integrator() = *integrator;
-  if (s.q) *out.mutable_q() = *s.q;
-  if (s.r) *out.mutable_r() = *s.r;
-  if (s.inversion) out.set_inversion(static_cast<v1::GainInversion>(*s.inversion));
-  if (s.joseph) out.set_short_covariance_update(!*s.joseph);
-  if (s.weights) out.mutable_ukf()->set_weights(static_cast<v1::SigmaWeights>(*s.weights));
-  if (s.alpha) out.mutable_ukf()->set_alpha(*s.alpha);
-  if (s.beta) out.mutable_ukf()->set_beta(*s.beta);
-  if (s.kappa) out.mutable_ukf()->set_kappa(*s.kappa);
-  if (s.v) *out.mutable_optimal()->mutable_v() = *s.v;
-  if (s.w) *out.mutable_optimal()->mutable_w() = *s.w;
-  if (s.r0) *out.mutable_optimal()->mutable_r0() = *s.r0;
-  if (s.form) out.mutable_optimal()->set_form(static_cast<v1::OptimalForm>(*s.form));
-  if (s.hold_outputs) out.mutable_optimal()->set_hold_outputs(*s.hold_outputs);
-  return out;
+void fill_request(const RunSettings& s, Message* request) {
+  const Descriptor& type = *request->GetDescriptor();
+  for (const SettingField& field : api::settings_of(type)) {
+    if (!api::offered(type, field)) continue;
+    const auto it = s.given.find(field.setting->flag());
+    if (it == s.given.end()) continue;
+    std::string error;  // none: the value was read when it was given
+    write_setting(field, it->second, request, &error);
+  }
 }
 
 namespace {
 
-v1::InitialState initial_state(const RunSettings& s) {
-  if (s.x0) return *s.x0;
-  v1::InitialState first;
-  first.set_first_measurement(true);
-  return first;
-}
-
-// What a job and a session share: model, filter, initial state, theta0 and P0.
+// x0 "first" (the toolbox's x0 = Y(t0)) when no --x0 was given.
 template <typename Request>
-void fill_run(const RunSettings& s, Request* out) {
-  out->set_model(s.model.value_or(""));
-  *out->mutable_filter() = to_filter_settings(s);
-  *out->mutable_initial_state() = initial_state(s);
-  if (s.theta0) out->mutable_theta0()->Add(s.theta0->begin(), s.theta0->end());
-  if (s.p0) *out->mutable_p0() = *s.p0;
+void first_measurement_unless_given(const RunSettings& s, Request* out) {
+  if (!s.has("--x0")) out->mutable_initial_state()->set_first_measurement(true);
 }
 
 // Experiment `experiment`'s (1-based) mask: the output limits (every
@@ -767,63 +883,15 @@ v1::SampleMask sample_mask(const RunSettings& s, std::uint64_t experiment) {
   return out;
 }
 
-// Only what was given: riccatid refuses estimation settings for the filter method.
-std::optional<v1::EstimationSettings> estimation_settings(const RunSettings& s) {
-  if (!s.output_sigma && !s.estimate_q && !s.estimate_r && !s.max_iterations && !s.function_tolerance &&
-      !s.gradient_tolerance && !s.parameter_tolerance) {
-    return std::nullopt;
-  }
-  v1::EstimationSettings out;
-  if (s.output_sigma) out.mutable_output_sigma()->Add(s.output_sigma->begin(), s.output_sigma->end());
-  if (s.estimate_q) out.set_estimate_process_noise(*s.estimate_q);
-  if (s.estimate_r) out.set_estimate_measurement_noise(*s.estimate_r);
-  if (s.max_iterations) out.set_max_iterations(saturated(*s.max_iterations));
-  if (s.function_tolerance) out.set_function_tolerance(*s.function_tolerance);
-  if (s.gradient_tolerance) out.set_gradient_tolerance(*s.gradient_tolerance);
-  if (s.parameter_tolerance) out.set_parameter_tolerance(*s.parameter_tolerance);
-  return out;
-}
-
 }  // namespace
-
-bool check_identification(const RunSettings& s, std::string* error) {
-  const std::uint64_t experiments = 1 + s.experiments.size();
-  for (const SampleSpan& span : s.exclude.value_or(std::vector<SampleSpan>{})) {
-    if (span.experiment <= experiments) continue;
-    *error = "--exclude " + std::to_string(span.experiment) + "@" + std::to_string(span.first) + ":" +
-             std::to_string(span.end) + ": there is no experiment " + std::to_string(span.experiment) + " (1 is --data" +
-             (experiments == 2   ? ", 2 the --experiment record"
-              : experiments > 2 ? ", 2 to " + std::to_string(experiments) + " the --experiment records"
-                                : "") +
-             ")";
-    return false;
-  }
-  return true;
-}
 
 v1::IdentificationSpec to_identification_spec(const RunSettings& s, const std::string& dataset_id,
                                               const std::vector<std::string>& more_datasets) {
   v1::IdentificationSpec out;
-  fill_run(s, &out);
+  fill_request(s, &out);
+  out.set_model(s.model.value_or(""));
   out.set_dataset_id(dataset_id);
-  if (s.passes) out.set_passes(saturated(*s.passes));
-  if (s.first_sample) out.set_first_sample(*s.first_sample);
-  if (s.end_sample) out.set_end_sample(*s.end_sample);
-  if (s.method) out.set_method(static_cast<v1::IdentificationMethod>(*s.method));
-  if (s.init_passes) out.set_init_passes(saturated(*s.init_passes));
-  for (const NamedRange& b : s.bounds.value_or(std::vector<NamedRange>{})) {
-    v1::ParameterBound* bound = out.add_bounds();
-    bound->set_name(b.name);
-    if (b.lower) bound->set_lower(*b.lower);
-    if (b.upper) bound->set_upper(*b.upper);
-  }
-  for (const NamedValue& f : s.fixed.value_or(std::vector<NamedValue>{})) {
-    v1::FixedParameter* fixed = out.add_fixed();
-    fixed->set_name(f.name);
-    if (f.value) fixed->set_value(*f.value);
-  }
-  for (const std::string& name : s.log_scale) out.add_log_scale(name);
-  for (const std::string& state : s.estimate_x0) out.mutable_initial_state()->add_estimate(state);
+  first_measurement_unless_given(s, &out);
   if (const v1::SampleMask mask = sample_mask(s, 1); mask.ByteSizeLong() > 0) *out.mutable_mask() = mask;
   for (std::size_t e = 0; e < more_datasets.size(); ++e) {
     v1::Experiment* experiment = out.add_experiments();
@@ -831,36 +899,111 @@ v1::IdentificationSpec to_identification_spec(const RunSettings& s, const std::s
     *experiment->mutable_initial_state() = out.initial_state();
     if (const v1::SampleMask mask = sample_mask(s, e + 2); mask.ByteSizeLong() > 0) *experiment->mutable_mask() = mask;
   }
-  if (auto estimation = estimation_settings(s)) *out.mutable_estimation() = *estimation;
   return out;
 }
 
 v1::SmoothingSpec to_smoothing_spec(const RunSettings& s, const std::string& dataset_id) {
   v1::SmoothingSpec out;
-  fill_run(s, &out);
+  fill_request(s, &out);
+  out.set_model(s.model.value_or(""));
   out.set_dataset_id(dataset_id);
-  if (s.first_sample) out.set_first_sample(*s.first_sample);
-  if (s.end_sample) out.set_end_sample(*s.end_sample);
+  first_measurement_unless_given(s, &out);
   return out;
 }
 
 v1::CreateSessionRequest to_session_request(const RunSettings& s) {
   v1::CreateSessionRequest out;
-  fill_run(s, &out);
+  fill_request(s, &out);
+  out.set_model(s.model.value_or(""));
+  first_measurement_unless_given(s, &out);
   return out;
 }
 
 v1::ValidationSpec to_validation_spec(const RunSettings& s, const std::string& dataset_id) {
   v1::ValidationSpec out;
+  fill_request(s, &out);
   out.set_model(s.model.value_or(""));
   out.set_dataset_id(dataset_id);
-  *out.mutable_initial_state() = initial_state(s);
-  if (s.hold) out.set_hold(static_cast<v1::HoldOrder>(*s.hold));
-  if (auto integrator = to_integrator(s)) *out.mutable_integrator() = *integrator;
-  if (s.estimate) out.set_estimate(static_cast<v1::EstimateChoice>(*s.estimate));
-  if (s.x0_samples) {
-    out.set_estimate_x0_samples(*s.x0_samples);
+  first_measurement_unless_given(s, &out);
+  // --x0-samples alone: every initial state is fitted.
+  if (out.estimate_x0_samples() > 0 && out.initial_state().estimate_size() == 0) {
     out.mutable_initial_state()->add_estimate("all");
+  }
+  return out;
+}
+
+v1::SimulateRequest to_simulate_request(const RunSettings& s) {
+  v1::SimulateRequest out;
+  fill_request(s, &out);
+  out.set_model(s.model.value_or(""));
+  return out;
+}
+
+v1::RetuneSessionRequest to_retune_request(const RunSettings& s, const std::string& session_id) {
+  v1::RetuneSessionRequest out;
+  fill_request(s, &out);
+  out.set_id(session_id);
+  return out;
+}
+
+std::optional<int> estimate_choice(const RunSettings& s) {
+  const auto it = s.given.find("--estimate");
+  if (it == s.given.end()) return std::nullopt;
+  int value = 0;
+  std::string error;
+  read_choice(it->second, *v1::EstimateChoice_descriptor(), &value, &error);
+  return value;
+}
+
+std::string with_flags(const std::string& message) {
+  // Each request setting's path, and the flag that sets it where the flag
+  // is not the path itself ("filter.r": --r; not "passes": --passes).
+  std::map<std::string, std::string> flags;
+  for (const Descriptor* request : api::setting_requests()) {
+    for (const SettingField& s : api::settings_of(*request)) {
+      std::string plain = "--" + s.path;
+      std::replace(plain.begin(), plain.end(), '_', '-');
+      if (s.setting->flag() != plain) flags.emplace(s.path, s.setting->flag());
+    }
+  }
+  const auto part_of_name = [](char c) { return std::isalnum(static_cast<unsigned char>(c)) || c == '_' || c == '.'; };
+  std::string out;
+  std::set<std::string> done;
+  for (std::size_t at = 0; at < message.size();) {
+    if (at > 0 && part_of_name(message[at - 1])) {
+      out += message[at++];
+      continue;
+    }
+    // The name that starts here ("filter.r.diagonal"), and the longest setting path it begins with.
+    std::size_t end = at;
+    while (end < message.size() && part_of_name(message[end])) ++end;
+    if (end > at && message[end - 1] == '.') --end;  // a sentence's full stop
+    if (end == at) {
+      out += message[at++];
+      continue;
+    }
+    const std::string name = message.substr(at, end - at);
+    const std::string* flag = nullptr;
+    std::size_t longest = 0;
+    for (const auto& [path, f] : flags) {
+      const bool begins = name.compare(0, path.size(), path) == 0 && (name.size() == path.size() || name[path.size()] == '.');
+      if (begins && path.size() > longest) {
+        longest = path.size();
+        flag = &f;
+      }
+    }
+    out += name;
+    if (flag != nullptr && !done.count(*flag)) {
+      // A plain word ("q", "fixed") only where it leads the message or a clause.
+      const std::string path = name.substr(0, longest);
+      const bool identifier = path.find_first_of("._0123456789") != std::string::npos;
+      const bool leads = at == 0 || (at >= 2 && message.compare(at - 2, 2, ": ") == 0);
+      if (identifier || leads) {
+        out += " (" + *flag + ")";
+        done.insert(*flag);
+      }
+    }
+    at = end;
   }
   return out;
 }

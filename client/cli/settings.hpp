@@ -1,69 +1,52 @@
-// Run settings of `riccati identify`, `stream`, `validate`, `simulate` and
-// `smooth`: from a YAML job file (identify, stream and smooth), then from
-// flags (flags win), turned into API requests. Each setting is declared once,
-// in the table in settings.cpp, which gives its job-file key, its flag, its
-// help and its type; the job-file reader and the flags are made from it.
+// Run settings of `riccati identify`, `stream`, `validate`, `simulate`,
+// `smooth` and `sessions retune`: from a YAML job file (identify, stream and
+// smooth), then from flags (flags win), turned into API requests.
+//
+// The settings of the requests are the proto's (riccati.v1.setting on the
+// request's fields, read by riccati/settings_schema.hpp): a command's flags
+// are its request's settings, with their flags, help, defaults and where
+// they apply taken from there, so a field added to the proto with the
+// option is a flag and a job-file key with no change here. What only the
+// CLI has (where the data come from, the columns, the truth to print, more
+// experiments and their masks) is the small table in settings.cpp.
 //
 // The requests carry what the user gave and nothing more: riccatid checks
-// sizes (a single value is Covariance.scalar, whatever the model's size),
-// names (parameters, states, outputs), bounds and which settings apply to
-// which filter and method, and its defaults stand for what was left out. The
-// CLI checks only its own syntax. The choices of enum settings (filter, hold,
-// integrator.kind, inversion, ukf.weights, optimal.form, method, estimate)
-// come from the API's enums (riccati/enum_names.hpp, in the proto library):
-// `riccati identify --help` lists them.
+// sizes, names, bounds and which settings apply to which filter and method,
+// and its defaults stand for what was left out. The CLI checks only its own
+// syntax.
 //
-// Job file keys (all optional; the flag of the same name overrides each):
+// A job file is the request in YAML: a key is a setting's path in the
+// request (`filter.q`, `estimation.output_sigma`), and a map groups keys
+// (`filter: {kind: ukf, q: 0}`); the filter's settings may leave out
+// `filter.`, and the keys of earlier job files stay (P0, Q, R, x0, joseph,
+// estimate_x0, estimation.estimate_q/_r). A key that another command's
+// request takes is left for it (one file serves identify, stream and smooth).
 //
-//   model: two_tank
+//   model: two_tank                    (the CLI's own keys)
 //   data: ds-... | path/to/file.csv
 //   inputs: [F1, F2]
 //   outputs: [h1, h2]
-//   filter: ekf
+//   truth: [10, 5, 0.0791, 0.1342]     (printed beside the estimates)
+//   experiments: [ds-..., other.csv]   (more records: experiment 2, 3, ...)
+//   exclude: ["100:200", "2@0:50"]     ([EXPERIMENT@]FIRST:END: samples FIRST .. END-1 left out)
+//   output_limits: ["h1=:0.6"]         (NAME=LO:HI: samples at or beyond a limit left out)
+//
+//   filter: ekf                        (the request's settings: `riccati identify --help` lists them)
 //   passes: 10
 //   x0: first | [0.4, 0.15]
 //   theta0: [20, 20, 1, 1]
 //   P0: 10 | [0, 0, 10, 10, 10, 10] | [[...], ...]   (one value: the whole diagonal; list: diagonal; rows: full)
-//   Q: 0 | [...] | [[...]]
-//   R: 1e-3 | [...] | [[...]]
-//   hold: zoh
-//   integrator: {kind: rk4, substeps: 10, rtol: 1e-8, atol: 1e-10}   (or integrator: rk4)
-//   inversion: cholesky
-//   joseph: true
-//   ukf: {weights: julier, alpha: 1, beta: 2, kappa: -3}
-//   optimal:                           (the optimal filter's weights, instead of Q and R)
-//     V: [1e6, 1e6, 1e4, 1e6, 1e6]     (equations of motion, measured inputs, measured outputs)
-//     W: [1e4, ..., 1e10]              (states and parameters; W^-1 is the process noise)
-//     R0: [1e12, ..., 5e3]             (confidence in x0, theta0: P0 = R0^-1; instead of P0)
-//     form: continuous
-//     hold_outputs: false              (true: outputs held over a step, for strict real time)
-//   first_sample: 0
-//   end_sample: 0
-//   truth: [10, 5, 0.0791, 0.1342]     (printed beside the estimates)
-//
-// Output error and maximum likelihood (identify --method oe|ml); the lists
-// take the flags' own texts:
-//
-//   method: oe                         (filter, the default; oe; ml)
-//   init_passes: 2                     (passes of the iterated filter first: the optimiser's start)
-//   bounds: [A1=1:100, "k1=0.01:"]     (NAME=LO:HI, either side empty: the model's bound)
-//   fixed: [A2, k2=0.1342]             (NAME: at its theta0; NAME=VALUE)
-//   log_scale: [k1, k2]
-//   estimate_x0: all                   (or [h1, h2])
-//   experiments: [ds-..., other.csv]   (more records: experiment 2, 3, ...)
-//   exclude: ["100:200", "2@0:50"]     ([EXPERIMENT@]FIRST:END: samples FIRST .. END-1 left out)
-//   output_limits: ["h1=:0.6"]         (NAME=LO:HI: samples at or beyond a limit left out)
-//   estimation: {output_sigma: [0.005, 0.005], estimate_q: false, estimate_r: true, max_iterations: 200,
-//                function_tolerance: 1e-14, gradient_tolerance: 1e-14, parameter_tolerance: 1e-12}
-//
-// smooth: which estimate of an iterated-filter job --params takes:
-//
-//   estimate: last-pass-mean           (or final)
+//   R: 1e-3
+//   integrator: {kind: rk4, substeps: 10}
+//   method: oe
+//   bounds: [A1=1:100, "k1=0.01:"]
+//   estimation: {output_sigma: [0.005, 0.005], max_iterations: 200}
 #pragma once
 
 #include <google/protobuf/descriptor.h>
 
 #include <CLI/CLI.hpp>
+#include <yaml-cpp/yaml.h>
 
 #include <cstdint>
 #include <deque>
@@ -101,32 +84,20 @@ struct SampleSpan {
   bool operator==(const SampleSpan&) const = default;
 };
 
-// What was given; empty: not given. Enum settings hold the API enum's number.
+// What was given; empty: not given.
 struct RunSettings {
+  // The CLI's own: where the data come from and what to print.
   std::optional<std::string> model, data;
   std::vector<std::string> inputs, outputs;
-  std::optional<int> filter, hold, integrator, inversion, weights, form;
-  std::optional<v1::InitialState> x0;
-  std::optional<std::vector<double>> theta0, truth;
-  std::optional<v1::Covariance> p0, q, r;
-  std::optional<v1::Covariance> v, w, r0;  // the optimal filter's weights
-  std::optional<bool> joseph, hold_outputs;
-  std::optional<std::uint64_t> passes, substeps, first_sample, end_sample;
-  std::optional<double> rtol, atol, alpha, beta, kappa;
-  // Output error and maximum likelihood (identify --method oe|ml).
-  std::optional<int> method;  // IdentificationMethod
-  std::optional<std::uint64_t> init_passes, max_iterations;
-  std::optional<std::vector<NamedRange>> bounds, output_limits;
-  std::optional<std::vector<NamedValue>> fixed;
+  std::optional<std::vector<double>> truth;
+  std::vector<std::string> experiments;  // dataset ids or local files
+  std::optional<std::vector<NamedRange>> output_limits;
   std::optional<std::vector<SampleSpan>> exclude;
-  std::vector<std::string> log_scale, estimate_x0, experiments;  // experiments: dataset ids or local files
-  std::optional<std::vector<double>> output_sigma;
-  std::optional<bool> estimate_q, estimate_r;
-  std::optional<double> function_tolerance, gradient_tolerance, parameter_tolerance;
-  // Which estimate of an identification job --params takes (EstimateChoice),
-  // and the samples validate fits every initial state on.
-  std::optional<int> estimate;
-  std::optional<std::uint64_t> x0_samples;
+  // The requests' settings given, by flag ("--q": filter.q of a job, q of a
+  // retuning), as written (a flag's text read as a job file's value).
+  std::map<std::string, YAML::Node> given;
+
+  bool has(std::string_view flag) const { return given.count(std::string(flag)) > 0; }
 };
 
 // Reads a job file into `out`; errors name the file, the key and its line.
@@ -164,6 +135,10 @@ bool parse_named_list(const std::string& text, std::map<std::string, double>* ou
 // that is not given. Everything else is riccatid's to check.
 bool check_identification(const RunSettings& s, std::string* error);
 
+// The settings given that `request` takes, written into it (the request's
+// own fields, model and ids, are the caller's).
+void fill_request(const RunSettings& s, google::protobuf::Message* request);
+
 // Requests: the settings given, and x0 "first" when it was not.
 // `more_datasets`: the ids of the experiments after the first (s.experiments
 // uploaded where they are files), in order.
@@ -172,8 +147,16 @@ v1::IdentificationSpec to_identification_spec(const RunSettings& s, const std::s
 v1::SmoothingSpec to_smoothing_spec(const RunSettings& s, const std::string& dataset_id);
 v1::CreateSessionRequest to_session_request(const RunSettings& s);
 v1::ValidationSpec to_validation_spec(const RunSettings& s, const std::string& dataset_id);
-v1::FilterSettings to_filter_settings(const RunSettings& s);
-std::optional<v1::IntegratorSettings> to_integrator(const RunSettings& s);  // nothing when none is given
+v1::SimulateRequest to_simulate_request(const RunSettings& s);
+v1::RetuneSessionRequest to_retune_request(const RunSettings& s, const std::string& session_id);
+// --estimate (which estimate of a job --params takes), an EstimateChoice
+// number; nothing when not given.
+std::optional<int> estimate_choice(const RunSettings& s);
+
+// A message of riccatid's with each request setting it names by its path
+// ("filter.r is required") followed by the flag that sets it: "filter.r
+// (--r) is required". Messages name the API's fields; the CLI's user types flags.
+std::string with_flags(const std::string& message);
 
 // The value of enum `type` named `name`, or nothing with an error that
 // lists the choices: "\"ZERO\" is unknown (zoh, foh)".

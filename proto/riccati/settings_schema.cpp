@@ -132,7 +132,12 @@ std::string_view implied_method(const Descriptor& request) {
 
 bool offered(const Descriptor& request, const SettingField& s) {
   const std::string_view method = implied_method(request);
-  return method.empty() || s.setting->methods_size() == 0 || contains(s.setting->methods(), method);
+  if (!method.empty() && s.setting->methods_size() > 0 && !contains(s.setting->methods(), method)) return false;
+  // A smoother runs the EKF or the UKF: not the optimal filter's settings.
+  if (&request == v1::SmoothingSpec::descriptor() && s.setting->filters_size() > 0) {
+    return contains(s.setting->filters(), "ekf") || contains(s.setting->filters(), "ukf");
+  }
+  return true;
 }
 
 const SettingField* find_setting(const Descriptor& request, std::string_view path) {
@@ -195,8 +200,8 @@ std::string misplaced_setting(const Message& request, std::string_view method, s
       return s.path + " applies to method " + joined(o.methods(), "and") + " only, not to " + std::string(method);
     }
     if (!filter.empty() && o.filters_size() > 0 && !contains(o.filters(), filter)) {
-      return s.path + " applies to the " + joined(o.filters(), "and") + " filter only, not to the " +
-             std::string(filter) + " filter";
+      return s.path + " applies to the " + joined(o.filters(), "and") + (o.filters_size() > 1 ? " filters" : " filter") +
+             " only, not to the " + std::string(filter) + " filter";
     }
   }
   return {};
@@ -243,8 +248,8 @@ std::string settings_schema_json() {
       if (o.has_maximum()) f["maximum"].set_number_value(o.maximum());
       if (s.kind == ValueKind::kChoice) {
         f["choices"] = strings(enum_choice_names(*s.field->enum_type()));
-        // The same values as the JSON mapping names them ("FILTER_KIND_EKF"), in
-        // the same order: what a client sends in a request's JSON.
+        // "values": the same choices as the JSON mapping names them
+        // ("FILTER_KIND_EKF"), in the same order: what a client sends in a request's JSON.
         std::vector<std::string> values;
         for (const auto* v : enum_choices(*s.field->enum_type())) values.emplace_back(v->name());
         f["values"] = strings(values);

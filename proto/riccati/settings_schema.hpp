@@ -53,7 +53,8 @@ const std::vector<SettingField>& settings_of(const google::protobuf::Descriptor&
 // sessions and smoothing (they run a filter); empty for the others.
 std::string_view implied_method(const google::protobuf::Descriptor& request);
 // Whether a client offers the setting for the request: not one that only
-// methods the request cannot have take (initial_state.estimate of a session).
+// methods or filter kinds the request cannot have take (a session's
+// initial_state.estimate, a smoothing's filter.optimal.v).
 bool offered(const google::protobuf::Descriptor& request, const SettingField& s);
 // The setting at `path` of `request`, or null.
 const SettingField* find_setting(const google::protobuf::Descriptor& request, std::string_view path);
@@ -86,8 +87,7 @@ std::string misplaced_setting(const google::protobuf::Message& request, std::str
 
 // The schema of the requests that take settings, as JSON (GET /api/v1/schema):
 // {"requests": {"IdentificationSpec": [{"path": ..., "flag": ..., "keyword": ...,
-// "kind": ..., "help": ..., "choices": [...], "values": [...] (a choice's JSON
-// names), ...}, ...], ...},
+// "kind": ..., "help": ..., "choices": [...], ...}, ...], ...},
 //  "methods": [...], "filters": [...]}.
 std::string settings_schema_json();
 

@@ -104,8 +104,8 @@ Result<FilterSettings> from_proto(const v1::FilterSettings& s, const Model& mode
 }
 
 void initial_state_from_proto(const v1::InitialState& s, InitialState* mode, Eigen::VectorXd* x0) {
-  // Neither given: "first", the default the schema documents (a form or keyword left empty sends nothing).
-  *mode = s.first_measurement() || s.x0().empty() ? InitialState::kFirstMeasurement : InitialState::kGiven;
+  // Neither given: the first measurement, the default every client states (the schema's).
+  *mode = s.first_measurement() || s.x0_size() == 0 ? InitialState::kFirstMeasurement : InitialState::kGiven;
   *x0 = Eigen::Map<const Eigen::VectorXd>(s.x0().data(), s.x0_size());
 }
 

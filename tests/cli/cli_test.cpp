@@ -19,6 +19,7 @@
 #include "connection.hpp"
 #include "estimation_output.hpp"
 #include "riccati/enum_names.hpp"
+#include "riccati/settings_schema.hpp"
 #include "output.hpp"
 #include "settings.hpp"
 
@@ -220,7 +221,7 @@ TEST(JobFile, NothingIsAddedToWhatWasGiven) {
   RunSettings s;
   s.model = "two_tank";
   EXPECT_TRUE(SameMessage(to_identification_spec(s, "ds-1"), parse_text<v1::IdentificationSpec>(R"pb(
-    model: "two_tank" dataset_id: "ds-1" filter {} initial_state { first_measurement: true }
+    model: "two_tank" dataset_id: "ds-1" initial_state { first_measurement: true }
   )pb")));
   // The optimal filter's weights with the EKF's R, for a model of any size: sent as they are.
   const RunSettings mixed = from_job_file("riccati-job-mixed.yaml",
@@ -279,7 +280,7 @@ TEST(Flags, GiveWhatTheJobFileGives) {
   EXPECT_EQ(flags.inputs, file.inputs);
   EXPECT_EQ(flags.outputs, file.outputs);
   EXPECT_EQ(flags.truth, file.truth);
-  const v1::FilterSettings filter = to_filter_settings(flags);
+  const v1::FilterSettings filter = to_identification_spec(flags, "ds-1").filter();
   EXPECT_EQ(filter.hold(), v1::HOLD_ORDER_FIRST);
   EXPECT_EQ(filter.integrator().substeps(), 4u);
   EXPECT_EQ(filter.inversion(), v1::GAIN_INVERSION_PSEUDO_INVERSE);
@@ -341,11 +342,11 @@ TEST(JobFile, ErrorsNameTheKeyAndItsLine) {
   error = error_of("riccati-job-4.yaml", "passes: many\n");
   EXPECT_NE(error.find("key \"passes\" (line 1): \"many\" is not a whole number"), std::string::npos) << error;
   error = error_of("riccati-job-5.yaml", "model: m\nintegrator:\n  kind: rk4\n  steps: 3\n");
-  EXPECT_NE(error.find("unknown key \"integrator.steps\" (line 4) (expected kind, substeps, rtol, atol)"),
+  EXPECT_NE(error.find("unknown key \"integrator.steps\" (line 4) (expected kind, substeps, rtol, atol, max_steps)"),
             std::string::npos)
       << error;
   error = error_of("riccati-job-6.yaml", "optimal: 5\n");
-  EXPECT_NE(error.find("key \"optimal\" (line 1): expected a map (V, W, R0, form, hold_outputs)"), std::string::npos)
+  EXPECT_NE(error.find("key \"optimal\" (line 1): expected a map (v, w, r0, form, hold_outputs)"), std::string::npos)
       << error;
   error = error_of("riccati-job-7.yaml", "R: [[1, 2], [3]]\n");
   EXPECT_NE(error.find("key \"R\" (line 1): row 2 has 1 value, row 1 has 2"), std::string::npos) << error;
@@ -374,7 +375,6 @@ TEST(EstimationFlags, FillTheIdentificationSpec) {
   EXPECT_TRUE(SameMessage(to_identification_spec(s, "ds-1", {"ds-2", "ds-3"}), parse_text<v1::IdentificationSpec>(R"pb(
     model: "two_tank"
     dataset_id: "ds-1"
-    filter {}
     initial_state { first_measurement: true estimate: "h1" }
     theta0: [ 20, 20, 1, 1 ]
     method: IDENTIFICATION_METHOD_OE
@@ -486,8 +486,9 @@ TEST(EstimationFlags, ErrorsNameTheFlagAndWhatIsWrong) {
   EXPECT_FALSE(load_job_file(write("riccati-job-bounds.yaml", "model: two_tank\nbounds: [A1=1]\n"), &file, &error));
   EXPECT_NE(error.find("key \"bounds\" (line 2): \"A1=1\" is not NAME=LO:HI"), std::string::npos) << error;
   EXPECT_FALSE(load_job_file(write("riccati-job-est.yaml", "estimation:\n  max_iters: 3\n"), &file, &error));
-  EXPECT_NE(error.find("unknown key \"estimation.max_iters\" (line 2) (expected output_sigma, estimate_q, estimate_r, "
-                       "max_iterations, function_tolerance, gradient_tolerance, parameter_tolerance)"),
+  EXPECT_NE(error.find("unknown key \"estimation.max_iters\" (line 2) (expected output_sigma, "
+                       "estimate_process_noise, estimate_measurement_noise, max_iterations, function_tolerance, "
+                       "gradient_tolerance, parameter_tolerance)"),
             std::string::npos)
       << error;
 }
@@ -507,6 +508,12 @@ TEST(EstimationFlags, TheCommandRefusesBadFlagsWithExitTwo) {
                        "not a job"),
             std::string::npos)
       << r.out;
+  r = riccati("validate --model two_tank --data ds-1 --params 10,5,0.0791,0.1342 --estimate-x0 200");
+  EXPECT_EQ(r.exit_code, 2) << r.out;
+  EXPECT_NE(r.out.find("--estimate-x0 200: the flag names the initial states to fit (or all), as in identify; the "
+                       "samples they are fitted on are --x0-samples 200"),
+            std::string::npos)
+      << r.out;
   r = riccati("smooth --model two_tank");
   EXPECT_EQ(r.exit_code, 2) << r.out;
   EXPECT_NE(r.out.find("smooth needs --model and --data"), std::string::npos) << r.out;
@@ -515,7 +522,7 @@ TEST(EstimationFlags, TheCommandRefusesBadFlagsWithExitTwo) {
 TEST(ValidationFlags, TheEstimateAndTheSamplesTheInitialStatesAreFittedOn) {
   RunSettings s;
   std::string error;
-  ASSERT_TRUE(from_flags(Command::kValidate, "-m two_tank -d ds-1 --x0 0.2,0.5 --estimate final --estimate-x0 100", &s,
+  ASSERT_TRUE(from_flags(Command::kValidate, "-m two_tank -d ds-1 --x0 0.2,0.5 --estimate final --x0-samples 100", &s,
                          &error))
       << error;
   EXPECT_TRUE(SameMessage(to_validation_spec(s, "ds-1"), parse_text<v1::ValidationSpec>(R"pb(
@@ -525,8 +532,13 @@ TEST(ValidationFlags, TheEstimateAndTheSamplesTheInitialStatesAreFittedOn) {
     estimate: ESTIMATE_CHOICE_FINAL
     estimate_x0_samples: 100
   )pb")));
-  EXPECT_FALSE(from_flags(Command::kValidate, "--estimate-x0 all", &s, &error));
-  EXPECT_EQ(error, "--estimate-x0: \"all\" is not a whole number (0 or more)");
+  // --estimate-x0 names the states, as in identify; --x0-samples alone fits them all.
+  RunSettings named;
+  ASSERT_TRUE(from_flags(Command::kValidate, "--estimate-x0 h1 --x0-samples 50", &named, &error)) << error;
+  EXPECT_EQ(to_validation_spec(named, "ds-1").initial_state().estimate(0), "h1");
+  EXPECT_EQ(to_validation_spec(named, "ds-1").initial_state().estimate_size(), 1);
+  EXPECT_FALSE(from_flags(Command::kValidate, "--x0-samples all", &s, &error));
+  EXPECT_EQ(error, "--x0-samples: \"all\" is not a whole number (0 or more)");
   EXPECT_FALSE(from_flags(Command::kValidate, "--estimate best", &s, &error));
   EXPECT_EQ(error, "--estimate: \"best\" is unknown (last-pass-mean, final)");
 }
@@ -557,7 +569,7 @@ TEST(SmoothingFlags, TheFilterAndTheRangeGoIntoTheSpec) {
                          "--first-sample 10 --end-sample 500",
                          &flags, &error))
       << error;
-  flags.theta0 = file.theta0;  // smooth takes its parameters from --params
+  ASSERT_TRUE(from_flags(Command::kSmooth, "--theta0 10,5,0.0791,0.1342", &flags, &error)) << error;
   EXPECT_TRUE(SameMessage(to_smoothing_spec(flags, "ds-1"), to_smoothing_spec(file, "ds-1")));
   // Neither passes nor the optimal filter's weights: a smoother runs the EKF or the UKF once.
   EXPECT_THROW(from_flags(Command::kSmooth, "--passes 3", &flags, &error), CLI::ExtrasError);
@@ -1011,6 +1023,75 @@ TEST_F(ConnectionTest, TheTlsServerNameComesFromTheFlagTheEnvironmentOrTheConfig
   flags.tls_server_name = "from-flag";
   ASSERT_EQ(resolve(flags, &c), std::nullopt);
   EXPECT_EQ(c.tls_server_name, "from-flag");
+}
+
+// ------------------------------------------------------------ the settings come from the proto
+
+// Every setting of every request the CLI writes is a flag of its command,
+// with the proto's help, and a job-file key under its path: nothing listed
+// by hand stands between a field with the option and the command line.
+TEST(SchemaFlags, EveryRequestSettingIsAFlagOfItsCommand) {
+  const std::vector<std::pair<std::string, const google::protobuf::Descriptor*>> commands = {
+      {"identify", v1::IdentificationSpec::descriptor()}, {"stream", v1::CreateSessionRequest::descriptor()},
+      {"smooth", v1::SmoothingSpec::descriptor()},        {"validate", v1::ValidationSpec::descriptor()},
+      {"simulate", v1::SimulateRequest::descriptor()},    {"sessions retune", v1::RetuneSessionRequest::descriptor()}};
+  for (const auto& [command, request] : commands) {
+    const CliRun help = riccati_raw(command + " --help");
+    ASSERT_EQ(help.exit_code, 0) << help.out;
+    int offered = 0;
+    for (const api::SettingField& s : api::settings_of(*request)) {
+      if (!api::offered(*request, s)) {
+        EXPECT_EQ(help.out.find(s.setting->flag() + " "), std::string::npos) << command << " offers " << s.path;
+        continue;
+      }
+      ++offered;
+      EXPECT_NE(help.out.find(s.setting->flag()), std::string::npos) << command << ": " << s.path;
+      // The help's first words are the proto's.
+      const std::string words = s.setting->help().substr(0, 20);
+      EXPECT_NE(help.out.find(words), std::string::npos) << command << ": " << s.path << ": " << words;
+    }
+    EXPECT_GT(offered, 0) << command;
+  }
+}
+
+TEST(SchemaFlags, EveryIdentificationSettingIsAJobFileKeyAtItsPath) {
+  for (const api::SettingField& s : api::settings_of(*v1::IdentificationSpec::descriptor())) {
+    std::string value;
+    switch (s.kind) {
+      case api::ValueKind::kNumber: value = "0.5"; break;
+      case api::ValueKind::kCount: value = "3"; break;
+      case api::ValueKind::kSwitch: value = "true"; break;
+      case api::ValueKind::kChoice: value = api::enum_choice_names(*s.field->enum_type()).back(); break;
+      case api::ValueKind::kNumbers: value = "[1, 2]"; break;
+      case api::ValueKind::kNames: value = "[h1]"; break;
+      case api::ValueKind::kCovariance: value = "[1, 2]"; break;
+      case api::ValueKind::kInitialState: value = "[0.1, 0.2]"; break;
+      case api::ValueKind::kBounds: value = "['A1=1:2']"; break;
+      case api::ValueKind::kFixed: value = "[A2]"; break;
+      case api::ValueKind::kText: value = "x"; break;
+    }
+    const RunSettings file = from_job_file("riccati-job-path.yaml", s.path + ": " + value + "\n");
+    const v1::IdentificationSpec spec = to_identification_spec(file, "ds-1");
+    EXPECT_TRUE(api::is_given(spec, s)) << s.path << ": " << value;
+  }
+}
+
+// riccatid names the API's fields; the CLI puts the flag beside each.
+TEST(SchemaFlags, MessagesNameTheFlagBesideTheField) {
+  EXPECT_EQ(with_flags("filter.r is required"), "filter.r (--r) is required");
+  EXPECT_EQ(with_flags("filter.r.diagonal needs 2 values, got 3"), "filter.r.diagonal (--r) needs 2 values, got 3");
+  EXPECT_EQ(with_flags("initial_state.estimate: model two_tank has no state \"h3\""),
+            "initial_state.estimate (--estimate-x0): model two_tank has no state \"h3\"");
+  EXPECT_EQ(with_flags("bounds: model two_tank has no parameter \"A3\""),
+            "bounds (--bound): model two_tank has no parameter \"A3\"");
+  EXPECT_EQ(with_flags("estimation.estimate_process_noise applies to method ml only, not to oe"),
+            "estimation.estimate_process_noise (--estimate-q) applies to method ml only, not to oe");
+  // A flag that is the field's own name needs nothing; an English word is left alone.
+  EXPECT_EQ(with_flags("passes applies to method filter only, not to oe"),
+            "passes applies to method filter only, not to oe");
+  EXPECT_EQ(with_flags("the job asks for 12 passes, more than max_passes"),
+            "the job asks for 12 passes, more than max_passes");
+  EXPECT_EQ(with_flags("dataset ds-1 has 2 outputs; the fixed point"), "dataset ds-1 has 2 outputs; the fixed point");
 }
 
 }  // namespace

@@ -680,16 +680,16 @@ TEST_F(CliTest, BadEstimationFlagsAreRefusedNamingThem) {
                                "/two_tank.csv --inputs F1,F2 --outputs h1,h2 ";
   CliRun r = riccati(identify + "--bound A3=0:1");
   EXPECT_EQ(r.exit_code, 1);
-  EXPECT_NE(last_stderr().find("submitting the identification: bounds: model two_tank has no parameter \"A3\" (its "
+  EXPECT_NE(last_stderr().find("submitting the identification: bounds (--bound): model two_tank has no parameter \"A3\" (its "
                                "parameters: A1, A2, k1, k2)"),
             std::string::npos)
       << last_stderr();
   r = riccati(identify + "--fix k9");
   EXPECT_EQ(r.exit_code, 1);
-  EXPECT_NE(last_stderr().find("fixed: model two_tank has no parameter \"k9\""), std::string::npos) << last_stderr();
+  EXPECT_NE(last_stderr().find("fixed (--fix): model two_tank has no parameter \"k9\""), std::string::npos) << last_stderr();
   r = riccati(identify + "--estimate-x0 h3");
   EXPECT_EQ(r.exit_code, 1);
-  EXPECT_NE(last_stderr().find("initial_state.estimate: model two_tank has no state \"h3\""), std::string::npos)
+  EXPECT_NE(last_stderr().find("initial_state.estimate (--estimate-x0): model two_tank has no state \"h3\""), std::string::npos)
       << last_stderr();
   r = riccati(identify + "--bound A1=1:x");
   EXPECT_EQ(r.exit_code, 2);
@@ -706,10 +706,13 @@ TEST_F(CliTest, BadEstimationFlagsAreRefusedNamingThem) {
 TEST_F(CliTest, RiccatidRefusesFilterSettingsNamingTheSetting) {
   const std::string identify = "identify --model two_tank --data ds-none ";
   const std::vector<std::pair<std::string, std::string>> refusals = {
-      {"--p0 1", "filter.r is required"},
-      {"--p0 1 --r 1e-3,1e-3,1e-3", "filter.r.diagonal needs 2 values, got 3"},
-      {"--p0 1 --r 1e-3 --v 1e6", "filter.optimal applies to the optimal filter only"},
-      {"--filter optimal --r 1e-3 --v 1 --w 1 --p0 1", "filter.q and filter.r do not apply to the optimal filter"},
+      {"--p0 1", "filter.r (--r) is required"},
+      {"--p0 1 --r 1e-3,1e-3,1e-3", "filter.r.diagonal (--r) needs 2 values, got 3"},
+      {"--p0 1 --r 1e-3 --v 1e6", "filter.optimal.v (--v) applies to the optimal filter only, not to the ekf filter"},
+      {"--filter optimal --r 1e-3 --v 1 --w 1 --p0 1",
+       "filter.r (--r) applies to the ekf and ukf filters only, not to the optimal filter"},
+      {"--method oe --passes 3", "passes applies to method filter only, not to oe"},
+      {"--method oe --estimate-r", "estimation.estimate_measurement_noise (--estimate-r) applies to method ml only, not to oe"},
       {"--filter optimal --v 1 --w 1 --p0 1", "model two_tank has no mechanical form"},
   };
   for (const auto& [flags, message] : refusals) {
@@ -721,7 +724,7 @@ TEST_F(CliTest, RiccatidRefusesFilterSettingsNamingTheSetting) {
   const CliRun r = riccati("stream --model two_tank --data " + kData +
                            "/two_tank_noisy.csv --inputs F1,F2 --outputs h1,h2 --p0 1 --r 1,2,3");
   EXPECT_EQ(r.exit_code, 1);
-  EXPECT_NE(last_stderr().find("creating the session: filter.r.diagonal needs 2 values, got 3"), std::string::npos)
+  EXPECT_NE(last_stderr().find("creating the session: filter.r.diagonal (--r) needs 2 values, got 3"), std::string::npos)
       << last_stderr();
 }
 
@@ -825,7 +828,7 @@ TEST_F(CliTest, SessionsAreListedShownRetunedAndClosed) {
   r = riccati("sessions retune " + id + " --r 1,2,3");
   EXPECT_EQ(r.exit_code, 1);
   EXPECT_NE(last_stderr().find("retuning session " + id + ": "), std::string::npos) << last_stderr();
-  EXPECT_NE(last_stderr().find("r.diagonal needs 2 values, got 3"), std::string::npos) << last_stderr();
+  EXPECT_NE(last_stderr().find("r.diagonal (--r) needs 2 values, got 3"), std::string::npos) << last_stderr();
   r = riccati("sessions retune " + id);
   EXPECT_EQ(r.exit_code, 2) << last_stderr();
   r = riccati("--json sessions show " + id);

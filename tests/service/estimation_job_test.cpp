@@ -390,13 +390,13 @@ TEST_F(EstimationJobTest, BadSettingsAreRefusedAtSubmitNamingTheField) {
        },
        "ds-none"},
       {"noise estimation for output error",
-       [](auto& s) { s.mutable_estimation()->set_estimate_measurement_noise(true); }, "does not apply to method oe"},
+       [](auto& s) { s.mutable_estimation()->set_estimate_measurement_noise(true); }, "estimation.estimate_measurement_noise applies to method ml only, not to oe"},
       {"init passes for the iterated filter",
        [&](auto& s) {
          s = testing::hensen_spec(dataset);
          s.set_init_passes(3);
        },
-       "init_passes does not apply to method filter"},
+       "init_passes applies to method oe and ml only, not to filter"},
       {"a non-positive output sigma",
        [](auto& s) {
          s.mutable_estimation()->add_output_sigma(0.01);

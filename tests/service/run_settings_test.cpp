@@ -7,7 +7,12 @@
 #include "engine/models/plugin_loader.hpp"
 #include "riccati/enum_names.hpp"
 #include "service/convert.hpp"
+#include "service/jobs/identification_job.hpp"
 #include "service/run_settings.hpp"
+
+#include "riccati/settings_schema.hpp"
+#include <map>
+#include <set>
 
 namespace riccati::service {
 namespace {
@@ -125,6 +130,131 @@ TEST(RunSettings, AnInitialStateLeftOutStartsAtTheFirstMeasurement) {
   const auto short_x0 = initial_estimate_from_proto(values, theta0, v1::Covariance(), two_tank_ekf(), *two_tank);
   ASSERT_FALSE(short_x0.is_ok());
   EXPECT_NE(short_x0.status().message().find("initial_state.x0"), std::string::npos) << short_x0.status().message();
+}
+
+// ------------------------------------------------------------ the settings schema (riccati.v1.setting)
+
+double number(const std::string& text) { return std::stod(text); }
+
+// The defaults the schema tells every surface are the ones riccatid takes
+// when a field is left out: one place for each, checked here.
+TEST(SettingsSchema, ItsDefaultsAreWhatRiccatidTakes) {
+  const auto default_of = [](const google::protobuf::Descriptor& request, const std::string& path) {
+    const api::SettingField* s = api::find_setting(request, path);
+    EXPECT_NE(s, nullptr) << path;
+    return s == nullptr ? std::string() : s->setting->default_value();
+  };
+  const auto& spec = *v1::IdentificationSpec::descriptor();
+  const Result<IntegratorSettings> made_integrator = from_proto(v1::IntegratorSettings{});
+  ASSERT_TRUE(made_integrator.is_ok()) << made_integrator.status().message();
+  const IntegratorSettings& integrator = made_integrator.value();
+  EXPECT_EQ(integrator.substeps, number(default_of(spec, "filter.integrator.substeps")));
+  EXPECT_EQ(integrator.rtol, number(default_of(spec, "filter.integrator.rtol")));
+  EXPECT_EQ(integrator.atol, number(default_of(spec, "filter.integrator.atol")));
+  EXPECT_EQ(integrator.max_steps, number(default_of(spec, "filter.integrator.max_steps")));
+  EXPECT_EQ(integrator_kind_name(integrator.kind), default_of(spec, "filter.integrator.kind"));
+
+  const ModelPtr model = models().find("two_tank");
+  v1::IdentificationSpec oe;
+  oe.set_dataset_id("ds-1");
+  oe.set_method(v1::IDENTIFICATION_METHOD_OE);
+  const Result<IdentificationJob> made = identification_from_proto(oe, *model);
+  ASSERT_TRUE(made.is_ok()) << made.status().message();
+  const IdentificationJob& job = made.value();
+  const OptimizerSettings& optimizer = job.output_error.optimizer;
+  EXPECT_EQ(optimizer.max_iterations, number(default_of(spec, "estimation.max_iterations")));
+  EXPECT_EQ(optimizer.function_tolerance, number(default_of(spec, "estimation.function_tolerance")));
+  EXPECT_EQ(optimizer.gradient_tolerance, number(default_of(spec, "estimation.gradient_tolerance")));
+  EXPECT_EQ(optimizer.parameter_tolerance, number(default_of(spec, "estimation.parameter_tolerance")));
+  EXPECT_EQ(job.init_passes, number(default_of(spec, "init_passes")));
+
+  v1::IdentificationSpec filter;
+  filter.set_dataset_id("ds-1");
+  filter.mutable_filter()->mutable_r()->set_scalar(1e-3);
+  const Result<IdentificationJob> made_filter = identification_from_proto(filter, *model);
+  ASSERT_TRUE(made_filter.is_ok()) << made_filter.status().message();
+  const IdentificationJob& passes = made_filter.value();
+  EXPECT_EQ(passes.filter.passes, number(default_of(spec, "passes")));
+  EXPECT_EQ(filter_kind_name(passes.filter.filter.kind), default_of(spec, "filter.kind"));
+  EXPECT_EQ(api::choice_of(filter, "method"), "filter");
+  EXPECT_EQ(api::choice_of(filter, "filter.kind"), "ekf");
+  EXPECT_EQ(api::choice_of(filter, "filter.hold"), "zoh");
+  EXPECT_EQ(api::choice_of(filter, "filter.inversion"), "cholesky");
+}
+
+// What every surface relies on: a flag means one thing (the same kind of
+// value in every request that has it), names are unique within a request,
+// and what a setting applies to names real methods and filter kinds.
+TEST(SettingsSchema, FlagsMeanOneThingAndNameRealMethodsAndKinds) {
+  const std::vector<std::string> methods = api::enum_choice_names(*v1::IdentificationMethod_descriptor());
+  const std::vector<std::string> kinds = api::enum_choice_names(*v1::FilterKind_descriptor());
+  std::map<std::string, api::ValueKind> kind_of_flag;
+  for (const google::protobuf::Descriptor* request : api::setting_requests()) {
+    std::set<std::string> flags;
+    for (const api::SettingField& s : api::settings_of(*request)) {
+      const v1::Setting& o = *s.setting;
+      EXPECT_TRUE(o.flag().starts_with("--")) << s.path;
+      EXPECT_FALSE(o.help().empty()) << s.path;
+      EXPECT_TRUE(flags.insert(o.flag()).second) << request->name() << ": " << o.flag() << " twice";
+      const auto [it, first] = kind_of_flag.emplace(o.flag(), s.kind);
+      EXPECT_EQ(it->second, s.kind) << o.flag() << " is another kind of value in " << request->name();
+      EXPECT_TRUE(s.kind != api::ValueKind::kText || s.field->type() == google::protobuf::FieldDescriptor::TYPE_STRING)
+          << s.path << ": a message no surface can write";
+      for (const std::string& m : o.methods()) EXPECT_NE(std::find(methods.begin(), methods.end(), m), methods.end()) << s.path;
+      for (const std::string& f : o.filters()) EXPECT_NE(std::find(kinds.begin(), kinds.end(), f), kinds.end()) << s.path;
+      if (s.kind == api::ValueKind::kChoice && !o.default_value().empty()) {
+        EXPECT_NE(api::find_enum_value(*s.field->enum_type(), o.default_value()), nullptr) << s.path;
+      }
+    }
+  }
+}
+
+// A setting where its method or filter kind does not take it: one message,
+// naming the field, the method or kind it is for and the one asked for.
+TEST(SettingsSchema, ASettingWhereItDoesNotApplyIsRefusedNamingIt) {
+  v1::IdentificationSpec spec;
+  spec.set_method(v1::IDENTIFICATION_METHOD_OE);
+  spec.set_passes(3);
+  Status s = check_settings_apply(spec);
+  EXPECT_EQ(s.code(), StatusCode::kInvalidArgument);
+  EXPECT_EQ(s.message(), "passes applies to method filter only, not to oe");
+  spec.clear_passes();
+  spec.mutable_estimation()->set_estimate_measurement_noise(true);
+  EXPECT_EQ(check_settings_apply(spec).message(),
+            "estimation.estimate_measurement_noise applies to method ml only, not to oe");
+  spec.set_method(v1::IDENTIFICATION_METHOD_ML);
+  EXPECT_TRUE(check_settings_apply(spec).is_ok());
+  spec.mutable_filter()->mutable_ukf()->set_alpha(0.5);
+  EXPECT_EQ(check_settings_apply(spec).message(), "filter.ukf.alpha applies to the ukf filter only, not to the ekf filter");
+  spec.mutable_filter()->set_kind(v1::FILTER_KIND_UKF);
+  EXPECT_TRUE(check_settings_apply(spec).is_ok());
+
+  // A session runs a filter: the states it does not estimate as output error does.
+  v1::CreateSessionRequest session;
+  session.mutable_initial_state()->add_estimate("all");
+  EXPECT_EQ(check_settings_apply(session).message(),
+            "initial_state.estimate applies to method oe and ml only, not to filter");
+  // A retuning is checked against the session's kind.
+  v1::RetuneSessionRequest retune;
+  retune.mutable_v()->set_scalar(1.0);
+  EXPECT_EQ(check_settings_apply(retune, "ekf").message(), "v applies to the optimal filter only, not to the ekf filter");
+  EXPECT_TRUE(check_settings_apply(retune, "optimal").is_ok());
+}
+
+TEST(SettingsSchema, TheHttpSchemaListsEveryOfferedSetting) {
+  const std::string json = api::settings_schema_json();
+  for (const google::protobuf::Descriptor* request : api::setting_requests()) {
+    EXPECT_NE(json.find("\"" + std::string(request->name()) + "\""), std::string::npos) << request->name();
+    for (const api::SettingField& s : api::settings_of(*request)) {
+      EXPECT_NE(json.find("\"path\":\"" + s.path + "\""), std::string::npos) << s.path;
+    }
+  }
+  EXPECT_NE(json.find("\"keyword\":\"estimate_q\""), std::string::npos);
+  EXPECT_NE(json.find("\"choices\":[\"filter\",\"oe\",\"ml\"]"), std::string::npos);
+  // Beside them, the names a request's JSON gives them (the workbench sends these).
+  EXPECT_NE(json.find("\"values\":[\"IDENTIFICATION_METHOD_FILTER\",\"IDENTIFICATION_METHOD_OE\","
+                      "\"IDENTIFICATION_METHOD_ML\"]"),
+            std::string::npos);
 }
 
 }  // namespace

@@ -103,7 +103,6 @@ bool resolve_parameters(Client& c, const std::string& params, std::optional<int>
 struct SmoothOptions {
   RunSettings settings;
   std::string params, format = "table", output;
-  bool full_covariance = false;
 };
 int smooth(Client& c, const SmoothOptions& o);
 

@@ -76,16 +76,11 @@ int session_close(Client& c, const std::string& id) {
 }
 
 int session_retune(Client& c, const std::string& id, const RunSettings& s) {
-  if (!s.q && !s.r && !s.v && !s.w) {
+  if (s.given.empty()) {
     std::fprintf(stderr, "riccati: sessions retune needs --q, --r (EKF, UKF), --v or --w (the optimal filter)\n");
     return kExitUsage;
   }
-  v1::RetuneSessionRequest request;
-  request.set_id(id);
-  if (s.q) *request.mutable_q() = *s.q;
-  if (s.r) *request.mutable_r() = *s.r;
-  if (s.v) *request.mutable_v() = *s.v;
-  if (s.w) *request.mutable_w() = *s.w;
+  const v1::RetuneSessionRequest request = to_retune_request(s, id);
   auto ctx = c.context();
   v1::SessionInfo info;
   const grpc::Status status = c.sessions->RetuneSession(ctx.get(), request, &info);

@@ -45,11 +45,10 @@ int simulate(Client& c, const SimulateOptions& o) {
     return kExitUsage;
   }
 
-  v1::SimulateRequest request;
-  request.set_model(model);
+  v1::SimulateRequest request = to_simulate_request(s);
   std::string error;
   std::vector<double> theta;
-  if (!o.params.empty() && !resolve_parameters(c, o.params, s.estimate, nullptr, &theta, &error)) {
+  if (!o.params.empty() && !resolve_parameters(c, o.params, estimate_choice(s), nullptr, &theta, &error)) {
     std::fprintf(stderr, "riccati: %s\n", error.c_str());
     return kExitUsage;
   }
@@ -67,8 +66,6 @@ int simulate(Client& c, const SimulateOptions& o) {
     request.add_t(table.row(k)[0]);
     request.mutable_u()->mutable_values()->Add(table.row(k).begin() + 1, table.row(k).end());  // column-major
   }
-  if (s.hold) request.set_hold(static_cast<v1::HoldOrder>(*s.hold));
-  if (auto integrator = to_integrator(s)) *request.mutable_integrator() = *integrator;
 
   v1::SimulateResponse response;
   {

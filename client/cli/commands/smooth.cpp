@@ -19,14 +19,13 @@ int smooth(Client& c, const SmoothOptions& o) {
   if (!o.params.empty()) {
     std::vector<double> theta;
     std::string error;
-    if (!resolve_parameters(c, o.params, s.estimate, nullptr, &theta, &error)) {
+    if (!resolve_parameters(c, o.params, estimate_choice(s), nullptr, &theta, &error)) {
       std::fprintf(stderr, "riccati: %s\n", error.c_str());
       return kExitUsage;
     }
     spec.clear_theta0();
     spec.mutable_theta0()->Add(theta.begin(), theta.end());
   }
-  spec.set_full_covariance(o.full_covariance);
   v1::Job job;
   {
     auto ctx = c.context();

@@ -1,5 +1,7 @@
 #include <yaml-cpp/yaml.h>
 
+#include <algorithm>
+#include <cctype>
 #include <cstdio>
 
 #include "commands/commands.hpp"
@@ -63,6 +65,17 @@ bool resolve_parameters(Client& c, const std::string& params, std::optional<int>
 
 int validate(Client& c, const ValidateOptions& o) {
   const RunSettings& s = o.settings;
+  const v1::ValidationSpec asked = to_validation_spec(s, "");
+  for (const std::string& name : asked.initial_state().estimate()) {
+    // --estimate-x0 M was the sample count until the flag meant in validate what it means in identify.
+    if (!name.empty() && std::all_of(name.begin(), name.end(), [](unsigned char ch) { return std::isdigit(ch); })) {
+      std::fprintf(stderr,
+                   "riccati: --estimate-x0 %s: the flag names the initial states to fit (or all), as in identify; "
+                   "the samples they are fitted on are --x0-samples %s\n",
+                   name.c_str(), name.c_str());
+      return kExitUsage;
+    }
+  }
   std::string dataset;
   if (const int rc = dataset_for(c, s.data.value_or(""), s.inputs, s.outputs, &dataset, s.model.value_or(""));
       rc != kExitOk) {
@@ -71,7 +84,7 @@ int validate(Client& c, const ValidateOptions& o) {
   v1::ValidationSpec spec = to_validation_spec(s, dataset);
   std::string error;
   std::vector<double> theta;
-  if (!resolve_parameters(c, o.params, s.estimate, &spec, &theta, &error)) {
+  if (!resolve_parameters(c, o.params, estimate_choice(s), &spec, &theta, &error)) {
     std::fprintf(stderr, "riccati: %s\n", error.c_str());
     return kExitUsage;
   }

@@ -51,26 +51,29 @@ namespace {
 
 Result<ExperimentSpec> experiment_from_proto(const std::string& dataset_id, const v1::InitialState& initial,
                                              const v1::SampleMask& mask, const Model& model, const std::string& field) {
+  // `field`: where the experiment is in the spec ("experiments[0]"); empty
+  // for experiment 1, whose fields are the spec's own.
+  const auto at = [&](const std::string& name) { return field.empty() ? name : field + "." + name; };
   ExperimentSpec e;
   e.dataset_id = dataset_id;
-  if (dataset_id.empty()) return invalid_argument(field + ": a dataset id is needed");
+  if (dataset_id.empty()) return invalid_argument(at("dataset_id") + ": a dataset id is needed");
   initial_state_from_proto(initial, &e.mode, &e.x0);
   if (e.x0.size() != 0 || e.mode == InitialState::kGiven) {
-    RICCATI_RETURN_IF_ERROR(from_values(initial.x0(), model.nx(), field + ".initial_state.x0").status());
+    RICCATI_RETURN_IF_ERROR(from_values(initial.x0(), model.nx(), at("initial_state.x0")).status());
   }
-  RICCATI_ASSIGN_OR_RETURN(e.estimate_x0, estimated_states(initial, model, field + ".initial_state"));
+  RICCATI_ASSIGN_OR_RETURN(e.estimate_x0, estimated_states(initial, model, at("initial_state")));
   for (const v1::OutputLimit& limit : mask.limits()) {
     if (model.output_index(limit.output()) < 0) {
-      return invalid_argument(field + ".mask: model " + model.name() + " has no output \"" + limit.output() +
+      return invalid_argument(at("mask") + ": model " + model.name() + " has no output \"" + limit.output() +
                               "\" (its outputs: " + join(model.output_names()) + ")");
     }
     if ((limit.has_lower() && !std::isfinite(limit.lower())) || (limit.has_upper() && !std::isfinite(limit.upper()))) {
-      return invalid_argument(field + ".mask: the limits of output " + limit.output() + " must be finite");
+      return invalid_argument(at("mask") + ": the limits of output " + limit.output() + " must be finite");
     }
   }
   for (const v1::SampleRange& range : mask.excluded()) {
     if (range.end() <= range.first()) {
-      return invalid_argument(field + ".mask: the excluded range [" + std::to_string(range.first()) + ", " +
+      return invalid_argument(at("mask") + ": the excluded range [" + std::to_string(range.first()) + ", " +
                               std::to_string(range.end()) + ") is empty");
     }
   }
@@ -123,6 +126,8 @@ Result<IdentificationJob> identification_from_proto(const v1::IdentificationSpec
   IdentificationJob job;
   RICCATI_RETURN_IF_ERROR(enum_from_proto(given.method(), *v1::IdentificationMethod_descriptor(),
                                           &parse_identification_method, "method", &job.method));
+  // What the proto's schema says of where each setting applies.
+  RICCATI_RETURN_IF_ERROR(check_settings_apply(given));
   const bool filter_method = job.method == IdentificationMethod::kFilter;
   const bool runs_filter = filter_method || given.init_passes() > 0 || job.method == IdentificationMethod::kMaxLikelihood;
   v1::IdentificationSpec spec = given;
@@ -141,7 +146,7 @@ Result<IdentificationJob> identification_from_proto(const v1::IdentificationSpec
 
   // Experiment 1, then the others.
   RICCATI_ASSIGN_OR_RETURN(ExperimentSpec first,
-                           experiment_from_proto(spec.dataset_id(), spec.initial_state(), spec.mask(), model, "experiment 1"));
+                           experiment_from_proto(spec.dataset_id(), spec.initial_state(), spec.mask(), model, ""));
   job.experiments.push_back(std::move(first));
   for (int e = 0; e < spec.experiments_size(); ++e) {
     const v1::Experiment& x = spec.experiments(e);
@@ -157,8 +162,6 @@ Result<IdentificationJob> identification_from_proto(const v1::IdentificationSpec
   if (filter_method) {
     // The iterated filter: bounds hold its estimate, a fixed parameter has
     // no variance (in P0 or Q) to move by.
-    RICCATI_RETURN_IF_ERROR(refuse(spec.init_passes() > 0, "init_passes", job.method));
-    RICCATI_RETURN_IF_ERROR(refuse(spec.log_scale_size() > 0, "log_scale", job.method));
     RICCATI_RETURN_IF_ERROR(refuse(spec.experiments_size() > 0, "more than one experiment", job.method));
     RICCATI_RETURN_IF_ERROR(refuse(any_x0_estimated, "initial_state.estimate (the filter estimates the states with their P0)",
                                    job.method));
@@ -191,8 +194,6 @@ Result<IdentificationJob> identification_from_proto(const v1::IdentificationSpec
   const v1::EstimationSettings& est = spec.estimation();
   const OptimizerSettings optimizer = optimizer_from_proto(est);
   if (job.method == IdentificationMethod::kOutputError) {
-    RICCATI_RETURN_IF_ERROR(refuse(est.estimate_process_noise() || est.estimate_measurement_noise(),
-                                   "estimation.estimate_process_noise and estimate_measurement_noise", job.method));
     job.output_error.simulation.hold = job.filter.filter.hold;
     job.output_error.simulation.integrator = job.filter.filter.integrator;
     if (est.output_sigma_size() != 0) {
@@ -206,7 +207,6 @@ Result<IdentificationJob> identification_from_proto(const v1::IdentificationSpec
     return job;
   }
   // Maximum likelihood: the filter is the predictor.
-  RICCATI_RETURN_IF_ERROR(refuse(est.output_sigma_size() > 0, "estimation.output_sigma", job.method));
   if (job.filter.filter.kind != FilterKind::kEkf && job.filter.filter.kind != FilterKind::kUkf) {
     return invalid_argument("method ml predicts with the EKF or the UKF, not the " +
                             std::string(filter_kind_name(job.filter.filter.kind)) + " filter");

@@ -121,7 +121,6 @@ Result<JobRecord> JobManager::submit_identification(const std::string& tenant, c
   if (passes > limits_.max_passes) {
     return limit_reached("max_passes", limits_.max_passes, "the job asks for " + std::to_string(passes) + " passes");
   }
-  RICCATI_RETURN_IF_ERROR(check_settings_apply(spec));
   RICCATI_ASSIGN_OR_RETURN(const IdentificationJob plan, identification_from_proto(spec, *model));
   std::vector<DatasetRecord> datasets;
   for (const ExperimentSpec& e : plan.experiments) {
