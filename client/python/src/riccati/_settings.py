@@ -129,22 +129,33 @@ def _walk(descriptor, chain, out):
 
 
 _SCHEMAS = {}
+# The filter kinds a request can run where it cannot run them all: a smoother
+# runs the EKF or the UKF (as offered() in riccati/settings_schema.cpp; the
+# tests hold this package's settings to riccatid's schema).
+_FILTERS_RUN = {"riccati.v1.SmoothingSpec": ("ekf", "ukf")}
 
 
 def settings_of(message_type):
     """{keyword: Setting} of a request type (a generated message class or its descriptor), in field order.
 
-    A request that has a filter kind but no method (a session, smoothing) runs
-    the filter: the settings of the other methods only are not offered for it,
-    as riccati/settings_schema.cpp's offered()."""
+    Not offered, as riccati/settings_schema.cpp's offered(): in a request that
+    has a filter kind but no method (a session, smoothing), which runs the
+    filter, the settings of the other methods only; in smoothing, those of the
+    optimal filter only."""
     descriptor = getattr(message_type, "DESCRIPTOR", message_type)
     if descriptor.full_name not in _SCHEMAS:
         found = []
         _walk(descriptor, [], found)
         paths = {s.path for s in found}
         method = "filter" if "filter.kind" in paths and "method" not in paths else ""
-        _SCHEMAS[descriptor.full_name] = {s.keyword: s for s in found
-                                          if not method or not s.option.methods or method in s.option.methods}
+        kinds = _FILTERS_RUN.get(descriptor.full_name)
+
+        def offered(s):
+            if method and s.option.methods and method not in s.option.methods:
+                return False
+            return not kinds or not s.option.filters or any(k in s.option.filters for k in kinds)
+
+        _SCHEMAS[descriptor.full_name] = {s.keyword: s for s in found if offered(s)}
     return _SCHEMAS[descriptor.full_name]
 
 
