@@ -11,10 +11,13 @@ same flags through the CLI on the same dataset: the two jobs' requests are
 the same and their results equal to the bit. A field of another method is
 hidden and not sent; a setting given where its method does not take it gets
 riccatid's message, the same from the CLI and the JSON API; a dataset whose
-columns are not the model's is refused before anything is sent.
+columns are not the model's is refused before anything is sent; every flag
+of `riccati identify --help` is a field of the form, or made on the page by
+hand (model, dataset, experiments, masks), or given at upload.
 """
 import json
 import os
+import re
 import subprocess
 import sys
 import time
@@ -212,6 +215,20 @@ class Forms(wb.WorkbenchCase):
         Select(self.find("#dataset")).select_by_value(self.clean)
         self.wait(lambda d: d.find_element(By.ID, "identify-columns").text == "")
         self.assertTrue(self.find("#identify-submit").is_enabled())
+
+    def test_8_every_flag_of_the_cli_is_in_the_form(self):
+        flags = set(re.findall(r"^\s+(?:-\w,)?(--[a-z0-9-]+)", self.cli("identify", "--help").stdout, re.M))
+        self.go(f"identify?model=two_tank&dataset={self.clean}")
+        self.find('[data-flag="--method"]')
+        in_form = {e.get_attribute("data-flag")
+                   for e in self.driver.find_elements(By.CSS_SELECTOR, ".setting[data-flag]")}
+        # Made by hand on the page (the model and dataset chosen, experiments, masks); given at upload on the
+        # Datasets page (columns, truth); the CLI's own (a job file, not waiting).
+        elsewhere = {"--model", "--data", "--experiment", "--exclude", "--output-limit", "--inputs", "--outputs",
+                     "--truth", "--config", "--no-wait", "--help"}
+        self.assertGreater(len(flags), 40)
+        self.assertEqual(flags - elsewhere - in_form, set())
+        self.assertEqual(in_form - flags, set())  # and nothing the CLI does not take
 
 
 def main():
