@@ -1,6 +1,9 @@
 """Keywords made from the API's schema: the same settings as riccatid's, riccatid's refusals as it words them."""
+import inspect
 import json
 import os
+import re
+import subprocess
 import urllib.request
 
 import numpy as np
@@ -9,7 +12,7 @@ import pytest
 import riccati
 from riccati import _settings
 from riccati.v1 import jobs_pb2, models_pb2, sessions_pb2
-from conftest import Daemon
+from conftest import CLI, Daemon
 
 IO = dict(inputs=["F1", "F2"], outputs=["h1", "h2"])
 REQUESTS = {"IdentificationSpec": jobs_pb2.IdentificationSpec, "SmoothingSpec": jobs_pb2.SmoothingSpec,
@@ -39,6 +42,18 @@ def test_the_keywords_are_riccatids_settings(schema):
         assert mine == theirs, name
     # Beside what the CLI's tests use, settings only the schema lists reach Python: the integrator's step bound.
     assert _settings.settings_of(jobs_pb2.IdentificationSpec)["max_steps"].path == "filter.integrator.max_steps"
+
+
+def test_every_flag_of_the_cli_is_a_keyword():
+    help_text = subprocess.run([CLI, "identify", "--help"], capture_output=True, text=True, check=True).stdout
+    flags = set(re.findall(r"^\s+(?:-\w,)?--([a-z0-9-]+)", help_text, re.M))
+    assert len(flags) > 40
+    keywords = {*_settings.settings_of(jobs_pb2.IdentificationSpec), *_settings.IDENTIFY_EXTRAS,
+                *inspect.signature(riccati.Client.submit_identification).parameters}
+    # model and data are identify()'s first arguments; a job file, not waiting and help are the CLI's own;
+    # the truth is given at upload (true_parameters=).
+    cli_only = {"model", "data", "config", "no_wait", "help", "truth"}
+    assert {f.replace("-", "_") for f in flags} - keywords - cli_only == set()
 
 
 def test_a_setting_of_another_method_gets_riccatids_message(client, two_tank_csv):
