@@ -215,6 +215,12 @@ class Forms(wb.WorkbenchCase):
         Select(self.find("#dataset")).select_by_value(self.clean)
         self.wait(lambda d: d.find_element(By.ID, "identify-columns").text == "")
         self.assertTrue(self.find("#identify-submit").is_enabled())
+        # An experiment's dataset is checked as well.
+        self.fill_settings([("--method", "oe"), ("--experiment", one_output)])
+        note = self.wait(lambda d: d.find_element(By.CSS_SELECTOR, "#identify-columns .error"))
+        self.assertIn("dataset two_tank.csv has 1 (h1)", note.text)
+        self.assertFalse(self.find("#identify-submit").is_enabled())
+        self.assertEqual(len(self.api("/jobs").get("jobs", [])), jobs)
 
     def test_8_every_flag_of_the_cli_is_in_the_form(self):
         flags = set(re.findall(r"^\s+(?:-\w,)?(--[a-z0-9-]+)", self.cli("identify", "--help").stdout, re.M))

@@ -49,19 +49,20 @@ export async function show(main, r, signal) {
 
   const chosenModel = () => modelList.find((x) => x.name === modelSelect.value);
   const datasetOf = (id) => datasetList.find((x) => x.id === id);
-  // The model's and the datasets' columns, checked before anything is sent.
+  // What stops a submit, or '': no model or dataset, or their columns (checked before anything is sent).
   const mismatch = () => {
     const m = chosenModel();
-    if (!m) return 'No model chosen.';
+    if (!m) return 'Choose a model.';
     const ids = [datasetSelect.value, ...samples.experiments()];
-    if (!ids[0]) return 'No dataset chosen.';
-    return ids.map((id) => columnMismatch(m, datasetOf(id) || {name: id})).filter(Boolean).join('; ');
+    if (!ids[0]) return 'Choose a dataset.';
+    const mismatched = ids.map((id) => columnMismatch(m, datasetOf(id) || {name: id})).filter(Boolean).join('; ');
+    return mismatched ? `The columns do not match: ${mismatched}.` : '';
   };
   const draw = () => {
     const m = chosenModel();
     clear(modelInfo, m ? describe(m) : h('p', {class: 'muted'}, 'No models loaded.'));
     const problem = mismatch();
-    clear(columns, problem ? h('span', {class: 'error'}, `The columns do not match: ${problem}.`) : null);
+    clear(columns, problem ? h('span', {class: 'error'}, problem) : null);
     submit.disabled = !!problem;
     history.replaceState(null, '', `#/identify?model=${encodeURIComponent(modelSelect.value)}&dataset=${encodeURIComponent(datasetSelect.value || '')}`);
   };
@@ -77,7 +78,7 @@ export async function show(main, r, signal) {
     e.preventDefault();
     clear(status);
     const problem = mismatch();
-    if (problem) return clear(status, h('p', {class: 'error'}, `The columns do not match: ${problem}.`));
+    if (problem) return clear(status, h('p', {class: 'error'}, problem));
     let spec;
     try {
       spec = {model: modelSelect.value, dataset_id: datasetSelect.value, ...form.value()};
