@@ -285,7 +285,8 @@ double experiment_fit_values(double samples, double nx, double ny, double nu) {
   const double h = std::min(20.0, std::floor(samples / 4));
   const double per_sample = samples * (1 + 4 * ny);
   const double fits = 8 * ny;                                            // OutputFit per output
-  const double diagnostics = ny * h + ny + ny * nu * (2 * h + 1) + 3 * ny * nu + 8;
+  // (statistic, limit, p-value and dof: each a double's worth at most)
+  const double diagnostics = ny * h + 2 * ny + ny * nu * (2 * h + 1) + 5 * ny * nu + 11;
   const double summary = (ny + ny * nu + 1) * 16;  // a line per test, ~128 bytes: in doubles' worth
   return per_sample + 3 * nx + fits + diagnostics + summary;
 }
