@@ -38,7 +38,7 @@ int main(int argc, char** argv) {
   // Debian's Abseil is built with its debug checks, so every absl::Mutex
   // (gRPC's, several per message of a stream) would keep a process-wide
   // lock-order graph under one global lock: a few per cent of a stream's CPU,
-  // and contention between the streams' threads (docs/benchmarks.md).
+  // and contention between the streams' threads (docs/benchmarks-log.md).
   absl::SetMutexDeadlockDetectionMode(absl::OnDeadlockCycle::kIgnore);
   // gRPC's library stays initialised to the end of the process: the last
   // grpc_shutdown (when the server is destroyed at stop) joins gRPC's

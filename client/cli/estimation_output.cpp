@@ -59,47 +59,6 @@ ModelNames model_names(const v1::ModelInfo& model) {
   return names;
 }
 
-// Q(a, x), the regularised upper incomplete gamma function: the series for
-// P = 1 - Q below x = a + 1, Lentz's continued fraction above (Numerical
-// Recipes, 3rd ed., sec. 6.2).
-double chi_square_p_value(double x, double dof) {
-  if (!(x > 0.0)) return 1.0;
-  if (!std::isfinite(x)) return 0.0;
-  const double a = dof / 2.0, z = x / 2.0;
-  const double front = std::exp(-z + a * std::log(z) - std::lgamma(a));
-  if (z < a + 1.0) {
-    double term = 1.0 / a, sum = term;
-    for (int n = 1; n < 10000 && std::abs(term) > std::abs(sum) * 1e-16; ++n) {
-      term *= z / (a + n);
-      sum += term;
-    }
-    return std::clamp(1.0 - front * sum, 0.0, 1.0);
-  }
-  constexpr double kTiny = 1e-300;
-  double b = z + 1.0 - a, c = 1.0 / kTiny, d = 1.0 / b, h = d;
-  for (int i = 1; i < 10000; ++i) {
-    const double an = -i * (i - a);
-    b += 2.0;
-    d = an * d + b;
-    if (std::abs(d) < kTiny) d = kTiny;
-    c = b + an / c;
-    if (std::abs(c) < kTiny) c = kTiny;
-    d = 1.0 / d;
-    const double step = d * c;
-    h *= step;
-    if (std::abs(step - 1.0) < 1e-16) break;
-  }
-  return std::clamp(front * h, 0.0, 1.0);
-}
-
-int chi_square_dof(double limit, int max_dof) {
-  if (!(limit > 0.0)) return 0;
-  for (int dof = 1; dof <= max_dof; ++dof) {
-    if (std::abs(chi_square_p_value(limit, dof) - 0.05) < 1e-4) return dof;
-  }
-  return 0;
-}
-
 std::string correlation_table(const v1::EstimationResult& r) {
   std::vector<int> free;
   for (int i = 0; i < r.param_names_size(); ++i) {
@@ -133,38 +92,62 @@ std::string correlation_table(const v1::EstimationResult& r) {
 }
 
 std::string diagnostics_table(const v1::Diagnostics& d, const ModelNames& names) {
-  std::string out;
-  char line[256];
-  std::snprintf(line, sizeof line, "  residual diagnostics (each at 95 %%; %llu samples, lags 1..%u, band +-%.3g)\n",
-                static_cast<unsigned long long>(d.samples()), d.lags(), d.band());
-  out += line;
-  std::snprintf(line, sizeof line, "    %-28s %12s %10s %9s  %s\n", "test", "statistic", "limit", "p-value", "verdict");
-  out += line;
+  // A table per test; p-values and degrees of freedom are riccatid's (the
+  // engine's diagnostics), printed as they come.
+  const auto p_text = [](double p) { return std::isnan(p) ? std::string("-") : format("%.3g", p); };
+  const auto padded = [](const std::string& s, std::size_t width) {
+    return s.size() >= width ? s : s + std::string(width - s.size(), ' ');
+  };
   const int ny = d.ljung_box_size();
-  for (int i = 0; i < ny; ++i) {
-    const double q = d.ljung_box(i);
-    std::snprintf(line, sizeof line, "    %-28s %12.4g %10.4g %9.3g  %s\n",
-                  ("white " + name_or_number(names.outputs, i, "y")).c_str(), q, d.ljung_box_limit(),
-                  chi_square_p_value(q, d.lags()), verdict(q <= d.ljung_box_limit()));
-    out += line;
-  }
   const int pairs = d.cross_statistic_size();
   const int nu = ny > 0 ? pairs / ny : 0;
-  for (int pair = 0; pair < pairs && nu > 0; ++pair) {
-    const double s = d.cross_statistic(pair);
-    const double limit = pair < d.cross_limit_size() ? d.cross_limit(pair) : 0.0;
-    const std::string what = name_or_number(names.outputs, pair / nu, "y") + " independent of " +
-                             name_or_number(names.inputs, pair % nu, "u");
-    const int dof = chi_square_dof(limit, static_cast<int>(d.lags()) + 1);
-    const std::string p = limit == 0.0 ? "-" : dof > 0 ? format("%.3g", chi_square_p_value(s, dof)) : "?";
-    std::snprintf(line, sizeof line, "    %-28s %12.4g %10.4g %9s  %s%s\n", what.substr(0, 28).c_str(),
-                  s, limit, p.c_str(), verdict(limit == 0.0 || s <= limit),
-                  limit == 0.0 ? " (constant input)" : "");
-    out += line;
+  std::size_t out_w = 6, in_w = 5;  // "output", "input"
+  for (int i = 0; i < ny; ++i) out_w = std::max(out_w, name_or_number(names.outputs, i, "y").size());
+  for (int j = 0; j < nu; ++j) in_w = std::max(in_w, name_or_number(names.inputs, j, "u").size());
+
+  std::string out = "  residual diagnostics (each at 95 %; " + std::to_string(d.samples()) + " samples, lags 1.." +
+                    std::to_string(d.lags()) + ", band +-" + format("%.3g", d.band()) + ")\n";
+  out += "    whiteness: Ljung-Box Q over lags 1.." + std::to_string(d.lags()) + "\n";
+  char head[128];
+  std::snprintf(head, sizeof head, " %12s %10s %9s %5s  %s\n", "Q", "limit", "p-value", "dof", "verdict");
+  out += "      " + padded("output", out_w) + head;
+  for (int i = 0; i < ny; ++i) {
+    const double q = d.ljung_box(i);
+    const double p = i < d.ljung_box_p_size() ? d.ljung_box_p(i) : std::nan("");
+    char line[128];
+    // (a result stored before riccatid sent p-values and dof has neither: "-")
+    std::snprintf(line, sizeof line, " %12.4g %10.4g %9s %5s  %s\n", q, d.ljung_box_limit(), p_text(p).c_str(),
+                  d.ljung_box_dof() > 0 ? std::to_string(d.ljung_box_dof()).c_str() : "-",
+                  verdict(q <= d.ljung_box_limit()));
+    out += "      " + padded(name_or_number(names.outputs, i, "y"), out_w) + line;
+  }
+  if (nu > 0) {
+    out += "    independence from inputs: N R^2 of the residual on the input at lags 0.." + std::to_string(d.lags()) +
+           "\n";
+    std::snprintf(head, sizeof head, " %12s %10s %9s %5s  %s\n", "S", "limit", "p-value", "dof", "verdict");
+    out += "      " + padded("output", out_w) + " " + padded("input", in_w) + head;
+    for (int pair = 0; pair < pairs; ++pair) {
+      const double s = d.cross_statistic(pair);
+      const double limit = pair < d.cross_limit_size() ? d.cross_limit(pair) : 0.0;
+      const bool tested = limit > 0.0;  // a constant input has no limit (and 0 degrees of freedom)
+      char line[160];
+      std::snprintf(line, sizeof line, " %12.4g %10.4g %9s %5s  %s%s\n", s, limit,
+                    tested && pair < d.cross_p_size() ? p_text(d.cross_p(pair)).c_str() : "-",
+                    pair < d.cross_dof_size() ? std::to_string(d.cross_dof(pair)).c_str() : "-",
+                    verdict(!tested || s <= limit), tested ? "" : " (constant input: not tested)");
+      out += "      " + padded(name_or_number(names.outputs, pair / nu, "y"), out_w) + " " +
+             padded(name_or_number(names.inputs, pair % nu, "u"), in_w) + line;
+    }
   }
   if (std::isfinite(d.nis_mean())) {
-    std::snprintf(line, sizeof line, "    %-28s %12.4g %10s %9s  %s (band [%.4g, %.4g])\n", "mean NIS in its band",
-                  d.nis_mean(), "", "", verdict(d.nis_consistent()), d.nis_lower(), d.nis_upper());
+    out += "    noise consistency: mean NIS in its band (two-sided)\n";
+    std::snprintf(head, sizeof head, "      %12s %22s %9s %11s  %s\n", "mean NIS", "band", "p-value", "dof", "verdict");
+    out += head;
+    char line[200];
+    std::snprintf(line, sizeof line, "      %12.4g %22s %9s %11s  %s\n", d.nis_mean(),
+                  ("[" + format("%.4g", d.nis_lower()) + ", " + format("%.4g", d.nis_upper()) + "]").c_str(),
+                  d.nis_dof() > 0 ? p_text(d.nis_p()).c_str() : "-",
+                  d.nis_dof() > 0 ? std::to_string(d.nis_dof()).c_str() : "-", verdict(d.nis_consistent()));
     out += line;
   }
   return out;

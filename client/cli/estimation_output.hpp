@@ -20,13 +20,6 @@ struct ModelNames {
 };
 ModelNames model_names(const v1::ModelInfo& model);
 
-// P(X >= x) for X chi-square with `dof` degrees of freedom: the p-value of a
-// test statistic x (1 for x <= 0).
-double chi_square_p_value(double x, double dof);
-// The degrees of freedom, 1 to `max_dof`, whose 95 % quantile is `limit`
-// (what the diagnostics compare a statistic with); 0 when none is.
-int chi_square_dof(double limit, int max_dof);
-
 // Parameters flagged as hard to tell apart: |r| above this.
 constexpr double kHighCorrelation = 0.95;
 
@@ -39,8 +32,10 @@ std::string estimation_table(const v1::EstimationResult& r, const std::vector<do
 // The lower triangle of the correlation matrix, |r| > kHighCorrelation
 // marked with '*'; fixed parameters left out.
 std::string correlation_table(const v1::EstimationResult& r);
-// Per output the Ljung-Box test, per output and input the cross-correlation
-// test, and the NIS band when the method has one: statistic, p-value, verdict.
+// A table per test, rows named by the outputs and inputs: per output the
+// Ljung-Box test, per output and input the cross-correlation test, and the
+// NIS band when the method has one; each with its statistic, limit, p-value,
+// degrees of freedom and verdict, as riccatid computed them.
 std::string diagnostics_table(const v1::Diagnostics& d, const ModelNames& names);
 // experiment, t, then per output: measured, model, residual (normalised),
 // used (1, or 0 where the mask left it out); one row per sample of every

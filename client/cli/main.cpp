@@ -237,6 +237,13 @@ int main(int argc, char** argv) {
   smooth_cmd->add_option("--output,-o", sm.output, "Write to this file");
   const RunFlags sm_flags(smooth_cmd, Command::kSmooth);
 
+  std::string settings_format = "table";
+  auto* settings_cmd = app.add_subcommand(
+      "settings", "Every request's settings: job-file key, flag, value, default and where each applies (no riccatid needed)");
+  settings_cmd->add_option("--format", settings_format, "table, json or markdown")
+      ->check(CLI::IsMember({"table", "json", "markdown"}))
+      ->capture_default_str();
+
   SimulateOptions sim;
   auto* simulate_cmd = app.add_subcommand("simulate", "Model outputs for given inputs (CSV out)");
   RunFlags sim_flags(simulate_cmd, Command::kSimulate);
@@ -260,6 +267,7 @@ int main(int argc, char** argv) {
     return app.exit(e) == 0 ? kExitOk : kExitUsage;
   }
 
+  if (*settings_cmd) return settings_reference(settings_format);
   Connection connection;
   if (auto error = resolve_connection(connection_flags, [](const char* name) { return std::getenv(name); },
                                       &connection)) {

@@ -1,6 +1,6 @@
 // RICCATI_SCALAR_LOOPS compiles a function's loops without the vectoriser
 // (GCC's optimize attribute): loops of 3 to 5 iterations run faster scalar
-// than through the vectoriser's set-up and remainders (docs/benchmarks.md,
+// than through the vectoriser's set-up and remainders (docs/benchmarks-log.md,
 // the optimal filter's step). Clang has no such attribute, so its builds
 // (the sanitizers') keep the vectoriser there.
 #pragma once

@@ -67,7 +67,7 @@ class Metrics {
   // the session stream's: an interceptor on a call runs on each of its
   // messages, and on a stream of one measurement per message that cost 15 %
   // of riccatid's CPU per message and 15 % of its round trip
-  // (docs/benchmarks.md). The stream calls rpc_finished() as it finishes.
+  // (docs/benchmarks-log.md). The stream calls rpc_finished() as it finishes.
   std::unique_ptr<grpc::experimental::ServerInterceptorFactoryInterface> interceptor_factory();
   static constexpr const char* kSessionStreamMethod = "/riccati.v1.SessionService/Stream";
 

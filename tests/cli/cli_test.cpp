@@ -680,49 +680,66 @@ TEST(EstimationTables, CorrelationsMarkTheHighOnesAndLeaveTheFixedOut) {
   EXPECT_EQ(correlation_table(apart), "");
 }
 
-TEST(EstimationTables, ChiSquareTailsAndDegreesOfFreedom) {
-  // References: Boost.Math's chi-squared distribution (what riccatid's limits come from).
-  EXPECT_NEAR(chi_square_p_value(3.8414588206941245, 1), 0.05, 1e-12);
-  EXPECT_NEAR(chi_square_p_value(31.410432844230922, 20), 0.05, 1e-12);
-  EXPECT_NEAR(chi_square_p_value(2.0, 2), std::exp(-1.0), 1e-14);
-  EXPECT_NEAR(chi_square_p_value(25.0, 20), 0.20143110494553576, 1e-12);  // the series (x / 2 below a + 1)
-  EXPECT_NEAR(chi_square_p_value(60.0, 41), 0.027940952432154165, 1e-12);  // the continued fraction
-  EXPECT_EQ(chi_square_p_value(0.0, 3), 1.0);
-  EXPECT_EQ(chi_square_dof(31.410432844230922, 41), 20);
-  EXPECT_EQ(chi_square_dof(56.942387146824096, 41), 41);
-  EXPECT_EQ(chi_square_dof(0.0, 41), 0);
-}
-
-TEST(EstimationTables, DiagnosticsGiveEachTestItsStatisticPValueAndVerdict) {
-  const auto d = parse_text<v1::Diagnostics>(R"pb(
+TEST(EstimationTables, DiagnosticsAreATablePerTestWithNamesPValuesAndDof) {
+  // The p-values and dof are riccatid's (made up here, so that a CLI that
+  // recomputed them would print something else).
+  const auto two = parse_text<v1::Diagnostics>(R"pb(
     samples: 2000 lags: 20 band: 0.0438
-    ljung_box: [ 25.0, 40.0 ] ljung_box_limit: 31.410432844230922
+    ljung_box: [ 25.0, 40.0 ] ljung_box_limit: 31.410432844230922 ljung_box_dof: 20 ljung_box_p: [ 0.123, 0.00456 ]
     cross_statistic: [ 10, 50 ] cross_limit: [ 32.670573340917301, 32.670573340917301 ]
-    nis_mean: 2.3 nis_lower: 1.91 nis_upper: 2.09 nis_consistent: false
+    cross_dof: [ 21, 21 ] cross_p: [ 0.777, 0.000888 ]
+    nis_mean: 2.3 nis_lower: 1.91 nis_upper: 2.09 nis_consistent: false nis_dof: 4000 nis_p: 0.00321
   )pb");
-  const std::string table = diagnostics_table(d, ModelNames{{}, {"F1"}, {"h1", "h2"}});
-  const auto words = [&](const std::string& start) {
-    std::istringstream in(line_of(table, start));
+  const std::string table = diagnostics_table(two, ModelNames{{}, {"F1_inflow"}, {"level_h1", "h2"}});
+  const auto words_of = [](const std::string& line) {
+    std::istringstream in(line);
     std::vector<std::string> out;
     for (std::string w; in >> w;) out.push_back(w);
     return out;
   };
-  std::vector<std::string> h1 = words("    white h1");
-  ASSERT_EQ(h1.size(), 6u) << table;
-  EXPECT_EQ(h1[5], "pass");
-  EXPECT_EQ(h1[4], "0.201");
-  EXPECT_EQ(words("    white h2").back(), "FAIL");
-  // One input, two outputs: h1 against F1, h2 against F1 (lags 0..h: 21 degrees of freedom, the limit's).
-  EXPECT_EQ(words("    h1 independent of F1").back(), "pass");
-  const std::vector<std::string> cross = words("    h2 independent of F1");
-  ASSERT_EQ(cross.size(), 8u) << table;
-  EXPECT_EQ(cross[7], "FAIL");
-  EXPECT_EQ(cross[6], "0.000365");
-  EXPECT_NE(line_of(table, "    mean NIS in its band").find("FAIL (band [1.91, 2.09])"), std::string::npos) << table;
-  // No NIS (output error): no line for it.
-  v1::Diagnostics oe = d;
+  const auto words = [&](const std::string& start) { return words_of(line_of(table, start)); };
+  EXPECT_NE(table.find("    whiteness: Ljung-Box Q over lags 1..20\n"), std::string::npos) << table;
+  EXPECT_EQ(words("      output  "), (std::vector<std::string>{"output", "Q", "limit", "p-value", "dof", "verdict"}))
+      << table;
+  // By name: output, Q, limit, p-value, dof, verdict.
+  EXPECT_EQ(words("      level_h1 "), (std::vector<std::string>{"level_h1", "25", "31.41", "0.123", "20", "pass"}))
+      << table;
+  EXPECT_EQ(words("      h2  "), (std::vector<std::string>{"h2", "40", "31.41", "0.00456", "20", "FAIL"})) << table;
+  EXPECT_NE(table.find("    independence from inputs: N R^2 of the residual on the input at lags 0..20\n"),
+            std::string::npos)
+      << table;
+  EXPECT_EQ(words("      level_h1 F1_inflow"),
+            (std::vector<std::string>{"level_h1", "F1_inflow", "10", "32.67", "0.777", "21", "pass"}))
+      << table;
+  EXPECT_EQ(words("      h2       F1_inflow"),
+            (std::vector<std::string>{"h2", "F1_inflow", "50", "32.67", "0.000888", "21", "FAIL"}))
+      << table;
+  EXPECT_NE(table.find("    noise consistency: mean NIS in its band (two-sided)\n"), std::string::npos) << table;
+  const std::vector<std::string> nis = words(std::string(6 + 9, ' ') + "2.3");
+  EXPECT_EQ(nis, (std::vector<std::string>{"2.3", "[1.91,", "2.09]", "0.00321", "4000", "FAIL"})) << table;
+  // No names: numbered. A constant input: not tested, no p-value.
+  v1::Diagnostics constant = two;
+  constant.set_cross_limit(0, 0.0);
+  constant.set_cross_dof(0, 0);
+  constant.set_cross_p(0, 1.0);
+  const std::string numbered = diagnostics_table(constant, {});
+  EXPECT_EQ(words_of(line_of(numbered, "      y1     u1    ")),
+            (std::vector<std::string>{"y1", "u1", "10", "0", "-", "0", "pass", "(constant", "input:", "not", "tested)"}))
+      << numbered;
+  // No NIS (output error): no table for it.
+  v1::Diagnostics oe = two;
   oe.set_nis_mean(std::numeric_limits<double>::quiet_NaN());
   EXPECT_EQ(diagnostics_table(oe, {}).find("NIS"), std::string::npos);
+  // A result stored before riccatid sent p-values and dof: "-", not a number made up.
+  v1::Diagnostics old = two;
+  old.clear_ljung_box_p();
+  old.clear_ljung_box_dof();
+  old.clear_cross_dof();
+  old.clear_cross_p();
+  old.clear_nis_dof();
+  const std::string stored = diagnostics_table(old, ModelNames{{}, {"F1"}, {"h1", "h2"}});
+  EXPECT_EQ(words_of(line_of(stored, "      h1  ")), (std::vector<std::string>{"h1", "25", "31.41", "-", "-", "pass"}))
+      << stored;
 }
 
 TEST(EstimationTables, TheNoiseLevelsOfMaximumLikelihood) {

@@ -87,6 +87,19 @@ double chi_square_cdf(double x, int k) {
   return 1.0 - upper;
 }
 
+// The closed-form upper tail P(X >= x), X chi-square(k), independent of
+// Boost: Q_1 = erfc(sqrt(x/2)), Q_2 = e^(-x/2), and
+// Q_{k+2} = Q_k + (x/2)^(k/2) e^(-x/2) / Gamma(k/2 + 1) (terms in logs).
+// Accurate in relative terms where the tail is small (no 1 - CDF).
+double chi_square_upper(double x, int k) {
+  double q = k % 2 == 1 ? std::erfc(std::sqrt(x / 2)) : std::exp(-x / 2);
+  for (int j = 2 - k % 2; j < k; j += 2) {
+    const double half = j / 2.0;
+    q += std::exp(half * std::log(x / 2) - x / 2 - std::lgamma(half + 1.0));
+  }
+  return q;
+}
+
 // The exact two-sided interval [lo, hi] of a Binomial(n, p) count: it falls
 // below lo, or above hi, each with probability at most alpha / 2.
 std::pair<int, int> binomial_interval(int n, double p, double alpha) {
@@ -145,6 +158,83 @@ TEST(ChiSquareQuantile, EdgesNeverThrow) {
   EXPECT_TRUE(std::isnan(chi_square_quantile(0.5, std::numeric_limits<double>::infinity())));
 }
 
+TEST(ChiSquarePValue, ClosedFormTails) {
+  // Against the closed form above, across both sides of the mode and far in
+  // the tail (relative accuracy: the complement is computed directly).
+  for (const int dof : {1, 2, 3, 4, 7, 20, 21, 41, 400}) {
+    for (const double x : {0.01, 0.5, 1.0, 3.0, 10.0, 25.0, 60.0, 200.0, 600.0}) {
+      const double expected = chi_square_upper(x, dof);
+      EXPECT_NEAR(chi_square_p_value(x, dof), expected, 1e-12 * expected + 1e-300) << "chi2(" << dof << ") at " << x;
+    }
+  }
+  // Printed table values: the 95 % points have p = 0.05, to their three
+  // decimals' 5e-4 times the density there (under 0.03: 1.5e-5).
+  EXPECT_NEAR(chi_square_p_value(31.410, 20), 0.05, 1.5e-5);
+  EXPECT_NEAR(chi_square_p_value(32.671, 21), 0.05, 1.5e-5);
+  EXPECT_NEAR(chi_square_p_value(3.841, 1), 0.05, 1.5e-5);
+  // The inverse of the quantile.
+  EXPECT_NEAR(chi_square_p_value(chi_square_quantile(0.95, 13), 13), 0.05, 1e-14);
+  // chi2(2) is exponential: p = e^(-x/2) exactly, far into the tail.
+  EXPECT_NEAR(chi_square_p_value(100.0, 2) / std::exp(-50.0), 1.0, 1e-13);
+}
+
+TEST(ChiSquarePValue, EdgesNeverThrow) {
+  EXPECT_EQ(chi_square_p_value(0.0, 3), 1.0);
+  EXPECT_EQ(chi_square_p_value(-1.0, 3), 1.0);
+  EXPECT_EQ(chi_square_p_value(std::numeric_limits<double>::infinity(), 3), 0.0);
+  EXPECT_TRUE(std::isnan(chi_square_p_value(std::nan(""), 3)));
+  EXPECT_TRUE(std::isnan(chi_square_p_value(1.0, 0)));
+  EXPECT_TRUE(std::isnan(chi_square_p_value(1.0, -2)));
+  EXPECT_TRUE(std::isnan(chi_square_p_value(1.0, std::numeric_limits<double>::infinity())));
+}
+
+TEST(DiagnoseResiduals, EachTestCarriesItsPValueAndDegreesOfFreedom) {
+  // Two outputs (one white, one AR(1)), two inputs (one varying, one
+  // constant), a NIS: every p-value against the closed form at the test's
+  // degrees of freedom.
+  std::mt19937_64 rng(11);
+  constexpr Index n = 400;
+  Eigen::MatrixXd residuals(2, n);
+  residuals.row(0) = gaussian(1, n, rng);
+  residuals.row(1) = ar1(0.5, n, rng);
+  Eigen::MatrixXd inputs(2, n);
+  inputs.row(0) = gaussian(1, n, rng);
+  inputs.row(1).setConstant(3.0);
+  const Eigen::VectorXd nis = residuals.colwise().squaredNorm().transpose();
+  const Result<ResidualDiagnostics> d = diagnose_residuals(residuals, inputs, &nis);
+  ASSERT_TRUE(d.is_ok()) << d.status().to_string();
+  ASSERT_EQ(d->lags, 20);
+  ASSERT_EQ(d->ljung_box_p.size(), 2);
+  for (Index i = 0; i < 2; ++i) {
+    const double expected = chi_square_upper(d->ljung_box(i), 20);
+    EXPECT_NEAR(d->ljung_box_p(i), expected, 1e-12 * expected + 1e-300) << "output " << i;
+    EXPECT_EQ(d->ljung_box_p(i) < 0.05, d->ljung_box(i) > d->ljung_box_limit) << "output " << i;
+  }
+  EXPECT_LT(d->ljung_box_p(1), 1e-10);  // AR(1) with phi = 0.5 at N = 400: far from white
+  // Pairs (output i, input j) at row i * nu + j: the varying input has h + 1
+  // = 21 degrees of freedom, the constant one 0 and p = 1 (not tested).
+  ASSERT_EQ(d->cross_p.size(), 4);
+  for (Index i = 0; i < 2; ++i) {
+    const Index varying = i * 2, constant = i * 2 + 1;
+    EXPECT_EQ(d->cross_dof(varying), 21);
+    const double expected = chi_square_upper(d->cross_statistic(varying), 21);
+    EXPECT_NEAR(d->cross_p(varying), expected, 1e-12 * expected + 1e-300) << "output " << i;
+    EXPECT_EQ(d->cross_dof(constant), 0);
+    EXPECT_EQ(d->cross_p(constant), 1.0);
+  }
+  // N times the mean NIS against chi2(N ny), two-sided.
+  EXPECT_EQ(d->nis_dof, 2.0 * n);
+  const double upper = chi_square_upper(n * d->nis_mean, 2 * n);
+  EXPECT_NEAR(d->nis_p, 2.0 * std::min(upper, 1.0 - upper), 1e-10);
+  EXPECT_EQ(d->nis_p < 0.05, !d->nis_consistent());
+
+  // No NIS: its p-value is NaN and its dof 0.
+  const Result<ResidualDiagnostics> oe = diagnose_residuals(residuals, inputs);
+  ASSERT_TRUE(oe.is_ok());
+  EXPECT_TRUE(std::isnan(oe->nis_p));
+  EXPECT_EQ(oe->nis_dof, 0.0);
+}
+
 TEST(DiagnoseResiduals, HandComputedRamp) {
   // e = 1..10: N = 10, h = min(20, 10/4) = 2, mean 5.5, d = e - 5.5 = -4.5..4.5
   //   sum d^2 = 2 (4.5^2 + 3.5^2 + 2.5^2 + 1.5^2 + 0.5^2) = 82.5
@@ -165,6 +255,8 @@ TEST(DiagnoseResiduals, HandComputedRamp) {
   EXPECT_NEAR(d->autocorrelation(0, 1), 68.0 / 165.0, kTol);
   EXPECT_NEAR(d->ljung_box(0), 120.0 * (0.49 / 9 + (68.0 / 165.0) * (68.0 / 165.0) / 8), kTol);
   EXPECT_NEAR(d->ljung_box_limit, 5.991, 5e-4);
+  // chi2(2) is exponential: p = e^(-Q/2) = 0.0107
+  EXPECT_NEAR(d->ljung_box_p(0), std::exp(-60.0 * (0.49 / 9 + (68.0 / 165.0) * (68.0 / 165.0) / 8)), 1e-14);
   EXPECT_FALSE(d->white());
   EXPECT_EQ(d->non_white_outputs(), std::vector<Index>{0});
   EXPECT_EQ(d->cross_correlation.rows(), 0);
@@ -444,7 +536,7 @@ TEST(DiagnoseResiduals, SummaryHasOneLinePerTest) {
   EXPECT_TRUE(lines[0].ends_with(": fail")) << lines[0];
   EXPECT_EQ(lines[1].rfind("independence from inputs", 0), 0u) << lines[1];
   EXPECT_NE(lines[1].find("output 1/input 1 S = "), std::string::npos) << lines[1];
-  EXPECT_NE(lines[1].find("(limit 32.67, 21 dof)"), std::string::npos) << lines[1];
+  EXPECT_NE(lines[1].find("(limit 32.67, 21 dof, p = "), std::string::npos) << lines[1];
   EXPECT_TRUE(lines[1].ends_with(d->uncorrelated_with_inputs() ? ": pass" : ": fail")) << lines[1];
   EXPECT_EQ(lines[2].rfind("noise consistency (mean NIS over 400 samples, 95 % band chi2(400) / N = [", 0), 0u)
       << lines[2];

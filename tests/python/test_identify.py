@@ -137,6 +137,15 @@ def test_output_error_with_intervals(client, truth):
     assert {"h1", "model_h1", "residual_h1", "used_h1"} <= set(frame.columns)
     assert res.experiments[0].x0.index.tolist() == ["h1", "h2"]
     assert set(res.fits.index) == {"h1", "h2"}
+    # The residual tests named by the model's outputs and inputs, with riccatid's p-values and dof.
+    diag = res.experiments[0].diagnostics
+    assert diag.whiteness.index.tolist() == ["h1", "h2"]
+    assert diag.independence.index.tolist() == [("h1", "F1"), ("h1", "F2"), ("h2", "F1"), ("h2", "F2")]
+    assert (diag.whiteness["dof"] == diag.lags).all()
+    for table in (diag.whiteness, diag.independence):
+        assert table["p_value"].dropna().between(0, 1).all()
+        assert ((table["p_value"] < 0.05) == (table["verdict"] == "fail")).all()
+    assert diag.whiteness["p_value"].notna().all()
 
 
 def test_refusals_carry_the_code_and_message(client, two_tank_csv):

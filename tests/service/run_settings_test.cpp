@@ -132,6 +132,27 @@ TEST(RunSettings, AnInitialStateLeftOutStartsAtTheFirstMeasurement) {
   EXPECT_NE(short_x0.status().message().find("initial_state.x0"), std::string::npos) << short_x0.status().message();
 }
 
+// The methods' table and the API's enum name the same methods, each once.
+TEST(RunSettings, EveryIdentificationMethodOfTheApiIsARowOfTheTableAndBack) {
+  const auto& descriptor = *v1::IdentificationMethod_descriptor();
+  std::set<std::string> rows;
+  for (const IdentificationMethodInfo& info : identification_methods()) {
+    EXPECT_TRUE(rows.insert(std::string(info.name)).second) << info.name << " twice";
+    EXPECT_EQ(&identification_method_info(info.method), &info);
+    EXPECT_NE(api::find_enum_value(descriptor, info.name), nullptr) << info.name << " has no value in the API";
+    EXPECT_TRUE(info.iterated_filter != info.optimiser) << info.name << ": passes or an optimiser, one of the two";
+  }
+  for (const auto* value : api::enum_choices(descriptor)) {
+    IdentificationMethod method{};
+    const Status mapped =
+        enum_from_proto(value->number(), descriptor, &parse_identification_method, "method", &method);
+    ASSERT_TRUE(mapped.is_ok()) << value->name() << ": " << mapped.message();
+    EXPECT_EQ(identification_method_name(method), api::enum_value_name(*value));
+  }
+  EXPECT_EQ(parse_identification_method("pem").status().message(),
+            "unknown identification method \"pem\" (expected filter, oe, ml)");
+}
+
 // ------------------------------------------------------------ the settings schema (riccati.v1.setting)
 
 double number(const std::string& text) { return std::stod(text); }

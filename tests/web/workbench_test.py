@@ -309,6 +309,37 @@ class Workbench(WorkbenchCase):
         self.assert_plots_drawn("#overlay", 2)
         self.shot("identify-result")
 
+    def test_4b_estimation_diagnostics(self):
+        # Output error on the noisy record, from the truth: the residual tests a
+        # table each, rows by the model's names, p-values and dof as the API sends them.
+        noisy = self.upload(os.path.join(ARGS.source_dir, "tests", "data", "two_tank_noisy.csv"), "two_tank_noisy.csv")
+        self.go(f"identify?dataset={noisy}&model=two_tank")
+        self.find('[data-flag="--method"]')
+        self.fill_settings([("--method", "oe"), ("--theta0", "10,5,0.0791,0.1342")])
+        self.find("#identify-submit").click()
+        job = self.wait_job()
+        d = self.api(f"/jobs/{job}/result")["estimation"]["experiments"][0]["diagnostics"]
+        white = self.find("#diag-whiteness")
+        rows = white.find_elements(By.CSS_SELECTOR, "tbody tr")
+        self.assertEqual([r.get_attribute("data-output") for r in rows], ["h1", "h2"])
+        for i, r in enumerate(rows):
+            cells = [c.text for c in r.find_elements(By.CSS_SELECTOR, "th, td")]
+            self.assertEqual(cells[0], ["h1", "h2"][i])
+            self.assertAlmostEqual(float(cells[3]), float(d["ljungBoxP"][i]), delta=abs(float(d["ljungBoxP"][i])) * 1e-2)
+            self.assertEqual(cells[4], str(d["ljungBoxDof"]))
+            self.assertIn(cells[5], ("pass", "fail"))
+        pairs = self.find("#diag-inputs").find_elements(By.CSS_SELECTOR, "tbody tr")
+        self.assertEqual([(r.get_attribute("data-output"), r.get_attribute("data-input")) for r in pairs],
+                         [("h1", "F1"), ("h1", "F2"), ("h2", "F1"), ("h2", "F2")])
+        self.assertNotIn("output 1", self.find("#diagnostics").text)
+        # A table that wraps within the page, not a line running off it.
+        page = self.driver.execute_script("return document.documentElement.clientWidth")
+        for table in self.driver.find_elements(By.CSS_SELECTOR, "#diagnostics table"):
+            self.assertLessEqual(table.rect["x"] + table.rect["width"], page)
+        self.shot("estimation-result")
+        if ARGS.screenshots:
+            self.find("#diagnostics").screenshot(os.path.join(ARGS.screenshots, "workbench-diagnostics.png"))
+
     def test_5_validate(self):
         self.go(f"jobs/{Workbench.job}")
         self.find("#validate-link").click()

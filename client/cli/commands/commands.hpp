@@ -50,6 +50,9 @@ int dataset_for(Client& c, const std::string& data, const std::vector<std::strin
                 const std::vector<std::string>& outputs, std::string* id, const std::string& model = "");
 
 int identify(Client& c, const RunSettings& s, bool wait);
+// `riccati settings`: every request's settings from the proto's schema, as
+// `format` says: table, json (GET /api/v1/schema's) or markdown (docs/settings.md).
+int settings_reference(const std::string& format);
 int sessions_list(Client& c);
 int session_show(Client& c, const std::string& id);
 int session_close(Client& c, const std::string& id);

@@ -108,6 +108,14 @@ double chi_square_quantile(double p, double dof) {
   return boost::math::quantile(distribution, p);
 }
 
+double chi_square_p_value(double x, double dof) {
+  if (std::isnan(x) || !std::isfinite(dof) || !(dof > 0.0)) return std::numeric_limits<double>::quiet_NaN();
+  if (x <= 0.0) return 1.0;
+  if (x == std::numeric_limits<double>::infinity()) return 0.0;
+  const boost::math::chi_squared_distribution<double, NoThrowPolicy> distribution(dof);
+  return boost::math::cdf(boost::math::complement(distribution, x));
+}
+
 Result<ResidualDiagnostics> diagnose_residuals(const Eigen::MatrixXd& residuals, const Eigen::MatrixXd& inputs,
                                                const Eigen::VectorXd* nis) {
   const Index ny = residuals.rows();
@@ -169,6 +177,7 @@ Result<ResidualDiagnostics> diagnose_residuals(const Eigen::MatrixXd& residuals,
     d.ljung_box(i) = samples * (samples + 2.0) * q;
   }
   d.ljung_box_limit = chi_square_quantile(kLevel, h);
+  d.ljung_box_p = d.ljung_box.unaryExpr([h](double q) { return chi_square_p_value(q, h); });
 
   // Cross-correlations at lags -h..h, and per pair S = N r' G^+ r over lags
   // 0..h (the header says why that statistic). G's eigen decomposition is
@@ -177,6 +186,7 @@ Result<ResidualDiagnostics> diagnose_residuals(const Eigen::MatrixXd& residuals,
   d.cross_statistic.resize(ny * nu);
   d.cross_dof.resize(ny * nu);
   d.cross_limit.resize(ny * nu);
+  d.cross_p.resize(ny * nu);
   Eigen::VectorXd r(h + 1);
   for (Index j = 0; j < nu; ++j) {
     const Series input = u.col(j);
@@ -200,6 +210,7 @@ Result<ResidualDiagnostics> diagnose_residuals(const Eigen::MatrixXd& residuals,
           rank > 0 ? samples * ((basis.transpose() * r).array().square() / scales.array()).sum() : 0.0;
       d.cross_dof(pair) = rank;
       d.cross_limit(pair) = limit;
+      d.cross_p(pair) = rank > 0 ? chi_square_p_value(d.cross_statistic(pair), rank) : 1.0;
     }
   }
 
@@ -210,6 +221,13 @@ Result<ResidualDiagnostics> diagnose_residuals(const Eigen::MatrixXd& residuals,
     d.nis_mean = nis->mean();
     d.nis_lower = chi_square_quantile(0.025, dof) / samples;
     d.nis_upper = chi_square_quantile(0.975, dof) / samples;
+    d.nis_dof = dof;
+    // Both tails computed directly (1 - upper would lose a small lower tail's digits).
+    const boost::math::chi_squared_distribution<double, NoThrowPolicy> distribution(dof);
+    const double x = samples * d.nis_mean;
+    const double lower = boost::math::cdf(distribution, x);
+    const double upper = boost::math::cdf(boost::math::complement(distribution, x));
+    d.nis_p = std::min(1.0, 2.0 * std::min(lower, upper));
   }
   return d;
 }
@@ -251,7 +269,8 @@ std::string ResidualDiagnostics::summary() const {
       text += " (constant residual: no correlation)";
     } else {
       const Index outside = (autocorrelation.row(i).array().abs() > band).count();
-      text += " (" + std::to_string(outside) + " of " + std::to_string(lags) + " lags outside +-" + number(band) + ")";
+      text += " (p = " + number(ljung_box_p(i), 3) + ", " + std::to_string(outside) + " of " + std::to_string(lags) +
+              " lags outside +-" + number(band) + ")";
     }
   }
   text += ": " + verdict(white()) + "\n";
@@ -266,7 +285,8 @@ std::string ResidualDiagnostics::summary() const {
     if (constant_input(pair % nu)) {
       text += " (constant input: no correlation)";
     } else {
-      text += " (limit " + number(cross_limit(pair)) + ", " + std::to_string(cross_dof(pair)) + " dof)";
+      text += " (limit " + number(cross_limit(pair)) + ", " + std::to_string(cross_dof(pair)) +
+              " dof, p = " + number(cross_p(pair), 3) + ")";
     }
   }
   text += ": " + verdict(uncorrelated_with_inputs()) + "\n";
@@ -277,7 +297,8 @@ std::string ResidualDiagnostics::summary() const {
     const Index ny = ljung_box.size();
     text += "noise consistency (mean NIS over " + std::to_string(samples) + " samples, 95 % band chi2(" +
             std::to_string(samples * ny) + ") / N = [" + number(nis_lower) + ", " + number(nis_upper) +
-            "]): " + number(nis_mean) + ": " + verdict(nis_consistent()) + "\n";
+            "]): " + number(nis_mean) + " (p = " + number(nis_p, 3) + ", two-sided): " + verdict(nis_consistent()) +
+            "\n";
   }
   return text;
 }

@@ -46,6 +46,7 @@ struct ResidualDiagnostics {
   Eigen::MatrixXd autocorrelation;  // [ny x h], rho_i(tau), tau = 1..h
   Eigen::VectorXd ljung_box;        // [ny], Q_i = N (N + 2) sum_{tau=1..h} rho_i(tau)^2 / (N - tau)
   double ljung_box_limit = 0.0;     // the chi-square(h) 95 % quantile
+  Eigen::VectorXd ljung_box_p;      // [ny], P(chi-square(h) >= Q_i); the test's degrees of freedom are h (`lags`)
 
   Eigen::MatrixXd cross_correlation;  // [(ny nu) x (2h + 1)]: output i against input j (row i*nu + j), column tau + h
                                       // for lags -h..h
@@ -63,6 +64,7 @@ struct ResidualDiagnostics {
   Eigen::VectorXi cross_dof;        // [ny nu], rank(G): h + 1 for an input that varies (its zero-filled lags are
                                     // independent), 0 for a constant one
   Eigen::VectorXd cross_limit;      // [ny nu], the chi-square(cross_dof) 95 % quantile (0 when cross_dof is 0)
+  Eigen::VectorXd cross_p;          // [ny nu], P(chi-square(cross_dof) >= S); 1 when cross_dof is 0 (not tested)
 
   Eigen::Array<bool, Eigen::Dynamic, 1> constant_residual;  // [ny]: no variation; its correlations are 0
   Eigen::Array<bool, Eigen::Dynamic, 1> constant_input;     // [nu]: likewise
@@ -70,6 +72,9 @@ struct ResidualDiagnostics {
   double nis_mean = std::numeric_limits<double>::quiet_NaN();   // mean NIS when given (NaN otherwise)
   double nis_lower = std::numeric_limits<double>::quiet_NaN();  // its 95 % band: chi-square(N ny) 2.5 % and 97.5 %
   double nis_upper = std::numeric_limits<double>::quiet_NaN();  // quantiles over N (NaN when no NIS is given)
+  double nis_dof = 0.0;  // N ny: the degrees of freedom of N times the mean NIS (0 when no NIS is given)
+  // Two-sided, as the band: 2 min(P(X <= N mean), P(X >= N mean)), X chi-square(N ny); NaN when no NIS is given.
+  double nis_p = std::numeric_limits<double>::quiet_NaN();
 
   // Verdicts. Each test is at 95 % on its own: with several outputs or pairs,
   // the chance that a correct model fails one of them is 1 - 0.95^m.
@@ -98,5 +103,11 @@ Result<ResidualDiagnostics> diagnose_residuals(const Eigen::MatrixXd& residuals,
 // (Boost.Math). Never throws: 0 for p = 0, +inf for p = 1, NaN for p outside
 // [0, 1], dof <= 0 or a non-finite argument.
 double chi_square_quantile(double p, double dof);
+
+// P(X >= x) for X chi-square with `dof` degrees of freedom: the p-value of a
+// statistic x (Boost.Math, the complement computed directly, so that small
+// p-values keep their digits). Never throws: 1 for x <= 0, 0 for x = +inf,
+// NaN for dof <= 0 or a NaN argument.
+double chi_square_p_value(double x, double dof);
 
 }  // namespace riccati

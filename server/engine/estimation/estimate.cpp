@@ -11,20 +11,39 @@ namespace {
 
 }  // namespace
 
-const char* identification_method_name(IdentificationMethod method) {
-  switch (method) {
-    case IdentificationMethod::kFilter: return "filter";
-    case IdentificationMethod::kOutputError: return "oe";
-    case IdentificationMethod::kMaxLikelihood: return "ml";
+std::span<const IdentificationMethodInfo> identification_methods() {
+  static constexpr IdentificationMethodInfo kMethods[] = {
+      {IdentificationMethod::kFilter, "filter",
+       "the iterated filter of the 1999 toolbox: passes of the EKF, UKF or optimal filter, the parameters as states",
+       true, false, false},
+      {IdentificationMethod::kOutputError, "oe",
+       "output error: the simulated outputs' weighted squared errors minimised (exact sensitivities)", false, true,
+       false},
+      {IdentificationMethod::kMaxLikelihood, "ml",
+       "maximum likelihood: the negative log-likelihood of the CD-EKF's or CD-UKF's innovations minimised", false,
+       true, true},
+  };
+  return kMethods;
+}
+
+const IdentificationMethodInfo& identification_method_info(IdentificationMethod method) {
+  for (const IdentificationMethodInfo& info : identification_methods()) {
+    if (info.method == method) return info;
   }
-  return "unknown";
+  return identification_methods().front();  // unreachable: every enumerator has its row (a test checks)
+}
+
+const char* identification_method_name(IdentificationMethod method) {
+  return identification_method_info(method).name.data();
 }
 
 Result<IdentificationMethod> parse_identification_method(std::string_view name) {
-  for (auto m : {IdentificationMethod::kFilter, IdentificationMethod::kOutputError, IdentificationMethod::kMaxLikelihood}) {
-    if (name == identification_method_name(m)) return m;
+  std::string names;
+  for (const IdentificationMethodInfo& info : identification_methods()) {
+    if (name == info.name) return info.method;
+    names += (names.empty() ? "" : ", ") + std::string(info.name);
   }
-  return invalid_argument("unknown identification method \"" + std::string(name) + "\" (expected filter, oe or ml)");
+  return invalid_argument("unknown identification method \"" + std::string(name) + "\" (expected " + names + ")");
 }
 
 ParameterSettings default_parameters(const Model& model, Eigen::VectorXd theta0) {

@@ -12,6 +12,7 @@
 
 #include <Eigen/Core>
 #include <functional>
+#include <span>
 #include <stop_token>
 #include <string>
 #include <vector>
@@ -29,6 +30,26 @@ namespace riccati {
 // maximum likelihood (max_likelihood.hpp). Named "filter", "oe", "ml" (the
 // API's and the CLI's names).
 enum class IdentificationMethod { kFilter, kOutputError, kMaxLikelihood };
+
+// The methods, described once (as filter_kinds() describes the filters):
+// what the service sizes, runs and reports follows from a method's row, not
+// from switches on the method in several files.
+struct IdentificationMethodInfo {
+  IdentificationMethod method;
+  std::string_view name;     // "filter", "oe", "ml": the API's short names
+  std::string_view summary;  // what it is, in a line
+  // Its estimate is the iterated filter's passes (else passes may only find
+  // an optimiser's start: init_passes).
+  bool iterated_filter;
+  // An optimiser over the records: iterations, a cost, an EstimationResult.
+  bool optimiser;
+  // The optimiser's criterion runs a filter as the predictor (the filter
+  // settings are the model of the noise, not only of a start).
+  bool filter_predictor;
+};
+
+std::span<const IdentificationMethodInfo> identification_methods();
+const IdentificationMethodInfo& identification_method_info(IdentificationMethod method);
 const char* identification_method_name(IdentificationMethod method);
 Result<IdentificationMethod> parse_identification_method(std::string_view name);
 

@@ -30,7 +30,7 @@
 // those of N x N instantiated per N (fixed_size.hpp), and D'VD is solved by
 // a Cholesky factorisation instantiated per P. At these sizes Eigen's
 // products (blocked, with packing, or coefficient-wise) and its triangular
-// solves cost several times the arithmetic (docs/benchmarks.md). The
+// solves cost several times the arithmetic (docs/benchmarks-log.md). The
 // split-step update, once a sample, keeps Eigen's coefficient-wise products.
 //
 // In the Filter interface, predict() integrates with the outputs held at the

@@ -2,7 +2,7 @@
 // definite matrix (the EKF's and UKF's innovation covariance S, ny x ny; the
 // optimal filter's D'VD, P x P). At these sizes (2 to 6) Eigen's LLT and
 // its triangular solves, blocked for large matrices, cost several times the
-// arithmetic (docs/benchmarks.md). Private to filters/.
+// arithmetic (docs/benchmarks-log.md). Private to filters/.
 #pragma once
 
 #include <cmath>

@@ -113,6 +113,41 @@ OptimizerSettings optimizer_from_proto(const v1::EstimationSettings& e) {
   return o;
 }
 
+// Output error: the model simulated with the filter's hold and integrator.
+Status output_error_from_proto(const v1::EstimationSettings& est, const OptimizerSettings& optimizer,
+                               const Model& model, IdentificationJob* job) {
+  job->output_error.simulation.hold = job->filter.filter.hold;
+  job->output_error.simulation.integrator = job->filter.filter.integrator;
+  if (est.output_sigma_size() != 0) {
+    RICCATI_ASSIGN_OR_RETURN(job->output_error.output_sigma,
+                             from_values(est.output_sigma(), model.ny(), "estimation.output_sigma"));
+    if (!(job->output_error.output_sigma.array() > 0.0).all()) {
+      return invalid_argument("estimation.output_sigma must be positive");
+    }
+  }
+  job->output_error.optimizer = optimizer;
+  return Status::ok();
+}
+
+// Maximum likelihood: the filter is the predictor.
+Status max_likelihood_from_proto(const v1::EstimationSettings& est, const OptimizerSettings& optimizer,
+                                 const Model& model, IdentificationJob* job) {
+  if (job->filter.filter.kind != FilterKind::kEkf && job->filter.filter.kind != FilterKind::kUkf) {
+    return invalid_argument("method ml predicts with the EKF or the UKF, not the " +
+                            std::string(filter_kind_name(job->filter.filter.kind)) + " filter");
+  }
+  MaxLikelihoodSettings& ml = job->max_likelihood;
+  ml.filter = job->filter.filter;
+  ml.P0x = job->filter.initial.P0.topLeftCorner(model.nx(), model.nx());
+  ml.estimate_process_noise = est.estimate_process_noise();
+  ml.estimate_measurement_noise = est.estimate_measurement_noise();
+  ml.optimizer = optimizer;
+  if (ml.estimate_process_noise && !(ml.filter.Q.diagonal().head(model.nx()).array() > 0.0).all()) {
+    return invalid_argument("estimation.estimate_process_noise needs filter.q with a positive start for every state");
+  }
+  return Status::ok();
+}
+
 Status refuse(bool given, const std::string& what, IdentificationMethod method) {
   if (!given) return Status::ok();
   return invalid_argument(what + " does not apply to method " + identification_method_name(method));
@@ -128,8 +163,9 @@ Result<IdentificationJob> identification_from_proto(const v1::IdentificationSpec
                                           &parse_identification_method, "method", &job.method));
   // What the proto's schema says of where each setting applies.
   RICCATI_RETURN_IF_ERROR(check_settings_apply(given));
-  const bool filter_method = job.method == IdentificationMethod::kFilter;
-  const bool runs_filter = filter_method || given.init_passes() > 0 || job.method == IdentificationMethod::kMaxLikelihood;
+  const IdentificationMethodInfo& method = identification_method_info(job.method);
+  const bool filter_method = method.iterated_filter;
+  const bool runs_filter = filter_method || given.init_passes() > 0 || method.filter_predictor;
   v1::IdentificationSpec spec = given;
   if (!filter_method && !given.has_p0() && !given.filter().optimal().has_r0()) {
     // Output error and the likelihood take P0 only for the filter passes
@@ -193,34 +229,17 @@ Result<IdentificationJob> identification_from_proto(const v1::IdentificationSpec
   }
   const v1::EstimationSettings& est = spec.estimation();
   const OptimizerSettings optimizer = optimizer_from_proto(est);
-  if (job.method == IdentificationMethod::kOutputError) {
-    job.output_error.simulation.hold = job.filter.filter.hold;
-    job.output_error.simulation.integrator = job.filter.filter.integrator;
-    if (est.output_sigma_size() != 0) {
-      RICCATI_ASSIGN_OR_RETURN(job.output_error.output_sigma,
-                               from_values(est.output_sigma(), model.ny(), "estimation.output_sigma"));
-      if (!(job.output_error.output_sigma.array() > 0.0).all()) {
-        return invalid_argument("estimation.output_sigma must be positive");
-      }
-    }
-    job.output_error.optimizer = optimizer;
-    return job;
+  switch (job.method) {
+    case IdentificationMethod::kOutputError:
+      RICCATI_RETURN_IF_ERROR(output_error_from_proto(est, optimizer, model, &job));
+      return job;
+    case IdentificationMethod::kMaxLikelihood:
+      RICCATI_RETURN_IF_ERROR(max_likelihood_from_proto(est, optimizer, model, &job));
+      return job;
+    case IdentificationMethod::kFilter:
+      break;
   }
-  // Maximum likelihood: the filter is the predictor.
-  if (job.filter.filter.kind != FilterKind::kEkf && job.filter.filter.kind != FilterKind::kUkf) {
-    return invalid_argument("method ml predicts with the EKF or the UKF, not the " +
-                            std::string(filter_kind_name(job.filter.filter.kind)) + " filter");
-  }
-  MaxLikelihoodSettings& ml = job.max_likelihood;
-  ml.filter = job.filter.filter;
-  ml.P0x = job.filter.initial.P0.topLeftCorner(model.nx(), model.nx());
-  ml.estimate_process_noise = est.estimate_process_noise();
-  ml.estimate_measurement_noise = est.estimate_measurement_noise();
-  ml.optimizer = optimizer;
-  if (ml.estimate_process_noise && !(ml.filter.Q.diagonal().head(model.nx()).array() > 0.0).all()) {
-    return invalid_argument("estimation.estimate_process_noise needs filter.q with a positive start for every state");
-  }
-  return job;
+  return internal_error(std::string("method ") + identification_method_name(job.method) + " has no optimiser");
 }
 
 Status check_against_datasets(const IdentificationJob& job, const std::vector<DatasetRecord>& records,
@@ -266,7 +285,8 @@ double experiment_fit_values(double samples, double nx, double ny, double nu) {
   const double h = std::min(20.0, std::floor(samples / 4));
   const double per_sample = samples * (1 + 4 * ny);
   const double fits = 8 * ny;                                            // OutputFit per output
-  const double diagnostics = ny * h + ny + ny * nu * (2 * h + 1) + 3 * ny * nu + 8;
+  // (statistic, limit, p-value and dof: each a double's worth at most)
+  const double diagnostics = ny * h + 2 * ny + ny * nu * (2 * h + 1) + 5 * ny * nu + 11;
   const double summary = (ny + ny * nu + 1) * 16;  // a line per test, ~128 bytes: in doubles' worth
   return per_sample + 3 * nx + fits + diagnostics + summary;
 }
@@ -287,15 +307,16 @@ ResultSize estimated_result_size(const IdentificationJob& job, const std::vector
   ResultSize size;
   size.smaller = "fewer passes, or a shorter sample range (first_sample, end_sample)";
   double values = name_values;
-  if (job.method == IdentificationMethod::kFilter || job.init_passes > 0) {
-    const int passes = job.method == IdentificationMethod::kFilter ? job.filter.passes : job.init_passes;
+  const IdentificationMethodInfo& method = identification_method_info(job.method);
+  if (method.iterated_filter || job.init_passes > 0) {
+    const int passes = method.iterated_filter ? job.filter.passes : job.init_passes;
     // Each pass's theta trace and summary (final, mean, std, innovation RMS);
     // t, x_trace, y_model and innovations once.
     values += passes * (ntheta * first + 3 * ntheta + ny) + first * (1 + nx + 2 * ny) + 3 * ntheta;
     size.what = std::to_string(passes) + " passes x " + std::to_string(model.ntheta()) + " parameters x " +
                 std::to_string(end - job.filter.first_sample) + " samples of estimate traces";
   }
-  if (job.method != IdentificationMethod::kFilter) {
+  if (method.optimiser) {
     // The estimate: values, deviations, intervals, covariance and
     // correlation, the cost after each iteration, noise levels (ML).
     const int iterations = job.method == IdentificationMethod::kOutputError

@@ -64,6 +64,12 @@ v1::Diagnostics to_proto(const ResidualDiagnostics& d) {
   out.set_uncorrelated_with_inputs(d.uncorrelated_with_inputs());
   out.set_nis_consistent(d.nis_consistent());
   out.set_summary(d.summary());
+  out.set_ljung_box_dof(static_cast<uint32_t>(d.lags));
+  copy_values(d.ljung_box_p, out.mutable_ljung_box_p());
+  for (int dof : d.cross_dof) out.add_cross_dof(static_cast<uint32_t>(dof));
+  copy_values(d.cross_p, out.mutable_cross_p());
+  out.set_nis_dof(static_cast<uint64_t>(d.nis_dof));
+  out.set_nis_p(d.nis_p);
   return out;
 }
 

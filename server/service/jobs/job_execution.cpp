@@ -151,12 +151,13 @@ Result<std::string> execute_identification(const JobRecord& job, const JobExecut
   result.set_job_id(job.id);
 
   // The iterated filter: the method, or the passes that find OE's or ML's start.
+  const IdentificationMethodInfo& method = identification_method_info(plan.method);
   std::optional<IdentificationResult> passes;
-  if (plan.method == IdentificationMethod::kFilter || plan.init_passes > 0) {
+  if (method.iterated_filter || plan.init_passes > 0) {
     RICCATI_ASSIGN_OR_RETURN(plan.filter.mask, make_mask(plan.experiments.front().mask, first, *model));
     RICCATI_ASSIGN_OR_RETURN(const std::unique_ptr<PassHooks> hooks, pass_hooks(job, run, *model));
     RICCATI_ASSIGN_OR_RETURN(passes, identify(model, first, plan.filter, hooks->hooks));
-    if (plan.method == IdentificationMethod::kFilter) {
+    if (method.iterated_filter) {
       warn_outside_bounds(plan.parameters, &*passes);
       passes->warnings.insert(passes->warnings.begin(), jacobian_warnings.begin(), jacobian_warnings.end());
       *result.mutable_identification() = to_proto(*passes);
@@ -196,18 +197,26 @@ Result<std::string> execute_identification(const JobRecord& job, const JobExecut
     };
   }
   v1::EstimationResult* out = result.mutable_estimation();
-  if (plan.method == IdentificationMethod::kOutputError) {
-    plan.output_error.parameters = plan.parameters;
-    RICCATI_ASSIGN_OR_RETURN(const EstimationResult r, output_error(model, experiments, plan.output_error, hooks));
-    *out = to_proto(r, plan.method, dataset_ids);
-  } else {
-    plan.max_likelihood.parameters = plan.parameters;
-    RICCATI_ASSIGN_OR_RETURN(const MaxLikelihoodResult r, max_likelihood(model, experiments, plan.max_likelihood, hooks));
-    *out = to_proto(r.estimate, plan.method, dataset_ids);
-    copy_values(r.noise.q, out->mutable_process_noise());
-    copy_values(r.noise.q_std, out->mutable_process_noise_std());
-    copy_values(r.noise.r, out->mutable_measurement_noise());
-    copy_values(r.noise.r_std, out->mutable_measurement_noise_std());
+  switch (plan.method) {
+    case IdentificationMethod::kOutputError: {
+      plan.output_error.parameters = plan.parameters;
+      RICCATI_ASSIGN_OR_RETURN(const EstimationResult r, output_error(model, experiments, plan.output_error, hooks));
+      *out = to_proto(r, plan.method, dataset_ids);
+      break;
+    }
+    case IdentificationMethod::kMaxLikelihood: {
+      plan.max_likelihood.parameters = plan.parameters;
+      RICCATI_ASSIGN_OR_RETURN(const MaxLikelihoodResult r,
+                               max_likelihood(model, experiments, plan.max_likelihood, hooks));
+      *out = to_proto(r.estimate, plan.method, dataset_ids);
+      copy_values(r.noise.q, out->mutable_process_noise());
+      copy_values(r.noise.q_std, out->mutable_process_noise_std());
+      copy_values(r.noise.r, out->mutable_measurement_noise());
+      copy_values(r.noise.r_std, out->mutable_measurement_noise_std());
+      break;
+    }
+    case IdentificationMethod::kFilter:  // returned with its passes above
+      return internal_error("job " + job.id + ": the filter method reached the optimiser");
   }
   if (passes) *out->mutable_init_passes() = to_proto(*passes);
   for (const std::string& w : jacobian_warnings) out->add_warnings(w);

@@ -134,7 +134,7 @@ Result<JobRecord> JobManager::submit_identification(const std::string& tenant, c
   job.id = new_id("job");
   job.tenant = tenant;
   job.kind = JobKind::kIdentification;
-  job.passes = plan.method == IdentificationMethod::kFilter ? plan.filter.passes : plan.init_passes;
+  job.passes = identification_method_info(plan.method).iterated_filter ? plan.filter.passes : plan.init_passes;
   job.samples = datasets.front().samples;
   job.spec = with_model(spec, resolved.reference);
   job.model = resolved.reference;

@@ -191,7 +191,7 @@ class SessionServiceImpl::StreamReactor final : public grpc::ServerBidiReactor<g
   // takes long enough to filter that reading the next one beside it pays.
   // After a smaller one the next read waits until the stream is idle, as a
   // read beside the write cost streams of one measurement a message latency
-  // (400 Hz sessions: p50 +15 %, docs/benchmarks.md).
+  // (400 Hz sessions: p50 +15 %, docs/benchmarks-log.md).
   static constexpr std::size_t kReadAheadBytes = 1024;
 
   // Ends the stream from outside the pipeline (cancelled, drained, the

@@ -151,6 +151,78 @@ class IdentificationResult(_Result):
         return pd.concat(parts, axis=1)
 
 
+class Diagnostics:
+    """The residual tests of one record, each at 95 %, as riccatid computed them
+    (statistics, limits, p-values and degrees of freedom; nothing recomputed here).
+
+    - whiteness: per output, Ljung-Box Q over lags 1..h (a DataFrame by output)
+    - independence: per output and input, N R^2 of the residual on the input at
+      lags 0..h (by (output, input)); dof 0 and no p-value for a constant input
+    - nis: the mean NIS against its two-sided band (one row; empty without a NIS)
+    - to_frame(): the three in one frame, a row per test, with a "test" column
+    - white, uncorrelated_with_inputs, nis_consistent, passed: the verdicts
+    - summary: riccatid's text, one line per test
+
+    Each frame has the columns statistic, limit, p_value, dof and verdict ("pass"
+    or "fail"); NIS's limit is its band's upper end, with lower beside it.
+    """
+
+    def __init__(self, message, output_names, input_names):
+        d = message
+        self.proto = d
+        outputs = _names(output_names, len(d.ljung_box), "y")
+        ny = len(outputs)
+        nu = len(d.cross_statistic) // ny if ny else 0
+        inputs = _names(input_names, nu, "u")
+        self.samples, self.lags, self.band = d.samples, d.lags, d.band
+
+        def verdict(ok):
+            return "pass" if ok else "fail"
+
+        def column(values, count):  # a stored result from before riccatid sent them: NaN
+            values = list(values)
+            return values if len(values) == count else [np.nan] * count
+
+        self.whiteness = pd.DataFrame(
+            {"statistic": list(d.ljung_box), "limit": [d.ljung_box_limit] * ny,
+             "p_value": column(d.ljung_box_p, ny), "dof": [d.ljung_box_dof or np.nan] * ny,
+             "verdict": [verdict(q <= d.ljung_box_limit) for q in d.ljung_box]},
+            index=pd.Index(outputs, name="output"))
+        pairs = ny * nu
+        limits = list(d.cross_limit)
+        tested = [limit > 0 for limit in limits]  # a constant input has no limit, 0 dof: not tested
+        self.independence = pd.DataFrame(
+            {"statistic": list(d.cross_statistic), "limit": limits,
+             "p_value": [p if t else np.nan for p, t in zip(column(d.cross_p, pairs), tested)],
+             "dof": column(d.cross_dof, pairs),
+             "verdict": [verdict(not t or s <= limit) for s, limit, t in zip(d.cross_statistic, limits, tested)]},
+            index=pd.MultiIndex.from_tuples([(outputs[k // nu], inputs[k % nu]) for k in range(pairs)],
+                                            names=["output", "input"]))
+        has_nis = bool(np.isfinite(d.nis_mean))
+        self.nis = pd.DataFrame(
+            {"statistic": [d.nis_mean], "lower": [d.nis_lower], "limit": [d.nis_upper],
+             "p_value": [d.nis_p if d.nis_dof else np.nan], "dof": [d.nis_dof or np.nan],
+             "verdict": [verdict(d.nis_consistent)]} if has_nis else
+            {c: [] for c in ("statistic", "lower", "limit", "p_value", "dof", "verdict")},
+            index=pd.Index(["mean NIS"] if has_nis else [], name="test"))
+        self.white, self.uncorrelated_with_inputs = d.white, d.uncorrelated_with_inputs
+        self.nis_consistent = d.nis_consistent
+        self.passed = self.white and self.uncorrelated_with_inputs and self.nis_consistent
+        self.summary = d.summary
+
+    def to_frame(self):
+        """A row per test: test ("whiteness", "independence", "nis"), output, input
+        (empty where the test has none), statistic, limit, p_value, dof, verdict."""
+        columns = ["test", "output", "input", "statistic", "limit", "p_value", "dof", "verdict"]
+        w = self.whiteness.reset_index().assign(test="whiteness", input="")
+        i = self.independence.reset_index().assign(test="independence")
+        n = self.nis.reset_index(drop=True).assign(test="nis", output="", input="")
+        return pd.concat([w[columns], i[columns], n[columns]], ignore_index=True)
+
+    def __repr__(self):
+        return self.to_frame().to_string(index=False)
+
+
 class ExperimentFit(_Result):
     """What an output-error or likelihood estimate does on one record."""
 
@@ -162,7 +234,9 @@ class ExperimentFit(_Result):
         self.x0 = pd.Series(list(e.x0), index=states, name="x0")
         self.x0_std = pd.Series(list(e.x0_std), index=states[:len(e.x0_std)], name="std")
         self.fits = _fits(e.fits)
-        self.diagnostics = e.diagnostics
+        # named by the fits' outputs (else the model's) and the model's inputs
+        self.diagnostics = Diagnostics(e.diagnostics, [f.name for f in e.fits] or model.output_names,
+                                       model.input_names)
 
     def to_frame(self):
         """By sample: each output measured, the model's, the normalised residual and whether it was used."""

@@ -157,10 +157,50 @@ async function estimation(el, job, r, model, signal) {
     });
     const d = x.diagnostics;
     if (d && d.autocorrelation) {
-      el.append(h('h3', {}, 'Diagnostics'), h('pre', {}, d.summary || ''));
+      el.append(h('h3', {}, `Residual diagnostics, record ${e + 1}`), diagnosticsTables(d, outputs, model.inputNames || [], e === 0));
       acfPlots(el, outputs, (i) => row(d.autocorrelation, i), num(d.band), num(d.lags));
     }
   });
+}
+
+// The residual tests of one record, a table each, rows by the model's
+// outputs and inputs: statistic, limit, p-value and degrees of freedom as
+// riccatid computed them (nothing recomputed here), and the verdict.
+function diagnosticsTables(d, outputs, inputs, first) {  // first: the ids, once a page
+  const ny = (d.ljungBox || []).length, stats = d.crossStatistic || [];
+  const nu = ny ? stats.length / ny : 0;
+  const name = (names, i, prefix) => names[i] || `${prefix}${i + 1}`;
+  const p = (v) => (Number.isFinite(num(v)) ? fmt(v, 3) : '–');
+  const dof = (v) => (num(v) > 0 ? String(num(v)) : '–');  // absent in a result stored before riccatid sent it
+  const verdict = (pass) => h('td', {class: pass ? 'ok verdict' : 'warn verdict'}, pass ? 'pass' : 'fail');
+  const table = (id, caption, heads, rows) => h('table', {id: first ? id : null, class: 'diagnostics'}, h('caption', {}, caption),
+    h('thead', {}, h('tr', {}, heads.map(([t, c]) => h('th', {class: c}, t)))), h('tbody', {}, rows));
+  const numbers = ['Limit', 'p-value', 'dof'].map((t) => [t, 'num']);
+  const limit = num(d.ljungBoxLimit);
+  const tables = [table('diag-whiteness', `Whiteness: Ljung-Box Q over lags 1…${num(d.lags)}`,
+    [['Output'], ['Q', 'num'], ...numbers, ['Verdict']],
+    (d.ljungBox || []).map((q, i) => h('tr', {'data-output': name(outputs, i, 'y')}, h('th', {}, name(outputs, i, 'y')),
+      h('td', {class: 'num'}, fmt(q)), h('td', {class: 'num'}, fmt(limit)), h('td', {class: 'num'}, p((d.ljungBoxP || [])[i])),
+      h('td', {class: 'num'}, dof(d.ljungBoxDof)), verdict(num(q) <= limit))))];
+  if (nu > 0) {
+    tables.push(table('diag-inputs', `Independence from the inputs: N R² of the residual on the input at lags 0…${num(d.lags)}`,
+      [['Output'], ['Input'], ['S', 'num'], ...numbers, ['Verdict']],
+      stats.map((s, k) => {
+        const lim = num((d.crossLimit || [])[k]), tested = lim > 0;  // a constant input: no limit, not tested
+        return h('tr', {'data-output': name(outputs, Math.floor(k / nu), 'y'), 'data-input': name(inputs, k % nu, 'u')},
+          h('th', {}, name(outputs, Math.floor(k / nu), 'y')), h('th', {}, name(inputs, k % nu, 'u')),
+          h('td', {class: 'num'}, fmt(s)), h('td', {class: 'num'}, tested ? fmt(lim) : 'constant input'),
+          h('td', {class: 'num'}, tested ? p((d.crossP || [])[k]) : '–'), h('td', {class: 'num'}, tested ? dof((d.crossDof || [])[k]) : '0'),
+          verdict(!tested || num(s) <= lim));
+      })));
+  }
+  if (Number.isFinite(num(d.nisMean))) {
+    tables.push(table('diag-nis', 'Noise consistency: mean NIS in its band (two-sided)',
+      [['Mean NIS', 'num'], ['Band', 'num'], ['p-value', 'num'], ['dof', 'num'], ['Verdict']],
+      [h('tr', {}, h('td', {class: 'num'}, fmt(d.nisMean)), h('td', {class: 'num'}, `${fmt(d.nisLower)} … ${fmt(d.nisUpper)}`),
+        h('td', {class: 'num'}, num(d.nisDof) > 0 ? p(d.nisP) : '–'), h('td', {class: 'num'}, dof(d.nisDof)), verdict(!!d.nisConsistent))]));
+  }
+  return h('div', {class: 'diagnostics-tables', id: first ? 'diagnostics' : null}, tables);
 }
 
 function validation(el, r, model) {

@@ -13,6 +13,7 @@
 
 #include <array>
 #include <cmath>
+#include <cstddef>
 
 namespace riccati {
 
@@ -145,6 +146,41 @@ using std::sinh;
 using std::sqrt;
 using std::tan;
 using std::tanh;
+
+// Dual numbers of a width known only at run time, stored as w consecutive
+// doubles (the value, then w - 1 derivatives), for hosts whose sizes come
+// from data (the host's text models): the operations of Dual<N> above, the
+// same formulas in the same order, on caller-given storage (no allocation).
+// Width 1 is plain doubles (a division then divides, as double arithmetic does).
+struct DualArithmetic {
+  std::size_t w;
+  void mul(const double* a, const double* b, double* out) const {  // out may not alias a or b
+    out[0] = a[0] * b[0];
+    for (std::size_t i = 1; i < w; ++i) out[i] = a[i] * b[0] + a[0] * b[i];
+  }
+  void div(const double* a, const double* b, double* out) const {
+    if (w == 1) {
+      out[0] = a[0] / b[0];
+      return;
+    }
+    const double inv = 1.0 / b[0];
+    const double q = a[0] * inv;
+    out[0] = q;
+    for (std::size_t i = 1; i < w; ++i) out[i] = (a[i] - q * b[i]) * inv;
+  }
+  void sub_from(double* a, const double* b) const {
+    for (std::size_t i = 0; i < w; ++i) a[i] -= b[i];
+  }
+  void add_to(double* a, const double* b) const {
+    for (std::size_t i = 0; i < w; ++i) a[i] += b[i];
+  }
+  void add_scaled(double* a, const double* b, double s) const {  // a += b * s (a dual times a double)
+    for (std::size_t i = 0; i < w; ++i) a[i] += b[i] * s;
+  }
+  void copy(double* a, const double* b) const {
+    for (std::size_t i = 0; i < w; ++i) a[i] = b[i];
+  }
+};
 
 inline double value_of(double a) { return a; }
 template <int N>

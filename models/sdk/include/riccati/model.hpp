@@ -182,35 +182,59 @@ concept MechanicalModel = requires { M::ndof; };
 
 namespace detail {
 
-// Solves M a = b (N x N, column-major, by value) by Gaussian elimination with
-// partial pivoting; T may be a dual number (pivots are chosen by value).
+// Gaussian elimination with partial pivoting of M a = b (n x n), the one
+// algorithm of the SDK's mechanical models (solve() below) and of the host's
+// text models (run-time sizes and dual widths), so that both pivot alike and
+// agree to rounding. `s` holds M, b and a and does their arithmetic:
+//   s.value(i, k)       the value of M(i, k) (pivots are chosen by value)
+//   s.swap(k, p)        rows k and p of M (columns k..n-1) and of b
+//   s.eliminate(i, k)   f = M(i, k) / M(k, k); M(i, j) -= f M(k, j) for j > k; b(i) -= f b(k)
+//   s.substitute(k)     a(k) = (b(k) - sum_{j > k} M(k, j) a(j)) / M(k, k)
+// False when M is singular (a zero pivot).
+template <typename System>
+bool gaussian_elimination(System& s, int n) {
+  using std::abs;
+  for (int k = 0; k < n; ++k) {
+    int pivot = k;
+    for (int i = k + 1; i < n; ++i) {
+      if (abs(s.value(i, k)) > abs(s.value(pivot, k))) pivot = i;
+    }
+    if (s.value(pivot, k) == 0.0) return false;
+    if (pivot != k) s.swap(k, pivot);
+    for (int i = k + 1; i < n; ++i) {
+      if (s.value(i, k) == 0.0) continue;  // nothing to eliminate (M is often sparse)
+      s.eliminate(i, k);
+    }
+  }
+  for (int k = n - 1; k >= 0; --k) s.substitute(k);
+  return true;
+}
+
+// Solves M a = b (N x N, column-major, by value); T may be a dual number.
 template <typename T, int N>
 std::array<T, N> solve(std::array<T, N * N> M, std::array<T, N> b) {
-  using std::abs;
-  for (int k = 0; k < N; ++k) {
-    int pivot = k;
-    for (int i = k + 1; i < N; ++i) {
-      if (abs(value_of(M[i + k * N])) > abs(value_of(M[pivot + k * N]))) pivot = i;
+  struct System {
+    std::array<T, N * N>& M;
+    std::array<T, N>& b;
+    std::array<T, N> a;
+    double value(int i, int k) const { return value_of(M[i + k * N]); }
+    void swap(int k, int p) {
+      for (int j = k; j < N; ++j) std::swap(M[k + j * N], M[p + j * N]);
+      std::swap(b[k], b[p]);
     }
-    if (value_of(M[pivot + k * N]) == 0.0) throw std::domain_error("the mass matrix M is singular");
-    if (pivot != k) {
-      for (int j = k; j < N; ++j) std::swap(M[k + j * N], M[pivot + j * N]);
-      std::swap(b[k], b[pivot]);
-    }
-    for (int i = k + 1; i < N; ++i) {
-      if (value_of(M[i + k * N]) == 0.0) continue;  // nothing to eliminate (M is often sparse)
+    void eliminate(int i, int k) {
       const T factor = M[i + k * N] / M[k + k * N];
       for (int j = k + 1; j < N; ++j) M[i + j * N] -= factor * M[k + j * N];
       b[i] -= factor * b[k];
     }
-  }
-  std::array<T, N> a;
-  for (int k = N - 1; k >= 0; --k) {
-    T sum = b[k];
-    for (int j = k + 1; j < N; ++j) sum -= M[k + j * N] * a[j];
-    a[k] = sum / M[k + k * N];
-  }
-  return a;
+    void substitute(int k) {
+      T sum = b[k];
+      for (int j = k + 1; j < N; ++j) sum -= M[k + j * N] * a[j];
+      a[k] = sum / M[k + k * N];
+    }
+  } system{M, b, {}};
+  if (!gaussian_elimination(system, N)) throw std::domain_error("the mass matrix M is singular");
+  return system.a;
 }
 
 inline void write_error(char* err, size_t err_len, const char* what) {

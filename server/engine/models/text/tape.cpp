@@ -356,7 +356,7 @@ Tape Tape::compile(const Graph& graph, const std::vector<int>& outputs, int num_
 // One switch over the common operations, inlined; the rest through
 // apply(). Each instruction reads what an earlier one stored, so a tape runs
 // at about the latency of store-to-load forwarding per instruction
-// (docs/benchmarks.md: about 2 ns); a computed goto was tried and gained
+// (docs/benchmarks-log.md: about 2 ns); a computed goto was tried and gained
 // nothing measurable.
 void Tape::run_split(double* r, std::size_t split, double* first, double* second) const {
   run(r, nullptr, 0);

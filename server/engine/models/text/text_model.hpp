@@ -2,7 +2,9 @@
 // riccati_model_v1 table (model_abi.h) whose functions run instruction tapes
 // (tape.hpp), so that Model::create takes a text model exactly as it takes a
 // plugin, and every filter, identification, validation and smoothing runs
-// on it unchanged.
+// on it unchanged. In three parts: the source's diagnostics (diagnostics.hpp),
+// the compiler (compiler.cpp, which defines compile_text_model) and the
+// runtime behind the table (runtime.hpp).
 //
 //   model: two_tank_text
 //   states:     {h1: {unit: m}, h2: {unit: m}}

@@ -1,21 +1,23 @@
-#include "engine/models/text/text_model.hpp"
-
+// The compiler of text models: the YAML read (diagnostics.hpp), every name
+// resolved (helpers sorted, cycles refused), one hash-consed graph of f and
+// g and their derivatives with respect to [x; theta] (tape.hpp), and the
+// tapes that the runtime (runtime.hpp) runs behind the model's table.
 #include <yaml-cpp/yaml.h>
 
 #include <algorithm>
-#include <charconv>
-#include <cmath>
-#include <cstdio>
-#include <cstring>
-#include <limits>
 #include <map>
 #include <memory>
 #include <set>
+#include <string>
 #include <unordered_map>
 #include <utility>
+#include <vector>
 
+#include "engine/models/text/diagnostics.hpp"
 #include "engine/models/text/expression.hpp"
+#include "engine/models/text/runtime.hpp"
 #include "engine/models/text/tape.hpp"
+#include "engine/models/text/text_model.hpp"
 
 namespace riccati {
 
@@ -23,576 +25,22 @@ namespace {
 
 using text::Ast;
 using text::AstNode;
+using text::CompiledModel;
+using text::Entry;
+using text::Expression;
 using text::Graph;
 using text::Op;
+using text::Source;
 using text::Tape;
+using text::entries;
+using text::name_list;
+using text::number;
+using text::parse;
+using text::unit_of;
+using text::valid_identifier;
+using text::valid_model_name;
 
 constexpr std::size_t kMaxDefines = 10000;
-
-// ---------------------------------------------------------------------------
-// Messages with a place: "file:line:col: what", the line, a caret.
-
-class Source {
- public:
-  Source(std::string_view text, std::string origin) : text_(text), origin_(std::move(origin)) {}
-
-  Status at_offset(std::size_t pos, const std::string& message) const {
-    pos = std::min(pos, text_.size());
-    std::size_t line_start = 0;
-    int line = 1;
-    for (std::size_t i = 0; i < pos; ++i) {
-      if (text_[i] == '\n') {
-        ++line;
-        line_start = i + 1;
-      }
-    }
-    std::size_t line_end = text_.find('\n', line_start);
-    if (line_end == std::string_view::npos) line_end = text_.size();
-    std::string line_text(text_.substr(line_start, line_end - line_start));
-    std::replace(line_text.begin(), line_text.end(), '\t', ' ');  // tabs shown as one space, as counted
-    std::string caret;
-    int column = 1;  // in characters: UTF-8 continuation bytes do not count
-    for (std::size_t i = line_start; i < pos; ++i) {
-      if ((static_cast<unsigned char>(text_[i]) & 0xc0) == 0x80) continue;
-      caret += ' ';
-      ++column;
-    }
-    caret += '^';
-    return invalid_argument(origin_ + ":" + std::to_string(line) + ":" + std::to_string(column) + ": " + message +
-                            "\n  " + line_text + "\n  " + caret);
-  }
-
-  Status at(const YAML::Mark& mark, const std::string& message) const {
-    if (mark.is_null()) return invalid_argument(origin_ + ": " + message);
-    return at_offset(static_cast<std::size_t>(mark.pos), message);
-  }
-
-  // At `offset` into the scalar `node` (an expression): exact for plain and
-  // quoted scalars on one line, the start of the scalar otherwise.
-  Status in_scalar(const YAML::Node& node, std::size_t offset, const std::string& message) const {
-    const YAML::Mark mark = node.Mark();
-    if (mark.is_null()) return invalid_argument(origin_ + ": " + message);
-    const std::string& s = node.Scalar();
-    const auto pos = static_cast<std::size_t>(mark.pos);
-    if (text_.substr(pos, s.size()) == s) return at_offset(pos + offset, message);
-    if (pos < text_.size() && (text_[pos] == '"' || text_[pos] == '\'') && text_.substr(pos + 1, s.size()) == s) {
-      return at_offset(pos + 1 + offset, message);
-    }
-    return at_offset(pos, message + " (at character " + std::to_string(offset + 1) + " of the expression)");
-  }
-
-  const std::string& origin() const { return origin_; }
-
- private:
-  std::string_view text_;
-  std::string origin_;
-};
-
-bool valid_identifier(const std::string& s) {
-  if (s.empty() || !(std::isalpha(static_cast<unsigned char>(s[0])) != 0 || s[0] == '_')) return false;
-  return std::all_of(s.begin(), s.end(), [](char c) { return std::isalnum(static_cast<unsigned char>(c)) != 0 || c == '_'; });
-}
-
-bool valid_model_name(const std::string& s) {
-  return !s.empty() && std::all_of(s.begin(), s.end(), [](char c) {
-    return (c >= 'a' && c <= 'z') || (c >= '0' && c <= '9') || c == '_';
-  });
-}
-
-// The entries of a YAML mapping in document order, keys as strings; a
-// repeated key is an error (YAML forbids it, yaml-cpp keeps both).
-struct Entry {
-  std::string key;
-  YAML::Node key_node;
-  YAML::Node value;
-};
-
-Status entries(const Source& src, const YAML::Node& map, const std::string& what, std::vector<Entry>* out) {
-  out->clear();
-  if (!map.IsDefined() || map.IsNull()) return Status::ok();
-  if (!map.IsMap()) return src.at(map.Mark(), what + " must be a mapping (name: value)");
-  std::set<std::string> seen;
-  for (auto it = map.begin(); it != map.end(); ++it) {
-    if (!it->first.IsScalar()) return src.at(it->first.Mark(), "a key of " + what + " must be a name");
-    const std::string key = it->first.Scalar();
-    if (!seen.insert(key).second) return src.at(it->first.Mark(), "\"" + key + "\" appears twice in " + what);
-    out->push_back({key, it->first, it->second});
-  }
-  return Status::ok();
-}
-
-// A list of names: a sequence of names, or a mapping name -> attributes
-// (unit, description: free text).
-Status name_list(const Source& src, const YAML::Node& node, const std::string& what, std::vector<Entry>* out) {
-  out->clear();
-  if (!node.IsDefined() || node.IsNull()) return Status::ok();
-  if (node.IsSequence()) {
-    std::set<std::string> seen;
-    for (const YAML::Node& item : node) {
-      if (!item.IsScalar()) return src.at(item.Mark(), "each of " + what + " must be a name");
-      if (!seen.insert(item.Scalar()).second) return src.at(item.Mark(), "\"" + item.Scalar() + "\" appears twice in " + what);
-      out->push_back({item.Scalar(), item, YAML::Node()});
-    }
-    return Status::ok();
-  }
-  RICCATI_RETURN_IF_ERROR(entries(src, node, what, out));
-  for (const Entry& e : *out) {
-    if (e.value.IsNull() || e.value.IsScalar()) continue;  // no attributes, or a unit alone
-    std::vector<Entry> attributes;
-    RICCATI_RETURN_IF_ERROR(entries(src, e.value, what + "." + e.key, &attributes));
-    for (const Entry& a : attributes) {
-      if (a.key != "unit" && a.key != "description") {
-        return src.at(a.key_node.Mark(), "unknown attribute \"" + a.key + "\" of " + e.key + " (unit, description)");
-      }
-    }
-  }
-  return Status::ok();
-}
-
-// The unit a name list's entry declares: `h1: m` or `h1: {unit: m}`; "" if none.
-std::string unit_of(const Entry& e) {
-  if (e.value.IsScalar()) return e.value.Scalar();
-  if (!e.value.IsMap()) return "";
-  for (const auto& attribute : e.value) {
-    if (attribute.first.IsScalar() && attribute.first.Scalar() == "unit" && attribute.second.IsScalar()) {
-      return attribute.second.Scalar();
-    }
-  }
-  return "";
-}
-
-Result<double> number(const Source& src, const YAML::Node& node, const std::string& what) {
-  if (!node.IsScalar()) return src.at(node.Mark(), what + " must be a number");
-  const std::string& s = node.Scalar();
-  double v = 0.0;
-  const char* begin = s.data();
-  if (!s.empty() && s[0] == '+') ++begin;
-  const auto [ptr, ec] = std::from_chars(begin, s.data() + s.size(), v);
-  if (ec != std::errc() || ptr != s.data() + s.size() || !std::isfinite(v)) {
-    return src.at(node.Mark(), what + " must be a finite number, not \"" + s + "\"");
-  }
-  return v;
-}
-
-// One expression of the file: where it is, its text and its tree.
-struct Expression {
-  std::string name;  // the state, output or helper it defines
-  YAML::Node key;
-  YAML::Node value;
-  Ast ast;
-};
-
-Status parse(const Source& src, const Entry& e, const std::string& what, Expression* out) {
-  out->name = e.key;
-  out->key = e.key_node;
-  out->value = e.value;
-  if (!e.value.IsScalar()) return src.at(e.value.Mark(), what + " " + e.key + " must be an expression");
-  text::ExpressionError error;
-  if (!text::parse_expression(e.value.Scalar(), &out->ast, &error)) return src.in_scalar(e.value, error.offset, error.message);
-  return Status::ok();
-}
-
-// ---------------------------------------------------------------------------
-// The compiled model behind the table.
-
-thread_local std::vector<double> tape_registers;
-
-void write_error(char* err, std::size_t err_len, const char* what) {
-  if (err != nullptr && err_len > 0) std::snprintf(err, err_len, "%s", what);
-}
-
-// Dual numbers of run-time width W = 1 + nz (value, then derivatives), the
-// operations of riccati::Dual (riccati/dual.hpp) one for one; W = 1 is plain
-// doubles (a division then divides, as double arithmetic does).
-struct Duals {
-  std::size_t w;
-  void mul(const double* a, const double* b, double* out) const {  // out may not alias a or b
-    out[0] = a[0] * b[0];
-    for (std::size_t i = 1; i < w; ++i) out[i] = a[i] * b[0] + a[0] * b[i];
-  }
-  void div(const double* a, const double* b, double* out) const {
-    if (w == 1) {
-      out[0] = a[0] / b[0];
-      return;
-    }
-    const double inv = 1.0 / b[0];
-    const double q = a[0] * inv;
-    out[0] = q;
-    for (std::size_t i = 1; i < w; ++i) out[i] = (a[i] - q * b[i]) * inv;
-  }
-  void sub_from(double* a, const double* b) const {
-    for (std::size_t i = 0; i < w; ++i) a[i] -= b[i];
-  }
-  void add_to(double* a, const double* b) const {
-    for (std::size_t i = 0; i < w; ++i) a[i] += b[i];
-  }
-  void add_scaled(double* a, const double* b, double s) const {  // a += b * s (a Dual times a double)
-    for (std::size_t i = 0; i < w; ++i) a[i] += b[i] * s;
-  }
-  void copy(double* a, const double* b) const { std::memcpy(a, b, w * sizeof(double)); }
-};
-
-class CompiledModel {
- public:
-  std::string name, version, description;
-  std::vector<std::string> states, params, inputs, outputs;
-  std::vector<const char*> state_ptrs, param_ptrs, input_ptrs, output_ptrs;
-  std::vector<std::string> state_units, param_units, input_units, output_units;  // "" where none
-  std::vector<const char*> state_unit_ptrs, param_unit_ptrs, input_unit_ptrs, output_unit_ptrs;
-  std::vector<double> theta_default, theta_lower, theta_upper;
-  Tape f, g, f_jac, g_jac;  // f_jac: f then df/dz column-major; g_jac likewise
-  int nx = 0, ntheta = 0, nu = 0, ny = 0;
-  // The mechanical form (ndof > 0): f and g come from M, h, H, g, G, R,
-  // whose values (mech) and derivatives (mech_jac: the values, then entry e
-  // of z_j at count + e + j count) the tapes give; the accelerations are
-  // solved for as the SDK does (riccati/model.hpp, detail::solve), with the
-  // same dual arithmetic for the Jacobians, so that a text model and a
-  // plugin agree to rounding.
-  int ndof = 0;
-  Tape mech, mech_jac;
-  std::size_t mech_count = 0;  // entries of M, h, H, g, G, R
-  std::size_t mech_scratch = 0;
-  std::size_t registers = 0;  // the most any tape needs, plus room for outputs
-  riccati_model_v1 table{};
-
-  void fill_table() {
-    auto ptrs = [](const std::vector<std::string>& names, std::vector<const char*>* out) {
-      for (const auto& n : names) out->push_back(n.c_str());
-    };
-    ptrs(states, &state_ptrs);
-    ptrs(params, &param_ptrs);
-    ptrs(inputs, &input_ptrs);
-    ptrs(outputs, &output_ptrs);
-    ptrs(state_units, &state_unit_ptrs);
-    ptrs(param_units, &param_unit_ptrs);
-    ptrs(input_units, &input_unit_ptrs);
-    ptrs(output_units, &output_unit_ptrs);
-    table.abi_version = RICCATI_MODEL_ABI_VERSION;
-    table.struct_size = sizeof(riccati_model_v1);
-    table.name = name.c_str();
-    table.version = version.c_str();
-    table.description = description.c_str();
-    table.nx = static_cast<uint32_t>(nx);
-    table.ntheta = static_cast<uint32_t>(ntheta);
-    table.nu = static_cast<uint32_t>(nu);
-    table.ny = static_cast<uint32_t>(ny);
-    table.state_names = state_ptrs.data();
-    table.param_names = param_ptrs.data();
-    table.input_names = nu > 0 ? input_ptrs.data() : nullptr;
-    table.output_names = output_ptrs.data();
-    table.state_units = state_unit_ptrs.data();
-    table.param_units = param_unit_ptrs.data();
-    table.input_units = nu > 0 ? input_unit_ptrs.data() : nullptr;
-    table.output_units = output_unit_ptrs.data();
-    table.theta_default = theta_default.data();
-    table.theta_lower = theta_lower.data();
-    table.theta_upper = theta_upper.data();
-    table.user_data = this;
-    table.f_ctx = &eval<true>;
-    table.g_ctx = &eval<false>;
-    table.f_jac_ctx = &jac<true>;
-    table.g_jac_ctx = &jac<false>;
-    if (ndof > 0) {
-      table.ndof = static_cast<uint32_t>(ndof);
-      table.f_ctx = &mech_eval<true>;
-      table.g_ctx = &mech_eval<false>;
-      table.f_jac_ctx = &mech_jacobian<true>;
-      table.g_jac_ctx = &mech_jacobian<false>;
-      table.mech_ctx = &mech_form;
-    }
-  }
-
- private:
-  // The registers of this thread, grown (once per size) to `n`.
-  static double* scratch(std::size_t n) {
-    if (tape_registers.size() < n) tape_registers.resize(n);
-    return tape_registers.data();
-  }
-  void load(double* r, double t, const double* u, const double* x, const double* theta, std::size_t ld,
-            std::size_t p) const {
-    for (int i = 0; i < nx; ++i) r[i] = x[static_cast<std::size_t>(i) * ld + p];
-    for (int j = 0; j < ntheta; ++j) r[nx + j] = theta[static_cast<std::size_t>(j) * ld + p];
-    for (int k = 0; k < nu; ++k) r[nx + ntheta + k] = u[k];
-    r[nx + ntheta + nu] = t;
-  }
-
-  template <bool is_f>
-  static int eval(void* self, uint32_t n, size_t ld, double t, const double* u, const double* x,
-                  const double* theta, double* out, char* err, size_t err_len) {
-    try {
-      const auto* m = static_cast<const CompiledModel*>(self);
-      const Tape& tape = is_f ? m->f : m->g;
-      if (n == 1) {
-        double* r = scratch(m->registers);
-        tape.load_constants(r);
-        m->load(r, t, u, x, theta, ld, 0);
-        tape.run(r, out, ld);
-        return 0;
-      }
-      // Points kLanes at a time, lane by lane (Tape::run_lanes).
-      constexpr std::size_t L = Tape::kLanes;
-      double* r = scratch(m->registers * L);
-      tape.load_constants_lanes(r);
-      const int nz = m->nx + m->ntheta;
-      for (int k = 0; k < m->nu; ++k) {
-        for (std::size_t j = 0; j < L; ++j) r[static_cast<std::size_t>(nz + k) * L + j] = u[k];
-      }
-      for (std::size_t j = 0; j < L; ++j) r[static_cast<std::size_t>(nz + m->nu) * L + j] = t;
-      for (std::size_t p0 = 0; p0 < n; p0 += L) {
-        const std::size_t points = std::min<std::size_t>(L, n - p0);
-        for (int i = 0; i < m->nx; ++i) {
-          for (std::size_t j = 0; j < points; ++j) r[static_cast<std::size_t>(i) * L + j] = x[static_cast<std::size_t>(i) * ld + p0 + j];
-        }
-        for (int i = 0; i < m->ntheta; ++i) {
-          for (std::size_t j = 0; j < points; ++j) {
-            r[static_cast<std::size_t>(m->nx + i) * L + j] = theta[static_cast<std::size_t>(i) * ld + p0 + j];
-          }
-        }
-        tape.run_lanes(r, points, out + p0, ld);
-      }
-      return 0;
-    } catch (const std::exception& e) {
-      write_error(err, err_len, e.what());
-      return 1;
-    }
-  }
-
-  // Where the entries of the mechanical form are, in the tapes' outputs.
-  std::size_t at_M(int i, int j) const { return static_cast<std::size_t>(i + j * ndof); }
-  std::size_t at_h(int i) const { return static_cast<std::size_t>(ndof * ndof + i); }
-  std::size_t at_H(int i, int j) const { return static_cast<std::size_t>(ndof * ndof + ndof + i + j * ndof); }
-  std::size_t at_g(int i) const { return static_cast<std::size_t>(ndof * ndof + ndof + ndof * nu + i); }
-  std::size_t at_G(int i, int j) const { return at_g(ny) + static_cast<std::size_t>(i + j * ny); }
-  std::size_t at_R(int i, int j) const { return at_G(0, ndof) + static_cast<std::size_t>(i + j * ny); }
-
-  // f or g of the mechanical form at one point, on duals of width w: `e`
-  // holds every entry (w doubles each), `work` the solve's room. Writes
-  // out[row * w ...]. False if M is singular.
-  template <bool is_f>
-  bool mech_point(const Duals& d, const double* e, const double* u, const double* x, double* work,
-                  double* out) const {
-    const std::size_t w = d.w;
-    const int n = ndof;
-    double* M = work;                                      // n x n, a copy (eliminated in place)
-    double* b = M + static_cast<std::size_t>(n * n) * w;   // n
-    double* a = b + static_cast<std::size_t>(n) * w;       // n
-    double* tmp = a + static_cast<std::size_t>(n) * w;     // 2
-    double* tmp2 = tmp + w;
-    for (int k = 0; k < n * n; ++k) d.copy(M + static_cast<std::size_t>(k) * w, e + static_cast<std::size_t>(k) * w);
-    for (int i = 0; i < n; ++i) {  // b = -h + H u
-      double* bi = b + static_cast<std::size_t>(i) * w;
-      const double* hi = e + at_h(i) * w;
-      for (std::size_t c = 0; c < w; ++c) bi[c] = -1.0 * hi[c];
-      bi[0] = -hi[0];
-      for (int j = 0; j < nu; ++j) d.add_scaled(bi, e + at_H(i, j) * w, u[j]);
-    }
-    auto m_at = [&](int i, int j) { return M + static_cast<std::size_t>(i + j * n) * w; };
-    for (int k = 0; k < n; ++k) {  // Gaussian elimination with partial pivoting, as detail::solve
-      int pivot = k;
-      for (int i = k + 1; i < n; ++i) {
-        if (std::abs(m_at(i, k)[0]) > std::abs(m_at(pivot, k)[0])) pivot = i;
-      }
-      if (m_at(pivot, k)[0] == 0.0) return false;
-      if (pivot != k) {
-        for (int j = k; j < n; ++j) {
-          for (std::size_t c = 0; c < w; ++c) std::swap(m_at(k, j)[c], m_at(pivot, j)[c]);
-        }
-        for (std::size_t c = 0; c < w; ++c) std::swap(b[static_cast<std::size_t>(k) * w + c], b[static_cast<std::size_t>(pivot) * w + c]);
-      }
-      for (int i = k + 1; i < n; ++i) {
-        if (m_at(i, k)[0] == 0.0) continue;
-        d.div(m_at(i, k), m_at(k, k), tmp);  // factor
-        for (int j = k + 1; j < n; ++j) {
-          d.mul(tmp, m_at(k, j), tmp2);
-          d.sub_from(m_at(i, j), tmp2);
-        }
-        d.mul(tmp, b + static_cast<std::size_t>(k) * w, tmp2);
-        d.sub_from(b + static_cast<std::size_t>(i) * w, tmp2);
-      }
-    }
-    for (int k = n - 1; k >= 0; --k) {
-      double* sum = tmp;
-      d.copy(sum, b + static_cast<std::size_t>(k) * w);
-      for (int j = k + 1; j < n; ++j) {
-        d.mul(m_at(k, j), a + static_cast<std::size_t>(j) * w, tmp2);
-        d.sub_from(sum, tmp2);
-      }
-      d.div(sum, m_at(k, k), a + static_cast<std::size_t>(k) * w);
-    }
-    if constexpr (is_f) {
-      for (int i = 0; i < n; ++i) {
-        double* v = out + static_cast<std::size_t>(i) * w;  // x' = v: the seeded velocity
-        std::fill(v, v + w, 0.0);
-        v[0] = x[n + i];
-        if (w > 1) v[1 + static_cast<std::size_t>(n + i)] = 1.0;
-        d.copy(out + static_cast<std::size_t>(n + i) * w, a + static_cast<std::size_t>(i) * w);
-      }
-    } else {
-      for (int i = 0; i < ny; ++i) {
-        double* sum = out + static_cast<std::size_t>(i) * w;
-        d.copy(sum, e + at_g(i) * w);
-        for (int j = 0; j < n; ++j) {
-          d.mul(e + at_G(i, j) * w, a + static_cast<std::size_t>(j) * w, tmp2);
-          d.add_to(sum, tmp2);
-        }
-        for (int j = 0; j < nu; ++j) d.add_scaled(sum, e + at_R(i, j) * w, u[j]);
-      }
-    }
-    return true;
-  }
-
-  template <bool is_f>
-  static int mech_eval(void* self, uint32_t n, size_t ld, double t, const double* u, const double* x,
-                       const double* theta, double* out, char* err, size_t err_len) {
-    try {
-      const auto* m = static_cast<const CompiledModel*>(self);
-      double* r = scratch(m->registers);
-      double* e = r + m->mech.registers();
-      double* work = e + m->mech_count;
-      m->mech.load_constants(r);
-      const Duals d{1};
-      const int rows = is_f ? m->nx : m->ny;
-      double point_out[2 * 256];  // nx, ny <= kMaxTextModelSize
-      double xp[256];
-      for (uint32_t p = 0; p < n; ++p) {
-        m->load(r, t, u, x, theta, ld, p);
-        for (int i = 0; i < m->nx; ++i) xp[i] = x[static_cast<std::size_t>(i) * ld + p];
-        m->mech.run(r, e, 1);
-        if (!m->mech_point<is_f>(d, e, u, xp, work, point_out)) {
-          write_error(err, err_len, "the mass matrix M is singular");
-          return 1;
-        }
-        for (int i = 0; i < rows; ++i) out[static_cast<std::size_t>(i) * ld + p] = point_out[i];
-      }
-      return 0;
-    } catch (const std::exception& ex) {
-      write_error(err, err_len, ex.what());
-      return 1;
-    }
-  }
-
-  // The tape's values and derivatives of every entry, as duals.
-  double* mech_duals(double* r, double t, const double* u, const double* x, const double* theta) const {
-    load(r, t, u, x, theta, 1, 0);
-    mech_jac.load_constants(r);
-    double* values = r + mech_jac.registers();
-    mech_jac.run(r, values, 1);
-    const std::size_t w = static_cast<std::size_t>(nx + ntheta) + 1, count = mech_count;
-    double* e = values + count * w;
-    for (std::size_t k = 0; k < count; ++k) {
-      e[k * w] = values[k];
-      for (std::size_t j = 0; j + 1 < w; ++j) e[k * w + 1 + j] = values[count + k + j * count];
-    }
-    return e;
-  }
-
-  template <bool is_f>
-  static int mech_jacobian(void* self, double t, const double* u, const double* x, const double* theta, double* out,
-                           double* jacobian, char* err, size_t err_len) {
-    try {
-      const auto* m = static_cast<const CompiledModel*>(self);
-      double* r = scratch(m->registers);
-      const std::size_t w = static_cast<std::size_t>(m->nx + m->ntheta) + 1;
-      double* e = m->mech_duals(r, t, u, x, theta);
-      double* work = e + m->mech_count * w;
-      double* result = work + static_cast<std::size_t>(m->ndof * m->ndof + 2 * m->ndof + 2) * w;
-      if (!m->mech_point<is_f>(Duals{w}, e, u, x, work, result)) {
-        write_error(err, err_len, "the mass matrix M is singular");
-        return 1;
-      }
-      const std::size_t rows = static_cast<std::size_t>(is_f ? m->nx : m->ny);
-      for (std::size_t i = 0; i < rows; ++i) {
-        out[i] = result[i * w];
-        for (std::size_t j = 0; j + 1 < w; ++j) jacobian[i + j * rows] = result[i * w + 1 + j];
-      }
-      return 0;
-    } catch (const std::exception& ex) {
-      write_error(err, err_len, ex.what());
-      return 1;
-    }
-  }
-
-  static int mech_form(void* self, double t, const double* x, const double* theta, double* c, double* Fc,
-                       double* c_jac, double* Fc_jac, char* err, size_t err_len) {
-    try {
-      const auto* m = static_cast<const CompiledModel*>(self);
-      double* r = scratch(m->registers);
-      const std::size_t w = static_cast<std::size_t>(m->nx + m->ntheta) + 1, nz = w - 1;
-      static const double kNoInputs[kMaxTextModelSize] = {};  // M, h, H, g, G, R do not depend on u (checked)
-      const double* e = m->mech_duals(r, t, kNoInputs, x, theta);
-      const int n = m->ndof;
-      const std::size_t rows = static_cast<std::size_t>(n + m->ny), cols = static_cast<std::size_t>(m->nu + n);
-      const std::size_t entries = rows * cols;
-      auto put = [&](double* value, double* jac, std::size_t k, std::size_t stride, std::size_t entry, double sign) {
-        value[k] = sign * e[entry * w];
-        for (std::size_t j = 0; j < nz; ++j) jac[k + j * stride] = sign * e[entry * w + 1 + j];
-      };
-      for (int i = 0; i < n; ++i) put(c, c_jac, static_cast<std::size_t>(i), rows, m->at_h(i), 1.0);
-      for (int i = 0; i < m->ny; ++i) put(c, c_jac, static_cast<std::size_t>(n + i), rows, m->at_g(i), 1.0);
-      for (int j = 0; j < m->nu; ++j) {
-        for (int i = 0; i < n; ++i) put(Fc, Fc_jac, static_cast<std::size_t>(i) + j * rows, entries, m->at_H(i, j), -1.0);
-        for (int i = 0; i < m->ny; ++i) {
-          put(Fc, Fc_jac, static_cast<std::size_t>(n + i) + j * rows, entries, m->at_R(i, j), 1.0);
-        }
-      }
-      for (int j = 0; j < n; ++j) {
-        const std::size_t col = static_cast<std::size_t>(m->nu + j);
-        for (int i = 0; i < n; ++i) put(Fc, Fc_jac, static_cast<std::size_t>(i) + col * rows, entries, m->at_M(i, j), 1.0);
-        for (int i = 0; i < m->ny; ++i) {
-          put(Fc, Fc_jac, static_cast<std::size_t>(n + i) + col * rows, entries, m->at_G(i, j), 1.0);
-        }
-      }
-      return 0;
-    } catch (const std::exception& ex) {
-      write_error(err, err_len, ex.what());
-      return 1;
-    }
-  }
-
-  template <bool is_f>
-  static int jac(void* self, double t, const double* u, const double* x, const double* theta, double* out,
-                 double* jacobian, char* err, size_t err_len) {
-    try {
-      const auto* m = static_cast<const CompiledModel*>(self);
-      const Tape& tape = is_f ? m->f_jac : m->g_jac;
-      double* r = scratch(m->registers);
-      m->load(r, t, u, x, theta, 1, 0);
-      tape.load_constants(r);
-      tape.run_split(r, static_cast<std::size_t>(is_f ? m->nx : m->ny), out, jacobian);
-      return 0;
-    } catch (const std::exception& e) {
-      write_error(err, err_len, e.what());
-      return 1;
-    }
-  }
-};
-
-// What check_jacobians() (jacobian_check.cpp) costs on this model, in tape
-// instructions and arithmetic operations, from the sizes of its tapes: at
-// each of generic_points()' 3 points, an exact Jacobian and 4 evaluations
-// per column z_j for its fourth-order differences, of f and g, and of the
-// mechanical form's c and Fc, each of which runs the derivatives' tape and
-// copies every entry with its derivatives (about nz^2 n^2 a call: what makes
-// a dense mass matrix cost n^5). About the time in nanoseconds on a current
-// core (n = 32, 40, 48: 0.6, 1.6, 3.3 s for 0.6e9, 1.6e9, 3.2e9).
-double check_operations(const CompiledModel& m) {
-  const double nz = m.nx + m.ntheta, w = nz + 1.0, fd = 4.0 * nz;
-  double per_point = 0.0;
-  if (m.ndof == 0) {
-    per_point = double(m.f_jac.length()) + fd * double(m.f.length()) + double(m.g_jac.length()) +
-                fd * double(m.g.length()) + 2.0 * (m.nx + m.ny) * nz;
-  } else {
-    const double n = m.ndof, count = double(m.mech_count);
-    const double solve = n * n * n, duals = double(m.mech_jac.length()) + count * w;
-    const double nc = n + m.ny, nfc = nc * (m.nu + n);
-    const double f_or_g = duals + solve * w + fd * (double(m.mech.length()) + count + solve);
-    // c and Fc with their Jacobians, allocated per call and scattered a
-    // column of nz apart (a cache miss each: 3 operations, as measured).
-    const double form = duals + 3.0 * (nc + nfc) * w;
-    per_point = 2.0 * f_or_g + 2.0 * (1.0 + fd) * form;
-  }
-  return 3.0 * per_point;
-}
 
 std::string sparsity_row(const Graph& graph, const std::vector<int>& jac, std::size_t row, std::size_t rows,
                          std::size_t nz) {
@@ -600,9 +48,6 @@ std::string sparsity_row(const Graph& graph, const std::vector<int>& jac, std::s
   for (std::size_t j = 0; j < nz; ++j) s += graph.is_constant(jac[row + j * rows], 0.0) ? '.' : 'x';
   return s;
 }
-
-// ---------------------------------------------------------------------------
-// The compiler.
 
 class Compiler {
  public:
@@ -642,7 +87,7 @@ class Compiler {
       }
       section[e.key] = e.value;
     }
-    auto m = std::make_shared<CompiledModel>();
+    std::shared_ptr<CompiledModel> m = text::new_compiled_model();
     owner_ = m;
 
     // Name, version, description.
@@ -894,7 +339,7 @@ class Compiler {
     }
     summary.graph_nodes = graph_.size();
     summary.tape_length = m->f_jac.length();
-    summary.check_operations = check_operations(*m);
+    summary.check_operations = text::check_operations(*m);
 
     const riccati_model_v1* table = &m->table;
     RICCATI_ASSIGN_OR_RETURN(out.model, Model::create(table, std::shared_ptr<void>(m), "text model " + src_.origin()));
@@ -1047,7 +492,7 @@ class Compiler {
     for (const Expression& e : defines) summary.equations.push_back(e.name + " := " + e.value.Scalar());
     summary.graph_nodes = graph_.size();
     summary.tape_length = m.mech_jac.length();
-    summary.check_operations = check_operations(m);
+    summary.check_operations = text::check_operations(m);
     const riccati_model_v1* table = &m.table;
     // The model keeps the CompiledModel alive: find the shared_ptr that owns m.
     RICCATI_ASSIGN_OR_RETURN(out.model, Model::create(table, owner_, "text model " + src_.origin()));
