@@ -145,6 +145,7 @@ Result<JobRecord> JobManager::submit_smoothing(const std::string& tenant, const 
   const ModelPtr& model = resolved.model;
   RICCATI_ASSIGN_OR_RETURN(const SmootherSettings settings, from_proto(spec, *model));
   RICCATI_ASSIGN_OR_RETURN(const DatasetRecord dataset, store_.get_dataset(tenant, spec.dataset_id()));
+  RICCATI_RETURN_IF_ERROR(dataset_fits_model(dataset, *model).with_context("dataset " + dataset.id));
   const Eigen::Index end = settings.end_sample < 0 ? dataset.samples : settings.end_sample;
   if (end > dataset.samples || end - settings.first_sample < 2) {
     return invalid_argument("the sample range [" + std::to_string(settings.first_sample) + ", " + std::to_string(end) +
@@ -186,6 +187,7 @@ Result<JobRecord> JobManager::submit_validation(const std::string& tenant, const
   const ModelPtr& model = resolved.model;
   RICCATI_ASSIGN_OR_RETURN(const ValidationSettings settings, from_proto(spec));
   RICCATI_ASSIGN_OR_RETURN(const DatasetRecord dataset, store_.get_dataset(tenant, spec.dataset_id()));
+  RICCATI_RETURN_IF_ERROR(dataset_fits_model(dataset, *model).with_context("dataset " + dataset.id));
   if (spec.has_theta()) {
     RICCATI_RETURN_IF_ERROR(from_values(spec.theta().values(), model->ntheta(), "theta").status());
   } else if (spec.has_identification_job_id()) {
