@@ -423,7 +423,8 @@ TEST_F(CliTest, ResultsExportAsCsvJsonAndMat) {
   EXPECT_EQ(result, nlohmann::json::parse(riccati("result " + job + " --json").out)["identification"]);
   std::string header;
   EXPECT_EQ(csv_rows(csv_file, &header).size(), 2000u);
-  EXPECT_EQ(header.rfind("t,x1,x2,A1,A2,k1,k2,", 0), 0u) << header;
+  // One naming everywhere (docs/results.md): states and parameters by name, outputs as quantity.output.
+  EXPECT_EQ(header, "t,h1,h2,A1,A2,k1,k2,y_model.h1,y_model.h2,innovation.h1,innovation.h2");
 
   const MatVariable t = read_mat_variable(mat_file.string(), "T");
   EXPECT_EQ(t.rows, 1u);
@@ -464,6 +465,12 @@ TEST_F(CliTest, ResultsExportAsCsvJsonAndMat) {
   ASSERT_EQ(riccati("result " + validation + " --export " + val_file.string()).exit_code, 0) << last_stderr();
   EXPECT_EQ(read_mat_variable(val_file.string(), "Y").cols, 2000u);
   EXPECT_EQ(read_mat_variable(val_file.string(), "Ymod").rows, 2u);
+  {
+    const MatVariable y = read_mat_variable(val_file.string(), "Y"), ymod = read_mat_variable(val_file.string(), "Ymod"),
+                      residuals = read_mat_variable(val_file.string(), "Residuals");
+    ASSERT_EQ(residuals.values.size(), y.values.size());
+    for (std::size_t i : {0u, 1u, 2001u, 3999u}) EXPECT_EQ(residuals.values[i], y.values[i] - ymod.values[i]) << i;
+  }
   // An extension that says no format: refused.
   r = riccati("result " + job + " --export " + (dir_.path() / "result.xlsx").string());
   EXPECT_EQ(r.exit_code, 2);
@@ -524,6 +531,35 @@ TEST_F(CliTest, IdentifyByOutputErrorFindsTheTwoTankTruth) {
   }
   EXPECT_NE(table.out.find("experiment 1 (ds-"), std::string::npos) << table.out;
   EXPECT_NE(table.out.find("residual diagnostics"), std::string::npos) << table.out;
+
+  // Exported as MAT (nlgreyest's users) and CSV: the estimate, and the
+  // residuals raw (Y - Ymod, the output's unit) and normalised (the result's).
+  const auto mat_file = dir_.path() / "oe.mat", csv_file = dir_.path() / "oe.csv";
+  for (const auto& file : {mat_file, csv_file}) {
+    ASSERT_EQ(riccati("result " + job + " --export " + file.string()).exit_code, 0) << last_stderr();
+  }
+  const MatVariable theta = read_mat_variable(mat_file.string(), "Theta");
+  ASSERT_EQ(theta.values.size(), 4u);
+  for (std::size_t i = 0; i < 4; ++i) EXPECT_EQ(theta.values[i], e["theta"][i].get<double>());
+  EXPECT_EQ(read_mat_variable(mat_file.string(), "ThetaUpper").values[0], e["ci_upper"][0].get<double>());
+  const MatVariable y = read_mat_variable(mat_file.string(), "Y"), ymod = read_mat_variable(mat_file.string(), "Ymod"),
+                    raw = read_mat_variable(mat_file.string(), "Residuals"),
+                    normalised = read_mat_variable(mat_file.string(), "ResidualsNormalised");
+  ASSERT_EQ(y.rows, 2u);
+  ASSERT_EQ(y.cols, 2000u);
+  ASSERT_EQ(raw.values.size(), 4000u);
+  ASSERT_EQ(normalised.values.size(), 4000u);
+  const auto& json_residuals = e["experiments"][0]["residuals"]["values"];
+  for (std::size_t i : {0u, 1u, 1001u, 3999u}) {
+    EXPECT_EQ(raw.values[i], y.values[i] - ymod.values[i]) << i;
+    EXPECT_EQ(normalised.values[i], json_residuals[i].get<double>()) << i;
+  }
+  EXPECT_EQ(read_mat_variable(mat_file.string(), "Experiment").cols, 2000u);
+  std::string header;
+  EXPECT_EQ(csv_rows(csv_file, &header).size(), 2000u);
+  EXPECT_EQ(header,
+            "experiment,t,y.h1,y.h2,y_model.h1,y_model.h2,residual.h1,residual.h2,residual_normalised.h1,"
+            "residual_normalised.h2,used.h1,used.h2");
   // The job's last progress: the optimiser's iteration and cost.
   const CliRun jobs = riccati("jobs");
   EXPECT_NE(jobs.out.find("iteration "), std::string::npos) << jobs.out;
