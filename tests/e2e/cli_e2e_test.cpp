@@ -695,7 +695,7 @@ TEST_F(CliTest, SmoothRunsTheSmootherOverARecord) {
   ASSERT_EQ(r.exit_code, 0) << last_stderr();
   const auto rows = csv_rows(csv, &header);
   ASSERT_EQ(rows.size(), clean.size());
-  EXPECT_EQ(header.rfind("t,h1,h2,A1,A2,k1,k2,std_h1,std_h2,", 0), 0u) << header;
+  EXPECT_EQ(header.rfind("t,h1,h2,A1,A2,k1,k2,std.h1,std.h2,", 0), 0u) << header;
   const std::size_t filtered = 1 + 2 * 6;  // t, the smoothed [x; theta], their std, then the filtered
   double smoothed_sq = 0.0, filtered_sq = 0.0;
   for (std::size_t k = 0; k < rows.size(); ++k) {
