@@ -428,6 +428,19 @@ TEST_F(EstimationJobTest, BadSettingsAreRefusedAtSubmitNamingTheField) {
     EXPECT_EQ(s.error_code(), grpc::StatusCode::INVALID_ARGUMENT) << s.error_message();
     EXPECT_NE(s.error_message().find("iterated filter"), std::string::npos) << s.error_message();
   }
+  // A validation of another model with the job's estimate (the workbench's
+  // Validate page did this): refused naming both models, not a FAILED job.
+  validation.set_estimate(v1::ESTIMATE_CHOICE_UNSPECIFIED);
+  validation.set_model("rotating_arm");
+  {
+    grpc::ClientContext ctx;
+    v1::Job job;
+    const grpc::Status s = jobs_->SubmitValidation(&ctx, validation, &job);
+    EXPECT_EQ(s.error_code(), grpc::StatusCode::INVALID_ARGUMENT) << s.error_message();
+    EXPECT_NE(s.error_message().find("job " + oe.id() + " identified model two_tank (A1, A2, k1, k2), not rotating_arm"),
+              std::string::npos)
+        << s.error_message();
+  }
   {
     grpc::ClientContext ctx;
     v1::ListJobsResponse list;
