@@ -66,6 +66,11 @@ def test_result_is_what_riccatid_sent(hensen):
     # The normal 95 % interval about the reported estimate.
     assert (res.ci["lower"] < res.theta).all() and (res.theta < res.ci["upper"]).all()
     np.testing.assert_allclose(res.ci["upper"] - res.ci["lower"], 2 * 1.959963984540054 * res.std, rtol=1e-12)
+    summary = res.summary()
+    assert list(summary.columns) == ["estimate", "std", "lower", "upper", "rel_std_percent", "final"]
+    np.testing.assert_array_equal(summary["estimate"].to_numpy(), list(r.theta_mean))
+    np.testing.assert_array_equal(summary["final"].to_numpy(), list(r.theta))
+    assert repr(res).startswith(f"<IdentificationResult of job {res.job_id}, model two_tank: iterated filter, 10 passes")
 
 
 def test_traces_are_every_pass_sample_by_sample(hensen):

@@ -102,6 +102,7 @@ class IdentificationResult(_Result):
     - theta_final: the estimate at the end of the last pass
     - std: sqrt(diag P) of the parameters at the end
     - ci: theta -/+ 1.96 std (columns lower, upper), the normal 95 % interval
+    - summary(): those in one table, as `riccati result` prints it
     - covariance, correlation: of the parameters at the end (DataFrames)
     - traces: the estimate after every sample of every pass, a DataFrame
       indexed by (pass, t), a column per parameter (the toolbox's Trace)
@@ -142,6 +143,15 @@ class IdentificationResult(_Result):
               **{column("mean", n_): v for n_, v in zip(names, p_result.theta_mean)},
               **{column("innovation_rms", o): v for o, v in zip(model.output_names, p_result.innovation_rms)}}
              for p_result in r.passes], index=pd.Index(range(1, len(r.passes) + 1), name="pass"))
+
+    def summary(self):
+        """The parameter table, as `riccati result` prints it: the estimate (the
+        mean over the last pass), its std, the normal 95 % interval, the std
+        relative to the estimate (%) and the estimate at the end of the last pass."""
+        with np.errstate(divide="ignore", invalid="ignore"):
+            relative = 100.0 * self.std / self.theta.abs()
+        return pd.DataFrame({"estimate": self.theta, "std": self.std, "lower": self.ci["lower"],
+                             "upper": self.ci["upper"], "rel_std_percent": relative, "final": self.theta_final})
 
     def plot_traces(self, path=None):
         """The parameters' traces (the toolbox's Trace), a subplot per parameter, the
