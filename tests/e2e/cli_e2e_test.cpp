@@ -866,6 +866,10 @@ TEST_F(CliTest, SessionsAreListedShownRetunedAndClosed) {
   EXPECT_EQ(r.exit_code, 2) << last_stderr();
   r = riccati("--json sessions show " + id);
   EXPECT_EQ(nlohmann::json::parse(r.out)["retunings"].size(), 1u) << r.out;
+  // The noise it runs with now: R as retuned, Q as created (none given: 0).
+  r = riccati("sessions show " + id);
+  EXPECT_NE(r.out.find("  R: diag [0.01, 0.01]\n"), std::string::npos) << r.out;
+  EXPECT_NE(r.out.find("  Q: diag [0, 0, 0, 0, 0, 0]\n"), std::string::npos) << r.out;
 
   r = riccati("sessions close " + id);
   ASSERT_EQ(r.exit_code, 0) << last_stderr();
