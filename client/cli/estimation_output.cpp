@@ -51,6 +51,17 @@ std::string noise_line(const char* what, const google::protobuf::RepeatedField<d
 
 }  // namespace
 
+std::string column(const std::string& quantity, const std::string& name) {
+  return quantity.empty() ? name : quantity + "." + name;
+}
+
+std::vector<std::string> sized_names(const std::vector<std::string>& names, std::size_t count, const char* prefix) {
+  if (names.size() == count) return names;
+  std::vector<std::string> numbered;
+  for (std::size_t i = 0; i < count; ++i) numbered.push_back(name_or_number({}, static_cast<int>(i), prefix));
+  return numbered;
+}
+
 ModelNames model_names(const v1::ModelInfo& model) {
   ModelNames names;
   names.states.assign(model.state_names().begin(), model.state_names().end());
@@ -247,19 +258,25 @@ std::string estimation_csv(const v1::EstimationResult& r, const ModelNames& name
   const std::vector<std::string> outputs =
       r.experiments_size() > 0 ? output_names(r.experiments(0), names) : names.outputs;
   csv << "experiment,t";
-  for (const char* prefix : {"", "model_", "residual_", "used_"}) {
-    for (const auto& y : outputs) csv << "," << prefix << y;
+  for (const char* quantity : {"y", "y_model", "residual", "residual_normalised", "used"}) {
+    for (const auto& y : outputs) csv << "," << column(quantity, y);
   }
   csv << "\n";
   for (int e = 0; e < r.experiments_size(); ++e) {
     const v1::ExperimentFit& x = r.experiments(e);
     const uint32_t ny = x.y_measured().rows();
+    // A matrix's value, or `otherwise` when the result has none (no mask: every sample used).
+    const auto at = [&](const v1::Matrix& m, uint32_t i, uint32_t col, double otherwise) {
+      return m.rows() == ny && col < m.cols() ? element(m, i, col) : otherwise;
+    };
     for (int k = 0; k < x.t_size(); ++k) {
       const auto col = static_cast<uint32_t>(k);
       csv << e + 1 << "," << x.t(k);
-      for (const v1::Matrix* m : {&x.y_measured(), &x.y_model(), &x.residuals(), &x.mask()}) {
-        for (uint32_t i = 0; i < ny; ++i) csv << "," << (m->rows() == ny && col < m->cols() ? element(*m, i, col) : 1.0);
-      }
+      for (uint32_t i = 0; i < ny; ++i) csv << "," << at(x.y_measured(), i, col, 0.0);
+      for (uint32_t i = 0; i < ny; ++i) csv << "," << at(x.y_model(), i, col, 0.0);
+      for (uint32_t i = 0; i < ny; ++i) csv << "," << at(x.y_measured(), i, col, 0.0) - at(x.y_model(), i, col, 0.0);
+      for (uint32_t i = 0; i < ny; ++i) csv << "," << at(x.residuals(), i, col, 0.0);
+      for (uint32_t i = 0; i < ny; ++i) csv << "," << at(x.mask(), i, col, 1.0);
       csv << "\n";
     }
   }
@@ -297,14 +314,13 @@ std::string smoothing_csv(const v1::SmoothingResult& r, const ModelNames& names)
   std::ostringstream csv;
   csv.precision(17);
   const uint32_t ny = r.y_model().rows();
-  std::vector<std::string> outputs;
-  for (uint32_t i = 0; i < ny; ++i) outputs.push_back(name_or_number(names.outputs, static_cast<int>(i), "y"));
+  const std::vector<std::string> outputs = sized_names(names.outputs, ny, "y");
   csv << "t";
-  for (const char* prefix : {"", "std_", "filtered_", "std_filtered_"}) {
-    for (const auto& n : r.names()) csv << "," << prefix << n;
+  for (const char* quantity : {"", "std", "filtered", "filtered_std"}) {
+    for (const auto& n : r.names()) csv << "," << column(quantity, n);
   }
-  for (const char* prefix : {"model_", "innovation_"}) {
-    for (const auto& y : outputs) csv << "," << prefix << y;
+  for (const char* quantity : {"y_model", "innovation"}) {
+    for (const auto& y : outputs) csv << "," << column(quantity, y);
   }
   csv << "\n";
   for (int k = 0; k < r.t_size(); ++k) {

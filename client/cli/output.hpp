@@ -58,9 +58,10 @@ std::string fit_table(const v1::ValidationResult& r);
 // smoothing table. `initial`: the parameters the job started from.
 std::string result_table(const v1::JobResult& r, const std::vector<double>& initial, const std::vector<double>& truth,
                          const ModelNames& names);
-// `riccati result --format csv`: the traces, model outputs and innovations
-// of an identification, the measured and simulated outputs of a validation,
-// estimation_csv or smoothing_csv.
+// `riccati result --format csv` (columns named by column(), docs/results.md):
+// an identification's t, states and parameters (the last pass's trace),
+// y_model.o and innovation.o; a validation's t, y.o (measured), y_model.o
+// (simulated) and residual.o (y - y_model); estimation_csv or smoothing_csv.
 std::string result_csv(const v1::JobResult& r, const ModelNames& names);
 
 }  // namespace riccati::cli

@@ -766,10 +766,15 @@ TEST(EstimationTables, TheCsvHasEverySampleOfEveryExperiment) {
   std::vector<std::string> rows;
   for (std::string line; std::getline(lines, line);) rows.push_back(line);
   ASSERT_EQ(rows.size(), 5u) << csv;
-  EXPECT_EQ(rows[0], "experiment,t,h1,h2,model_h1,model_h2,residual_h1,residual_h2,used_h1,used_h2");
-  // 17 digits: the doubles exactly.
-  EXPECT_EQ(rows[2],
-            "1,1,0.40999999999999998,0.16,0.40899999999999997,0.161,0.20000000000000001,-0.20000000000000001,0,1");
+  EXPECT_EQ(rows[0],
+            "experiment,t,y.h1,y.h2,y_model.h1,y_model.h2,residual.h1,residual.h2,residual_normalised.h1,"
+            "residual_normalised.h2,used.h1,used.h2");
+  // 17 digits: the doubles exactly; the raw residual y - y_model, the normalised one as the result has it.
+  std::ostringstream raw;
+  raw.precision(17);
+  raw << 0.41 - 0.409 << "," << 0.16 - 0.161;
+  EXPECT_EQ(rows[2], "1,1,0.40999999999999998,0.16,0.40899999999999997,0.161," + raw.str() +
+                         ",0.20000000000000001,-0.20000000000000001,0,1");
   EXPECT_EQ(rows[4].substr(0, 4), "2,5,");
 }
 
@@ -804,7 +809,7 @@ TEST(SmoothingTables, StartEndAndTheMeanStdFilteredAndSmoothed) {
   std::getline(lines, header);
   std::getline(lines, first);
   EXPECT_EQ(header,
-            "t,h1,A1,std_h1,std_A1,filtered_h1,filtered_A1,std_filtered_h1,std_filtered_A1,model_h1,innovation_h1");
+            "t,h1,A1,std.h1,std.A1,filtered.h1,filtered.A1,filtered_std.h1,filtered_std.A1,y_model.h1,innovation.h1");
   EXPECT_EQ(first, "0,0.40100000000000002,10.1,0.0050000000000000001,0.29999999999999999,0.40000000000000002,10,"
                    "0.01,1,0.40100000000000002,0");
 }

@@ -423,7 +423,8 @@ TEST_F(CliTest, ResultsExportAsCsvJsonAndMat) {
   EXPECT_EQ(result, nlohmann::json::parse(riccati("result " + job + " --json").out)["identification"]);
   std::string header;
   EXPECT_EQ(csv_rows(csv_file, &header).size(), 2000u);
-  EXPECT_EQ(header.rfind("t,x1,x2,A1,A2,k1,k2,", 0), 0u) << header;
+  // One naming everywhere (docs/results.md): states and parameters by name, outputs as quantity.output.
+  EXPECT_EQ(header, "t,h1,h2,A1,A2,k1,k2,y_model.h1,y_model.h2,innovation.h1,innovation.h2");
 
   const MatVariable t = read_mat_variable(mat_file.string(), "T");
   EXPECT_EQ(t.rows, 1u);
@@ -464,6 +465,12 @@ TEST_F(CliTest, ResultsExportAsCsvJsonAndMat) {
   ASSERT_EQ(riccati("result " + validation + " --export " + val_file.string()).exit_code, 0) << last_stderr();
   EXPECT_EQ(read_mat_variable(val_file.string(), "Y").cols, 2000u);
   EXPECT_EQ(read_mat_variable(val_file.string(), "Ymod").rows, 2u);
+  {
+    const MatVariable y = read_mat_variable(val_file.string(), "Y"), ymod = read_mat_variable(val_file.string(), "Ymod"),
+                      residuals = read_mat_variable(val_file.string(), "Residuals");
+    ASSERT_EQ(residuals.values.size(), y.values.size());
+    for (std::size_t i : {0u, 1u, 2001u, 3999u}) EXPECT_EQ(residuals.values[i], y.values[i] - ymod.values[i]) << i;
+  }
   // An extension that says no format: refused.
   r = riccati("result " + job + " --export " + (dir_.path() / "result.xlsx").string());
   EXPECT_EQ(r.exit_code, 2);
@@ -524,6 +531,35 @@ TEST_F(CliTest, IdentifyByOutputErrorFindsTheTwoTankTruth) {
   }
   EXPECT_NE(table.out.find("experiment 1 (ds-"), std::string::npos) << table.out;
   EXPECT_NE(table.out.find("residual diagnostics"), std::string::npos) << table.out;
+
+  // Exported as MAT (nlgreyest's users) and CSV: the estimate, and the
+  // residuals raw (Y - Ymod, the output's unit) and normalised (the result's).
+  const auto mat_file = dir_.path() / "oe.mat", csv_file = dir_.path() / "oe.csv";
+  for (const auto& file : {mat_file, csv_file}) {
+    ASSERT_EQ(riccati("result " + job + " --export " + file.string()).exit_code, 0) << last_stderr();
+  }
+  const MatVariable theta = read_mat_variable(mat_file.string(), "Theta");
+  ASSERT_EQ(theta.values.size(), 4u);
+  for (std::size_t i = 0; i < 4; ++i) EXPECT_EQ(theta.values[i], e["theta"][i].get<double>());
+  EXPECT_EQ(read_mat_variable(mat_file.string(), "ThetaUpper").values[0], e["ci_upper"][0].get<double>());
+  const MatVariable y = read_mat_variable(mat_file.string(), "Y"), ymod = read_mat_variable(mat_file.string(), "Ymod"),
+                    raw = read_mat_variable(mat_file.string(), "Residuals"),
+                    normalised = read_mat_variable(mat_file.string(), "ResidualsNormalised");
+  ASSERT_EQ(y.rows, 2u);
+  ASSERT_EQ(y.cols, 2000u);
+  ASSERT_EQ(raw.values.size(), 4000u);
+  ASSERT_EQ(normalised.values.size(), 4000u);
+  const auto& json_residuals = e["experiments"][0]["residuals"]["values"];
+  for (std::size_t i : {0u, 1u, 1001u, 3999u}) {
+    EXPECT_EQ(raw.values[i], y.values[i] - ymod.values[i]) << i;
+    EXPECT_EQ(normalised.values[i], json_residuals[i].get<double>()) << i;
+  }
+  EXPECT_EQ(read_mat_variable(mat_file.string(), "Experiment").cols, 2000u);
+  std::string header;
+  EXPECT_EQ(csv_rows(csv_file, &header).size(), 2000u);
+  EXPECT_EQ(header,
+            "experiment,t,y.h1,y.h2,y_model.h1,y_model.h2,residual.h1,residual.h2,residual_normalised.h1,"
+            "residual_normalised.h2,used.h1,used.h2");
   // The job's last progress: the optimiser's iteration and cost.
   const CliRun jobs = riccati("jobs");
   EXPECT_NE(jobs.out.find("iteration "), std::string::npos) << jobs.out;
@@ -659,7 +695,7 @@ TEST_F(CliTest, SmoothRunsTheSmootherOverARecord) {
   ASSERT_EQ(r.exit_code, 0) << last_stderr();
   const auto rows = csv_rows(csv, &header);
   ASSERT_EQ(rows.size(), clean.size());
-  EXPECT_EQ(header.rfind("t,h1,h2,A1,A2,k1,k2,std_h1,std_h2,", 0), 0u) << header;
+  EXPECT_EQ(header.rfind("t,h1,h2,A1,A2,k1,k2,std.h1,std.h2,", 0), 0u) << header;
   const std::size_t filtered = 1 + 2 * 6;  // t, the smoothed [x; theta], their std, then the filtered
   double smoothed_sq = 0.0, filtered_sq = 0.0;
   for (std::size_t k = 0; k < rows.size(); ++k) {
@@ -833,6 +869,10 @@ TEST_F(CliTest, SessionsAreListedShownRetunedAndClosed) {
   EXPECT_EQ(r.exit_code, 2) << last_stderr();
   r = riccati("--json sessions show " + id);
   EXPECT_EQ(nlohmann::json::parse(r.out)["retunings"].size(), 1u) << r.out;
+  // The noise it runs with now: R as retuned, Q as created (none given: 0).
+  r = riccati("sessions show " + id);
+  EXPECT_NE(r.out.find("  R: diag [0.01, 0.01]\n"), std::string::npos) << r.out;
+  EXPECT_NE(r.out.find("  Q: diag [0, 0, 0, 0, 0, 0]\n"), std::string::npos) << r.out;
 
   r = riccati("sessions close " + id);
   ASSERT_EQ(r.exit_code, 0) << last_stderr();

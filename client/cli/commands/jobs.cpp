@@ -319,11 +319,25 @@ int result_export(Client& c, const std::string& id, const std::string& path) {
     return rc;
   }
   v1::JobResult r;
-  auto ctx = c.context();
-  v1::GetResultRequest request;
-  request.set_job_id(id);
-  if (const grpc::Status s = c.jobs->GetResult(ctx.get(), request, &r); !s.ok()) return c.fail("result of job " + id, s);
-  if (const auto problem = write_result_mat(r, path)) {
+  {
+    auto ctx = c.context();
+    v1::GetResultRequest request;
+    request.set_job_id(id);
+    if (const grpc::Status s = c.jobs->GetResult(ctx.get(), request, &r); !s.ok()) {
+      return c.fail("result of job " + id, s);
+    }
+  }
+  v1::Job job;
+  {
+    auto ctx = c.context();
+    v1::GetJobRequest request;
+    request.set_id(id);
+    (void)c.jobs->GetJob(ctx.get(), request, &job);  // without it (deleted since), the names are numbered
+  }
+  std::vector<double> initial;
+  ModelNames names;
+  job_context(c, job, &initial, &names);
+  if (const auto problem = write_result_mat(r, names, path)) {
     std::fprintf(stderr, "riccati: --export %s: %s\n", path.c_str(), problem->c_str());
     return kExitFailed;
   }

@@ -60,6 +60,15 @@ int session_show(Client& c, const std::string& id) {
               static_cast<unsigned long long>(info.measurements()), info.t(),
               info.instance().empty() ? "-" : info.instance().c_str());
   if (info.state_estimate_size() > 0) std::printf("  estimate: %s\n", values_list(info.state_estimate()).c_str());
+  // The noise the filter runs with now (what `sessions retune` changes).
+  const auto noise = [](const char* name, const v1::Covariance& c) {
+    if (c.has_diagonal()) std::printf("  %s: diag %s\n", name, values_list(c.diagonal().values()).c_str());
+    if (c.has_full()) std::printf("  %s: %u x %u, full\n", name, c.full().rows(), c.full().cols());
+  };
+  noise("Q", info.q());
+  noise("R", info.r());
+  noise("V", info.v());
+  noise("W", info.w());
   if (info.has_error()) std::printf("  diverged: %s\n", info.error().message().c_str());
   return kExitOk;
 }
