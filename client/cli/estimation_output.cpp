@@ -135,8 +135,8 @@ std::string correlation_table(const v1::EstimationResult& r) {
 std::string diagnostics_table(const v1::Diagnostics& d, const ModelNames& names) {
   std::string out;
   char line[256];
-  std::snprintf(line, sizeof line, "  residual diagnostics (each at 95 %%; %llu samples, lags 1..%u, band +-%.3g)\n",
-                static_cast<unsigned long long>(d.samples()), d.lags(), d.band());
+  std::snprintf(line, sizeof line, "  residual diagnostics (each at 95 %%; %s, lags 1..%u, band +-%.3g)\n",
+                counted(d.samples(), "sample").c_str(), d.lags(), d.band());
   out += line;
   std::snprintf(line, sizeof line, "    %-28s %12s %10s %9s  %s\n", "test", "statistic", "limit", "p-value", "verdict");
   out += line;
@@ -178,17 +178,18 @@ std::string estimation_table(const v1::EstimationResult& r, const std::vector<do
   std::string out;
   char line[512];
   const std::string method = method_name(r.method());
-  std::snprintf(line, sizeof line, "method %s: %s after %u iterations (%s); cost %.6g\n", method.c_str(),
-                r.converged() ? "converged" : "NOT converged", r.iterations(), r.termination().c_str(), r.cost());
+  std::snprintf(line, sizeof line, "method %s: %s after %s (%s); cost %.6g\n", method.c_str(),
+                r.converged() ? "converged" : "NOT converged", counted(r.iterations(), "iteration").c_str(),
+                r.termination().c_str(), r.cost());
   out += line;
-  std::snprintf(line, sizeof line, "%u evaluations, %u of the Jacobian; gradient: %s%s\n", r.evaluations(),
-                r.jacobian_evaluations(), r.gradient().c_str(),
+  std::snprintf(line, sizeof line, "%s, %u of the Jacobian; gradient: %s%s\n",
+                counted(r.evaluations(), "evaluation").c_str(), r.jacobian_evaluations(), r.gradient().c_str(),
                 r.sigma2() != 1.0 ? ("; residual variance " + format("%.4g", r.sigma2()) + " (scales the covariance)").c_str()
                                   : "");
   out += line;
   if (r.has_init_passes() && r.init_passes().passes_size() > 0) {
-    out += "start: the mean over the last of " + std::to_string(r.init_passes().passes_size()) +
-           " passes of the iterated filter " + values_list(r.init_passes().theta_mean()) + "\n";
+    out += "start: the mean over the last of " +
+           counted(static_cast<unsigned>(r.init_passes().passes_size()), "pass", "passes") + " of the iterated filter " + values_list(r.init_passes().theta_mean()) + "\n";
   }
   out += "\n";
   std::snprintf(line, sizeof line, "%-10s %10s %14s %11s %29s %9s", "parameter", "initial", "estimate", "std. error",
@@ -239,8 +240,8 @@ std::string estimation_table(const v1::EstimationResult& r, const std::vector<do
 
   for (int e = 0; e < r.experiments_size(); ++e) {
     const v1::ExperimentFit& x = r.experiments(e);
-    out += "\nexperiment " + std::to_string(e + 1) + " (" + x.dataset_id() + "): " + std::to_string(x.t_size()) +
-           " samples\n";
+    out += "\nexperiment " + std::to_string(e + 1) + " (" + x.dataset_id() + "): " +
+           counted(static_cast<unsigned>(x.t_size()), "sample") + "\n";
     std::string x0 = "  x0:";
     for (int i = 0; i < x.x0_size(); ++i) {
       const bool estimated = i < x.x0_estimated_size() && x.x0_estimated(i);
@@ -288,7 +289,8 @@ std::string smoothing_table(const v1::SmoothingResult& r) {
   char line[256];
   const int N = r.t_size();
   if (N == 0) return "no samples smoothed\n";
-  std::snprintf(line, sizeof line, "smoothed over %d samples, t = %.6g to %.6g\n", N, r.t(0), r.t(N - 1));
+  std::snprintf(line, sizeof line, "smoothed over %s, t = %.6g to %.6g\n",
+                counted(static_cast<unsigned>(N), "sample").c_str(), r.t(0), r.t(N - 1));
   out += line;
   std::snprintf(line, sizeof line, "%-10s %14s %11s %14s %11s %15s %15s\n", "", "start", "std", "end", "std",
                 "mean std filt.", "mean std smooth.");
