@@ -20,8 +20,12 @@
 set -euo pipefail
 cd "$(dirname "$0")/.."
 filter=${1:-ekf}
+start=$SECONDS
 scripts/install-deps.sh plot
+packages_s=$((SECONDS - start))
+echo "main-job: building riccatid and riccati in build/ (ninja; the first time takes minutes)"
 scripts/build.sh riccatid riccati >/dev/null
+build_s=$((SECONDS - start - packages_s))
 out=$(mkdir -p "${RICCATI_MAIN_JOB_OUT:-build/main-job}" && cd "${RICCATI_MAIN_JOB_OUT:-build/main-job}" && pwd)
 
 data_dir=$(mktemp -d)
@@ -108,3 +112,4 @@ unset multiplot
 EOF
 echo
 echo "Figure: $out/two_tank_fit.png (measured and simulated levels over time, and the simulation errors)"
+echo "main-job: packages ${packages_s} s, build ${build_s} s, identifications and figure $((SECONDS - start - packages_s - build_s)) s"
