@@ -35,23 +35,26 @@ trap 'kill -TERM $daemon 2>/dev/null; wait $daemon 2>/dev/null; rm -rf "$data_di
 for _ in $(seq 100); do [ -s "$data_dir/port" ] && break; sleep 0.1; done
 [ -s "$data_dir/port" ] || { echo "main-job: riccatid did not start" >&2; exit 1; }
 export RICCATI_SERVER="127.0.0.1:$(cat "$data_dir/port")"
-riccati=build/bin/riccati
 truth=10,5,0.0791,0.1342
+# riccati, its messages kept in $out/riccati.log and shown if it fails.
+riccati() {
+  build/bin/riccati "$@" 2>"$out/riccati.log" || { cat "$out/riccati.log" >&2; echo "main-job: riccati $1 failed" >&2; exit 1; }
+}
 
-dataset=$($riccati data upload tests/data/two_tank.csv --inputs F1,F2 --outputs h1,h2)
+dataset=$(riccati data upload tests/data/two_tank.csv --inputs F1,F2 --outputs h1,h2)
 echo "Identification of two_tank on two_tank.csv, riccatid at $RICCATI_SERVER"
 echo
 echo "Hensen's iterated $filter (examples/two_tank_hensen.yaml)"
-hensen=$($riccati identify --config examples/two_tank_hensen.yaml --data "$dataset" --filter "$filter" --no-wait)
-$riccati job watch "$hensen" >/dev/null 2>&1
-$riccati result "$hensen" --truth "$truth" | tee "$out/hensen.txt"
+hensen=$(riccati identify --config examples/two_tank_hensen.yaml --data "$dataset" --filter "$filter" --no-wait)
+riccati job watch "$hensen" >/dev/null
+riccati result "$hensen" --truth "$truth" | tee "$out/hensen.txt"
 echo
 echo "Output error (examples/two_tank_oe.yaml; sigma sqrt(1e-3), the noise Hensen's R = 1e-3 assumes)"
-oe=$($riccati identify --config examples/two_tank_oe.yaml --data "$dataset" --no-wait)
-$riccati job watch "$oe" >/dev/null 2>&1
+oe=$(riccati identify --config examples/two_tank_oe.yaml --data "$dataset" --no-wait)
+riccati job watch "$oe" >/dev/null
 # The optimiser's summary and the parameter table (correlations, fit and
 # residual tests: riccati result with the job's id).
-$riccati result "$oe" --truth "$truth" >"$out/oe.txt"
+riccati result "$oe" --truth "$truth" >"$out/oe.txt"
 sed -n '1,/^$/p' "$out/oe.txt"
 sed -n '/^parameter/,/^$/p' "$out/oe.txt" | sed '/^$/d'
 echo
@@ -76,14 +79,16 @@ awk -v method="$filter" '
 echo
 echo "Validation: each identified model simulated over the data"
 echo "Hensen's:"
-$riccati validate --model two_tank --params "$hensen" --data "$dataset" 2>"$out/validate.log" | tail -n +2
-validation=$(sed -n 's/^job \(job-[0-9a-f]*\).*/\1/p' "$out/validate.log")
+riccati validate --model two_tank --params "$hensen" --data "$dataset" >"$out/validate.txt"
+validation=$(sed -n 's/^job \(job-[0-9a-f]*\).*/\1/p' "$out/riccati.log")
+tail -n +2 "$out/validate.txt"
 echo "output error's:"
-$riccati validate --model two_tank --params "$oe" --data "$dataset" 2>/dev/null | tail -n +2
+riccati validate --model two_tank --params "$oe" --data "$dataset" >"$out/validate.txt"
+tail -n +2 "$out/validate.txt"
 
 # The figure: measured and model levels over time, and each model's error.
-$riccati result "$validation" --format csv -o "$out/hensen_simulated.csv"
-$riccati result "$oe" --format csv -o "$out/oe_fit.csv"
+riccati result "$validation" --format csv -o "$out/hensen_simulated.csv"
+riccati result "$oe" --format csv -o "$out/oe_fit.csv"
 gnuplot <<EOF
 set terminal pngcairo size 1100,800 font "DejaVu Sans,10" noenhanced
 set output "$out/two_tank_fit.png"
