@@ -24,7 +24,10 @@ start=$SECONDS
 scripts/install-deps.sh plot
 packages_s=$((SECONDS - start))
 echo "main-job: building riccatid and riccati in build/ (ninja; the first time takes minutes)"
-scripts/build.sh riccatid riccati >/dev/null
+build_log=$(mktemp)
+# ninja writes its errors to stdout: shown when the build fails, else dropped.
+scripts/build.sh riccatid riccati >"$build_log" 2>&1 || { tail -n 40 "$build_log" >&2; echo "main-job: the build failed" >&2; exit 1; }
+rm -f "$build_log"
 build_s=$((SECONDS - start - packages_s))
 out=$(mkdir -p "${RICCATI_MAIN_JOB_OUT:-build/main-job}" && cd "${RICCATI_MAIN_JOB_OUT:-build/main-job}" && pwd)
 
