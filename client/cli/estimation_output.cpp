@@ -116,7 +116,7 @@ std::string diagnostics_table(const v1::Diagnostics& d, const ModelNames& names)
   for (int i = 0; i < ny; ++i) out_w = std::max(out_w, name_or_number(names.outputs, i, "y").size());
   for (int j = 0; j < nu; ++j) in_w = std::max(in_w, name_or_number(names.inputs, j, "u").size());
 
-  std::string out = "  residual diagnostics (each at 95 %; " + std::to_string(d.samples()) + " samples, lags 1.." +
+  std::string out = "  residual diagnostics (each at 95 %; " + counted(d.samples(), "sample") + ", lags 1.." +
                     std::to_string(d.lags()) + ", band +-" + format("%.3g", d.band()) + ")\n";
   out += "    whiteness: Ljung-Box Q over lags 1.." + std::to_string(d.lags()) + "\n";
   char head[128];
@@ -172,17 +172,18 @@ std::string estimation_table(const v1::EstimationResult& r, const std::vector<do
   std::string out;
   char line[512];
   const std::string method = method_name(r.method());
-  std::snprintf(line, sizeof line, "method %s: %s after %u iterations (%s); cost %.6g\n", method.c_str(),
-                r.converged() ? "converged" : "NOT converged", r.iterations(), r.termination().c_str(), r.cost());
+  std::snprintf(line, sizeof line, "method %s: %s after %s (%s); cost %.6g\n", method.c_str(),
+                r.converged() ? "converged" : "NOT converged", counted(r.iterations(), "iteration").c_str(),
+                r.termination().c_str(), r.cost());
   out += line;
-  std::snprintf(line, sizeof line, "%u evaluations, %u of the Jacobian; gradient: %s%s\n", r.evaluations(),
-                r.jacobian_evaluations(), r.gradient().c_str(),
+  std::snprintf(line, sizeof line, "%s, %u of the Jacobian; gradient: %s%s\n",
+                counted(r.evaluations(), "evaluation").c_str(), r.jacobian_evaluations(), r.gradient().c_str(),
                 r.sigma2() != 1.0 ? ("; residual variance " + format("%.4g", r.sigma2()) + " (scales the covariance)").c_str()
                                   : "");
   out += line;
   if (r.has_init_passes() && r.init_passes().passes_size() > 0) {
-    out += "start: the mean over the last of " + std::to_string(r.init_passes().passes_size()) +
-           " passes of the iterated filter " + values_list(r.init_passes().theta_mean()) + "\n";
+    out += "start: the mean over the last of " +
+           counted(static_cast<unsigned>(r.init_passes().passes_size()), "pass", "passes") + " of the iterated filter " + values_list(r.init_passes().theta_mean()) + "\n";
   }
   out += "\n";
   std::snprintf(line, sizeof line, "%-10s %10s %14s %11s %29s %9s", "parameter", "initial", "estimate", "std. error",
@@ -233,8 +234,8 @@ std::string estimation_table(const v1::EstimationResult& r, const std::vector<do
 
   for (int e = 0; e < r.experiments_size(); ++e) {
     const v1::ExperimentFit& x = r.experiments(e);
-    out += "\nexperiment " + std::to_string(e + 1) + " (" + x.dataset_id() + "): " + std::to_string(x.t_size()) +
-           " samples\n";
+    out += "\nexperiment " + std::to_string(e + 1) + " (" + x.dataset_id() + "): " +
+           counted(static_cast<unsigned>(x.t_size()), "sample") + "\n";
     std::string x0 = "  x0:";
     for (int i = 0; i < x.x0_size(); ++i) {
       const bool estimated = i < x.x0_estimated_size() && x.x0_estimated(i);
@@ -288,7 +289,8 @@ std::string smoothing_table(const v1::SmoothingResult& r) {
   char line[256];
   const int N = r.t_size();
   if (N == 0) return "no samples smoothed\n";
-  std::snprintf(line, sizeof line, "smoothed over %d samples, t = %.6g to %.6g\n", N, r.t(0), r.t(N - 1));
+  std::snprintf(line, sizeof line, "smoothed over %s, t = %.6g to %.6g\n",
+                counted(static_cast<unsigned>(N), "sample").c_str(), r.t(0), r.t(N - 1));
   out += line;
   std::snprintf(line, sizeof line, "%-10s %14s %11s %14s %11s %15s %15s\n", "", "start", "std", "end", "std",
                 "mean std filt.", "mean std smooth.");

@@ -58,6 +58,10 @@ nlohmann::json json_of(const google::protobuf::Message& m) {
 
 std::string to_json(const nlohmann::json& j) { return j.dump(2); }
 
+std::string counted(unsigned long long n, const std::string& noun, const std::string& plural) {
+  return std::to_string(n) + " " + (n == 1 ? noun : plural.empty() ? noun + "s" : plural);
+}
+
 std::string to_json(const google::protobuf::Message& m) { return to_json(json_of(m)); }
 
 std::string format(const char* fmt, double v) {

@@ -25,6 +25,9 @@ std::string to_json(const google::protobuf::Message& m);
 std::string to_json(const nlohmann::json& j);
 // One number with a printf format ("%.3g").
 std::string format(const char* fmt, double v);
+// A count and its noun, singular for 1: "1 state", "2 states"; `plural`
+// when adding "s" is wrong ("passes").
+std::string counted(unsigned long long n, const std::string& noun, const std::string& plural = "");
 // "a, b, c"
 std::string join(const google::protobuf::RepeatedPtrField<std::string>& names);
 // "[0.4, 0.15]" (6 digits)

@@ -663,6 +663,25 @@ TEST(EstimationTables, TheParameterTableHasStdIntervalsInitialAndTruth) {
   EXPECT_EQ(line_of(bare, "A1 ").find("20"), std::string::npos) << bare;
 }
 
+// Counts in the singular for one, in the plural otherwise (zero included).
+TEST(EstimationTables, CountsSayOneInTheSingular) {
+  EXPECT_EQ(counted(1, "state"), "1 state");
+  EXPECT_EQ(counted(0, "state"), "0 states");
+  EXPECT_EQ(counted(2000, "sample"), "2000 samples");
+  EXPECT_EQ(counted(1, "pass", "passes"), "1 pass");
+  EXPECT_EQ(counted(3, "pass", "passes"), "3 passes");
+  v1::EstimationResult r = two_tank_estimate();
+  r.set_iterations(1);
+  r.set_evaluations(1);
+  r.mutable_experiments(0)->mutable_t()->Truncate(1);
+  r.mutable_experiments(0)->mutable_diagnostics()->set_samples(1);
+  const std::string table = estimation_table(r, {}, {}, ModelNames{{"h1", "h2"}, {}, {}});
+  EXPECT_NE(table.find("converged after 1 iteration (Function tolerance reached)"), std::string::npos) << table;
+  EXPECT_NE(table.find("\n1 evaluation, 13 of the Jacobian"), std::string::npos) << table;
+  EXPECT_NE(table.find("experiment 1 (ds-1): 1 sample\n"), std::string::npos) << table;
+  EXPECT_NE(table.find("(each at 95 %; 1 sample, lags"), std::string::npos) << table;
+}
+
 TEST(EstimationTables, CorrelationsMarkTheHighOnesAndLeaveTheFixedOut) {
   const std::string table = correlation_table(two_tank_estimate());
   EXPECT_EQ(line_of(table, "A2"), "") << "a fixed parameter in the correlations:\n" << table;

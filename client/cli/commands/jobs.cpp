@@ -67,7 +67,13 @@ int job_show(Client& c, const std::string& id) {
 int job_watch(Client& c, const std::string& id) {
   v1::Job last;
   const int rc = watch_until_done(c, id, &last);
-  if (c.json) std::printf("%s\n", to_json(last).c_str());
+  if (c.json) {
+    std::printf("%s\n", to_json(last).c_str());
+  } else if (last.state() == v1::JOB_STATE_SUCCEEDED) {
+    // Its end, and where the answer is (a job watched after it ended shows
+    // only its last progress, which says neither).
+    std::printf("job %s succeeded; its result: riccati result %s\n", id.c_str(), id.c_str());
+  }
   return rc;
 }
 
@@ -212,8 +218,9 @@ int watch_until_done(Client& c, const std::string& id, v1::Job* last, OnInterrup
   }
   if (!s.ok()) return c.fail("watching job " + id, s);
   if (last->state() != v1::JOB_STATE_SUCCEEDED) {
-    std::fprintf(stderr, "riccati: job %s %s: %s\n", id.c_str(), state_name(last->state()).c_str(),
-                 last->error().message().c_str());
+    const std::string& why = last->error().message();
+    std::fprintf(stderr, "riccati: job %s %s%s\n", id.c_str(), state_name(last->state()).c_str(),
+                 why.empty() ? "" : (": " + why).c_str());
     return kExitFailed;
   }
   return kExitOk;
