@@ -18,7 +18,7 @@ shift || true
 targets=("$@")
 [ ${#targets[@]} -gt 0 ] || targets=(csv_fuzz mat_fuzz request_fuzz text_model_fuzz)
 
-scripts/install-deps.sh fuzz
+scripts/install-deps.sh test fuzz
 build_dir=${RICCATI_SAN_BUILD_DIR:-build-san}
 scripts/configure-sanitized.sh "$build_dir"
 ninja -C "$build_dir" "${targets[@]}" fuzz_seed_writer

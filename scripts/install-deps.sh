@@ -1,8 +1,17 @@
 #!/usr/bin/env bash
-# Installs the Debian 12 packages riccati needs to build and test, and only
-# those that are missing (so a machine that has them all is left alone).
+# Installs the Debian 12 packages riccati needs, and only those that are
+# missing (so a machine that has them all is left alone). Sets, by purpose
+# (README.md, "Dependencies", says what each package is for):
+#
+#   scripts/install-deps.sh              building riccatid, riccati and the models (the main job's build)
+#   scripts/install-deps.sh plot         and gnuplot, for the main job's figure (scripts/main-job.sh)
+#   scripts/install-deps.sh python       and the Python client's packages (client/python)
+#   scripts/install-deps.sh test         and everything the test suite uses (scripts/test.sh): GoogleTest,
+#                                        Google Benchmark, the browser, PostgreSQL, the Python client, pytest
+#   scripts/install-deps.sh test fuzz    and clang with libFuzzer (scripts/sanitize.sh, scripts/fuzz.sh)
 set -euo pipefail
 
+# Building and running riccatid and riccati.
 packages=(
   build-essential cmake ninja-build ccache pkg-config   # toolchain, one cached build
   libeigen3-dev                                         # linear algebra
@@ -19,22 +28,39 @@ packages=(
   libssl-dev                                            # SHA-256 (token digests, plugin checksums)
   prometheus-cpp-dev                                    # metrics in Prometheus' model and text format
   libcpp-httplib-dev                                    # the HTTP endpoints: /metrics, the web workbench and its JSON API
-  chromium chromium-driver python3-selenium             # the workbench's tests in a real browser (tests/web)
-  libyaml-cpp-dev                                       # config and job files
-  nlohmann-json3-dev                                    # JSON (dataset metadata in tests)
-  libgtest-dev libgmock-dev                             # GoogleTest
-  libbenchmark-dev                                      # Google Benchmark
+  libyaml-cpp-dev                                       # config and job files, text models
+  nlohmann-json3-dev                                    # the command line's --json (and the tests' JSON)
   libceres-dev                                          # Ceres Solver: the least squares of output error and maximum likelihood
+)
+plot=(
+  gnuplot-nox                                           # the main job's PNG of the fit (pngcairo, no X)
+)
+python=(
   python3-grpcio python3-protobuf                       # the Python client (client/python): gRPC, messages (stubs: protoc above)
   python3-numpy python3-pandas                          # its arrays and frames
-  python3-pip python3-setuptools python3-pytest         # installing it from source (no other registry) and its tests
+  python3-pip python3-setuptools                        # installing it from source (no other registry)
+)
+test=(
+  libgtest-dev libgmock-dev                             # GoogleTest
+  libbenchmark-dev                                      # Google Benchmark (bench/)
+  chromium chromium-driver python3-selenium             # the workbench's tests in a real browser (tests/web)
+  postgresql                                            # a throw-away server for the PostgreSQL store's tests (with-postgres.sh)
+  python3-pytest                                        # the Python client's tests
   python3-matplotlib                                    # docs/python.md's example (its figure), run as a test
 )
+fuzz=(
+  clang libclang-rt-14-dev                              # the sanitized build, libFuzzer and the sanitizers' runtime
+)
 
-# "fuzz": also what scripts/fuzz.sh needs (clang with libFuzzer and the sanitizers' runtime).
-if [ "${1:-}" = fuzz ]; then
-  packages+=(clang libclang-rt-14-dev)
-fi
+for set in "$@"; do
+  case $set in
+    plot) packages+=("${plot[@]}") ;;
+    python) packages+=("${python[@]}") ;;
+    test) packages+=("${python[@]}" "${test[@]}") ;;
+    fuzz) packages+=("${fuzz[@]}") ;;
+    *) echo "install-deps: unknown set \"$set\" (plot, python, test, fuzz)" >&2; exit 2 ;;
+  esac
+done
 
 missing=()
 for p in "${packages[@]}"; do

@@ -13,7 +13,7 @@
 set -euo pipefail
 cd "$(dirname "$0")/.."
 root=$PWD
-scripts/install-deps.sh fuzz
+scripts/install-deps.sh test fuzz
 build_dir=${RICCATI_SAN_BUILD_DIR:-build-san}
 scripts/configure-sanitized.sh "$build_dir"
 ninja -C "$build_dir"

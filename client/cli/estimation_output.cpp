@@ -51,6 +51,17 @@ std::string noise_line(const char* what, const google::protobuf::RepeatedField<d
 
 }  // namespace
 
+std::string column(const std::string& quantity, const std::string& name) {
+  return quantity.empty() ? name : quantity + "." + name;
+}
+
+std::vector<std::string> sized_names(const std::vector<std::string>& names, std::size_t count, const char* prefix) {
+  if (names.size() == count) return names;
+  std::vector<std::string> numbered;
+  for (std::size_t i = 0; i < count; ++i) numbered.push_back(name_or_number({}, static_cast<int>(i), prefix));
+  return numbered;
+}
+
 ModelNames model_names(const v1::ModelInfo& model) {
   ModelNames names;
   names.states.assign(model.state_names().begin(), model.state_names().end());
@@ -105,7 +116,7 @@ std::string diagnostics_table(const v1::Diagnostics& d, const ModelNames& names)
   for (int i = 0; i < ny; ++i) out_w = std::max(out_w, name_or_number(names.outputs, i, "y").size());
   for (int j = 0; j < nu; ++j) in_w = std::max(in_w, name_or_number(names.inputs, j, "u").size());
 
-  std::string out = "  residual diagnostics (each at 95 %; " + std::to_string(d.samples()) + " samples, lags 1.." +
+  std::string out = "  residual diagnostics (each at 95 %; " + counted(d.samples(), "sample") + ", lags 1.." +
                     std::to_string(d.lags()) + ", band +-" + format("%.3g", d.band()) + ")\n";
   out += "    whiteness: Ljung-Box Q over lags 1.." + std::to_string(d.lags()) + "\n";
   char head[128];
@@ -161,17 +172,18 @@ std::string estimation_table(const v1::EstimationResult& r, const std::vector<do
   std::string out;
   char line[512];
   const std::string method = method_name(r.method());
-  std::snprintf(line, sizeof line, "method %s: %s after %u iterations (%s); cost %.6g\n", method.c_str(),
-                r.converged() ? "converged" : "NOT converged", r.iterations(), r.termination().c_str(), r.cost());
+  std::snprintf(line, sizeof line, "method %s: %s after %s (%s); cost %.6g\n", method.c_str(),
+                r.converged() ? "converged" : "NOT converged", counted(r.iterations(), "iteration").c_str(),
+                r.termination().c_str(), r.cost());
   out += line;
-  std::snprintf(line, sizeof line, "%u evaluations, %u of the Jacobian; gradient: %s%s\n", r.evaluations(),
-                r.jacobian_evaluations(), r.gradient().c_str(),
+  std::snprintf(line, sizeof line, "%s, %u of the Jacobian; gradient: %s%s\n",
+                counted(r.evaluations(), "evaluation").c_str(), r.jacobian_evaluations(), r.gradient().c_str(),
                 r.sigma2() != 1.0 ? ("; residual variance " + format("%.4g", r.sigma2()) + " (scales the covariance)").c_str()
                                   : "");
   out += line;
   if (r.has_init_passes() && r.init_passes().passes_size() > 0) {
-    out += "start: the mean over the last of " + std::to_string(r.init_passes().passes_size()) +
-           " passes of the iterated filter " + values_list(r.init_passes().theta_mean()) + "\n";
+    out += "start: the mean over the last of " +
+           counted(static_cast<unsigned>(r.init_passes().passes_size()), "pass", "passes") + " of the iterated filter " + values_list(r.init_passes().theta_mean()) + "\n";
   }
   out += "\n";
   std::snprintf(line, sizeof line, "%-10s %10s %14s %11s %29s %9s", "parameter", "initial", "estimate", "std. error",
@@ -222,8 +234,8 @@ std::string estimation_table(const v1::EstimationResult& r, const std::vector<do
 
   for (int e = 0; e < r.experiments_size(); ++e) {
     const v1::ExperimentFit& x = r.experiments(e);
-    out += "\nexperiment " + std::to_string(e + 1) + " (" + x.dataset_id() + "): " + std::to_string(x.t_size()) +
-           " samples\n";
+    out += "\nexperiment " + std::to_string(e + 1) + " (" + x.dataset_id() + "): " +
+           counted(static_cast<unsigned>(x.t_size()), "sample") + "\n";
     std::string x0 = "  x0:";
     for (int i = 0; i < x.x0_size(); ++i) {
       const bool estimated = i < x.x0_estimated_size() && x.x0_estimated(i);
@@ -247,19 +259,25 @@ std::string estimation_csv(const v1::EstimationResult& r, const ModelNames& name
   const std::vector<std::string> outputs =
       r.experiments_size() > 0 ? output_names(r.experiments(0), names) : names.outputs;
   csv << "experiment,t";
-  for (const char* prefix : {"", "model_", "residual_", "used_"}) {
-    for (const auto& y : outputs) csv << "," << prefix << y;
+  for (const char* quantity : {"y", "y_model", "residual", "residual_normalised", "used"}) {
+    for (const auto& y : outputs) csv << "," << column(quantity, y);
   }
   csv << "\n";
   for (int e = 0; e < r.experiments_size(); ++e) {
     const v1::ExperimentFit& x = r.experiments(e);
     const uint32_t ny = x.y_measured().rows();
+    // A matrix's value, or `otherwise` when the result has none (no mask: every sample used).
+    const auto at = [&](const v1::Matrix& m, uint32_t i, uint32_t col, double otherwise) {
+      return m.rows() == ny && col < m.cols() ? element(m, i, col) : otherwise;
+    };
     for (int k = 0; k < x.t_size(); ++k) {
       const auto col = static_cast<uint32_t>(k);
       csv << e + 1 << "," << x.t(k);
-      for (const v1::Matrix* m : {&x.y_measured(), &x.y_model(), &x.residuals(), &x.mask()}) {
-        for (uint32_t i = 0; i < ny; ++i) csv << "," << (m->rows() == ny && col < m->cols() ? element(*m, i, col) : 1.0);
-      }
+      for (uint32_t i = 0; i < ny; ++i) csv << "," << at(x.y_measured(), i, col, 0.0);
+      for (uint32_t i = 0; i < ny; ++i) csv << "," << at(x.y_model(), i, col, 0.0);
+      for (uint32_t i = 0; i < ny; ++i) csv << "," << at(x.y_measured(), i, col, 0.0) - at(x.y_model(), i, col, 0.0);
+      for (uint32_t i = 0; i < ny; ++i) csv << "," << at(x.residuals(), i, col, 0.0);
+      for (uint32_t i = 0; i < ny; ++i) csv << "," << at(x.mask(), i, col, 1.0);
       csv << "\n";
     }
   }
@@ -271,7 +289,8 @@ std::string smoothing_table(const v1::SmoothingResult& r) {
   char line[256];
   const int N = r.t_size();
   if (N == 0) return "no samples smoothed\n";
-  std::snprintf(line, sizeof line, "smoothed over %d samples, t = %.6g to %.6g\n", N, r.t(0), r.t(N - 1));
+  std::snprintf(line, sizeof line, "smoothed over %s, t = %.6g to %.6g\n",
+                counted(static_cast<unsigned>(N), "sample").c_str(), r.t(0), r.t(N - 1));
   out += line;
   std::snprintf(line, sizeof line, "%-10s %14s %11s %14s %11s %15s %15s\n", "", "start", "std", "end", "std",
                 "mean std filt.", "mean std smooth.");
@@ -297,14 +316,13 @@ std::string smoothing_csv(const v1::SmoothingResult& r, const ModelNames& names)
   std::ostringstream csv;
   csv.precision(17);
   const uint32_t ny = r.y_model().rows();
-  std::vector<std::string> outputs;
-  for (uint32_t i = 0; i < ny; ++i) outputs.push_back(name_or_number(names.outputs, static_cast<int>(i), "y"));
+  const std::vector<std::string> outputs = sized_names(names.outputs, ny, "y");
   csv << "t";
-  for (const char* prefix : {"", "std_", "filtered_", "std_filtered_"}) {
-    for (const auto& n : r.names()) csv << "," << prefix << n;
+  for (const char* quantity : {"", "std", "filtered", "filtered_std"}) {
+    for (const auto& n : r.names()) csv << "," << column(quantity, n);
   }
-  for (const char* prefix : {"model_", "innovation_"}) {
-    for (const auto& y : outputs) csv << "," << prefix << y;
+  for (const char* quantity : {"y_model", "innovation"}) {
+    for (const auto& y : outputs) csv << "," << column(quantity, y);
   }
   csv << "\n";
   for (int k = 0; k < r.t_size(); ++k) {

@@ -20,6 +20,14 @@ struct ModelNames {
 };
 ModelNames model_names(const v1::ModelInfo& model);
 
+// The one naming of exported columns and rows (CSV here, the MAT file's
+// name lists, Python's to_frame(); docs/results.md): a state or parameter
+// by its name ("h1", "A1"), anything else as quantity.name ("y.h1",
+// "y_model.h1", "residual.h1", "std.A1"). `quantity` empty: the name alone.
+std::string column(const std::string& quantity, const std::string& name);
+// `names` when it has `count` of them, else numbered after `prefix` ("y1", "y2").
+std::vector<std::string> sized_names(const std::vector<std::string>& names, std::size_t count, const char* prefix);
+
 // Parameters flagged as hard to tell apart: |r| above this.
 constexpr double kHighCorrelation = 0.95;
 
@@ -37,16 +45,20 @@ std::string correlation_table(const v1::EstimationResult& r);
 // NIS band when the method has one; each with its statistic, limit, p-value,
 // degrees of freedom and verdict, as riccatid computed them.
 std::string diagnostics_table(const v1::Diagnostics& d, const ModelNames& names);
-// experiment, t, then per output: measured, model, residual (normalised),
-// used (1, or 0 where the mask left it out); one row per sample of every
-// experiment.
+// experiment, t, then per output y.o (measured), y_model.o, residual.o
+// (y - y_model, in the output's unit), residual_normalised.o (what the
+// method's diagnostics test: OE divided by sigma, ML whitened by the
+// innovation covariance; 0 where left out), used.o (1, or 0 where the mask
+// left it out); one row per sample of every experiment.
 std::string estimation_csv(const v1::EstimationResult& r, const ModelNames& names);
 
 // Per state and parameter: smoothed at the start and end with its std, and
 // the mean std filtered and smoothed.
 std::string smoothing_table(const v1::SmoothingResult& r);
-// t, the smoothed [x; theta], their std, the filtered ones and their std,
-// the model's outputs at the smoothed estimate and the filter's innovations.
+// t, the smoothed [x; theta] (h1, A1), their std (std.h1), the filtered
+// ones (filtered.h1) and their std (filtered_std.h1), the model's outputs
+// at the smoothed estimate (y_model.o) and the filter's innovations
+// (innovation.o).
 std::string smoothing_csv(const v1::SmoothingResult& r, const ModelNames& names);
 
 }  // namespace riccati::cli

@@ -3,6 +3,8 @@
 #include <algorithm>
 #include <cmath>
 
+#include "output.hpp"
+
 namespace riccati::cli {
 
 LiveView::LiveView(const v1::ModelInfo& model, std::FILE* out)
@@ -27,8 +29,8 @@ std::string LiveView::render() const {
   std::string text;
   char line[256];
   const double elapsed = std::chrono::duration<double>(std::chrono::steady_clock::now() - start_).count();
-  std::snprintf(line, sizeof line, "t = %.3f s   %zu estimates   %.0f/s   round trip p50 %.0f us  p99 %.0f us\n",
-                last_.t(), estimates_, elapsed > 0 ? estimates_ / elapsed : 0.0, p50_us_, p99_us_);
+  std::snprintf(line, sizeof line, "t = %.3f s   %s   %.0f/s   round trip p50 %.0f us  p99 %.0f us\n",
+                last_.t(), counted(estimates_, "estimate").c_str(), elapsed > 0 ? estimates_ / elapsed : 0.0, p50_us_, p99_us_);
   text += line;
   std::snprintf(line, sizeof line, "%-12s %14s %12s\n", "parameter", "estimate", "std");
   text += line;

@@ -58,6 +58,10 @@ nlohmann::json json_of(const google::protobuf::Message& m) {
 
 std::string to_json(const nlohmann::json& j) { return j.dump(2); }
 
+std::string counted(unsigned long long n, const std::string& noun, const std::string& plural) {
+  return std::to_string(n) + " " + (n == 1 ? noun : plural.empty() ? noun + "s" : plural);
+}
+
 std::string to_json(const google::protobuf::Message& m) { return to_json(json_of(m)); }
 
 std::string format(const char* fmt, double v) {
@@ -199,11 +203,13 @@ std::string result_csv(const v1::JobResult& r, const ModelNames& names) {
   if (r.has_identification()) {
     const auto& id_r = r.identification();
     const auto& last = id_r.passes(id_r.passes_size() - 1);
+    const auto states = sized_names(names.states, id_r.x_trace().rows(), "x");
+    const auto outputs = sized_names(names.outputs, id_r.y_model().rows(), "y");
     csv << "t";
-    for (uint32_t i = 0; i < id_r.x_trace().rows(); ++i) csv << ",x" << i + 1;
+    for (const auto& n : states) csv << "," << n;
     for (const auto& n : id_r.param_names()) csv << "," << n;
-    for (uint32_t i = 0; i < id_r.y_model().rows(); ++i) csv << ",y_model" << i + 1;
-    for (uint32_t i = 0; i < id_r.innovations().rows(); ++i) csv << ",innovation" << i + 1;
+    for (const auto& n : outputs) csv << "," << column("y_model", n);
+    for (const auto& n : outputs) csv << "," << column("innovation", n);
     csv << "\n";
     for (int k = 0; k < id_r.t_size(); ++k) {
       csv << id_r.t(k);
@@ -216,14 +222,21 @@ std::string result_csv(const v1::JobResult& r, const ModelNames& names) {
     return csv.str();
   }
   const auto& v = r.validation();
+  std::vector<std::string> fitted;
+  for (const auto& f : v.fits()) fitted.push_back(f.name());
+  const auto outputs = sized_names(fitted.empty() ? names.outputs : fitted, v.y_measured().rows(), "y");
   csv << "t";
-  for (const auto& f : v.fits()) csv << "," << f.name() << "_measured";
-  for (const auto& f : v.fits()) csv << "," << f.name() << "_simulated";
+  for (const char* quantity : {"y", "y_model", "residual"}) {
+    for (const auto& n : outputs) csv << "," << column(quantity, n);
+  }
   csv << "\n";
   for (int k = 0; k < v.t_size(); ++k) {
     csv << v.t(k);
     for (uint32_t i = 0; i < v.y_measured().rows(); ++i) csv << "," << element(v.y_measured(), i, k);
     for (uint32_t i = 0; i < v.y_simulated().rows(); ++i) csv << "," << element(v.y_simulated(), i, k);
+    for (uint32_t i = 0; i < v.y_measured().rows(); ++i) {
+      csv << "," << element(v.y_measured(), i, k) - element(v.y_simulated(), i, k);
+    }
     csv << "\n";
   }
   return csv.str();

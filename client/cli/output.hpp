@@ -25,6 +25,9 @@ std::string to_json(const google::protobuf::Message& m);
 std::string to_json(const nlohmann::json& j);
 // One number with a printf format ("%.3g").
 std::string format(const char* fmt, double v);
+// A count and its noun, singular for 1: "1 state", "2 states"; `plural`
+// when adding "s" is wrong ("passes").
+std::string counted(unsigned long long n, const std::string& noun, const std::string& plural = "");
 // "a, b, c"
 std::string join(const google::protobuf::RepeatedPtrField<std::string>& names);
 // "[0.4, 0.15]" (6 digits)
@@ -58,9 +61,10 @@ std::string fit_table(const v1::ValidationResult& r);
 // smoothing table. `initial`: the parameters the job started from.
 std::string result_table(const v1::JobResult& r, const std::vector<double>& initial, const std::vector<double>& truth,
                          const ModelNames& names);
-// `riccati result --format csv`: the traces, model outputs and innovations
-// of an identification, the measured and simulated outputs of a validation,
-// estimation_csv or smoothing_csv.
+// `riccati result --format csv` (columns named by column(), docs/results.md):
+// an identification's t, states and parameters (the last pass's trace),
+// y_model.o and innovation.o; a validation's t, y.o (measured), y_model.o
+// (simulated) and residual.o (y - y_model); estimation_csv or smoothing_csv.
 std::string result_csv(const v1::JobResult& r, const ModelNames& names);
 
 }  // namespace riccati::cli

@@ -67,9 +67,9 @@ def main():
             estimate[words[0]] = f"{words[0]} = {words[2]} ± {words[3]}"
     fig, axes = plt.subplots(3, 2, figsize=(11, 8), gridspec_kw={"height_ratios": [2, 1, 1]})
     for j, name in enumerate(outputs):
-        measured = np.array([float(r[name]) for r in rows])
-        model = np.array([float(r["model_" + name]) for r in rows])
-        residual = np.array([float(r["residual_" + name]) for r in rows])
+        measured = np.array([float(r["y." + name]) for r in rows])
+        model = np.array([float(r["y_model." + name]) for r in rows])
+        residual = np.array([float(r["residual_normalised." + name]) for r in rows])
         ax = axes[0, j]
         ax.plot(t, measured, ".", ms=2, color="0.55", label="measured")
         ax.plot(t, model, "-", lw=1.2, color="tab:blue", label="output-error model")

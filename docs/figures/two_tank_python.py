@@ -40,18 +40,18 @@ def example(server, out_png):
 
     fit = c.validate("two_tank", ds, res)       # the identified model simulated over the inputs
     print(fit.fits)
-    frame = fit.to_frame()                      # t, h1, h2, simulated_h1, simulated_h2
+    frame = fit.to_frame()                      # t, y.h1, y.h2, y_model.h1, y_model.h2, residual.h1, residual.h2
 
     fig, axes = plt.subplots(2, 2, figsize=(10, 6), sharex=True, gridspec_kw={"height_ratios": [3, 1]})
     for j, name in enumerate(["h1", "h2"]):
         ax = axes[0, j]
-        ax.plot(frame.index, frame[name], ".", ms=2, color="0.55", label="measured")
-        ax.plot(frame.index, frame["simulated_" + name], "-", lw=1.2, color="tab:blue", label="simulated")
+        ax.plot(frame.index, frame["y." + name], ".", ms=2, color="0.55", label="measured")
+        ax.plot(frame.index, frame["y_model." + name], "-", lw=1.2, color="tab:blue", label="simulated")
         ax.set_title(f"{name}: fit {fit.fits.loc[name, 'fit_percent']:.2f} %")
         ax.set_ylabel(f"{name} (m)")
         ax.legend(loc="best", fontsize=8)
         ax = axes[1, j]
-        ax.plot(frame.index, 1e3 * (frame[name] - frame["simulated_" + name]), lw=0.8, color="tab:red")
+        ax.plot(frame.index, 1e3 * frame["residual." + name], lw=0.8, color="tab:red")
         ax.set_ylabel("measured - simulated (mm)")
         ax.set_xlabel("t (s)")
     theta = ", ".join(f"{n} = {v:.4g}" for n, v in res.theta.items())

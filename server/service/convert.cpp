@@ -94,6 +94,16 @@ v1::Matrix to_matrix(const Eigen::MatrixXd& m) {
   return out;
 }
 
+v1::Covariance to_covariance(const Eigen::MatrixXd& m) {
+  v1::Covariance out;
+  if (m.rows() == m.cols() && m.isDiagonal(0.0)) {
+    copy_values(m.diagonal(), out.mutable_diagonal()->mutable_values());
+  } else {
+    *out.mutable_full() = to_matrix(m);
+  }
+  return out;
+}
+
 Result<Eigen::MatrixXd> from_matrix(const v1::Matrix& m, const std::string& field) {
   // Two 32-bit counts: their product fits 64 unsigned bits (it need not fit
   // 63: a 4e9 x 4e9 matrix needs 1.6e19 values).

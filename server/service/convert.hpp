@@ -49,6 +49,10 @@ void copy_values(const Vector& v, google::protobuf::RepeatedField<double>* out) 
 Result<Eigen::MatrixXd> from_covariance(const v1::Covariance& c, Eigen::Index n, bool required,
                                         const std::string& field);
 
+// The inverse, as a client would give it back: diagonal when the matrix is
+// diagonal, else full.
+v1::Covariance to_covariance(const Eigen::MatrixXd& m);
+
 // An engine enum from the API's: by name (the API's short name is the
 // engine's, enum_names.hpp), with `parse` the engine's parser for it. The
 // API's UNSPECIFIED (0) leaves `*out` as it is: the engine's default.

@@ -663,6 +663,25 @@ TEST(EstimationTables, TheParameterTableHasStdIntervalsInitialAndTruth) {
   EXPECT_EQ(line_of(bare, "A1 ").find("20"), std::string::npos) << bare;
 }
 
+// Counts in the singular for one, in the plural otherwise (zero included).
+TEST(EstimationTables, CountsSayOneInTheSingular) {
+  EXPECT_EQ(counted(1, "state"), "1 state");
+  EXPECT_EQ(counted(0, "state"), "0 states");
+  EXPECT_EQ(counted(2000, "sample"), "2000 samples");
+  EXPECT_EQ(counted(1, "pass", "passes"), "1 pass");
+  EXPECT_EQ(counted(3, "pass", "passes"), "3 passes");
+  v1::EstimationResult r = two_tank_estimate();
+  r.set_iterations(1);
+  r.set_evaluations(1);
+  r.mutable_experiments(0)->mutable_t()->Truncate(1);
+  r.mutable_experiments(0)->mutable_diagnostics()->set_samples(1);
+  const std::string table = estimation_table(r, {}, {}, ModelNames{{"h1", "h2"}, {}, {}});
+  EXPECT_NE(table.find("converged after 1 iteration (Function tolerance reached)"), std::string::npos) << table;
+  EXPECT_NE(table.find("\n1 evaluation, 13 of the Jacobian"), std::string::npos) << table;
+  EXPECT_NE(table.find("experiment 1 (ds-1): 1 sample\n"), std::string::npos) << table;
+  EXPECT_NE(table.find("(each at 95 %; 1 sample, lags"), std::string::npos) << table;
+}
+
 TEST(EstimationTables, CorrelationsMarkTheHighOnesAndLeaveTheFixedOut) {
   const std::string table = correlation_table(two_tank_estimate());
   EXPECT_EQ(line_of(table, "A2"), "") << "a fixed parameter in the correlations:\n" << table;
@@ -766,10 +785,15 @@ TEST(EstimationTables, TheCsvHasEverySampleOfEveryExperiment) {
   std::vector<std::string> rows;
   for (std::string line; std::getline(lines, line);) rows.push_back(line);
   ASSERT_EQ(rows.size(), 5u) << csv;
-  EXPECT_EQ(rows[0], "experiment,t,h1,h2,model_h1,model_h2,residual_h1,residual_h2,used_h1,used_h2");
-  // 17 digits: the doubles exactly.
-  EXPECT_EQ(rows[2],
-            "1,1,0.40999999999999998,0.16,0.40899999999999997,0.161,0.20000000000000001,-0.20000000000000001,0,1");
+  EXPECT_EQ(rows[0],
+            "experiment,t,y.h1,y.h2,y_model.h1,y_model.h2,residual.h1,residual.h2,residual_normalised.h1,"
+            "residual_normalised.h2,used.h1,used.h2");
+  // 17 digits: the doubles exactly; the raw residual y - y_model, the normalised one as the result has it.
+  std::ostringstream raw;
+  raw.precision(17);
+  raw << 0.41 - 0.409 << "," << 0.16 - 0.161;
+  EXPECT_EQ(rows[2], "1,1,0.40999999999999998,0.16,0.40899999999999997,0.161," + raw.str() +
+                         ",0.20000000000000001,-0.20000000000000001,0,1");
   EXPECT_EQ(rows[4].substr(0, 4), "2,5,");
 }
 
@@ -804,7 +828,7 @@ TEST(SmoothingTables, StartEndAndTheMeanStdFilteredAndSmoothed) {
   std::getline(lines, header);
   std::getline(lines, first);
   EXPECT_EQ(header,
-            "t,h1,A1,std_h1,std_A1,filtered_h1,filtered_A1,std_filtered_h1,std_filtered_A1,model_h1,innovation_h1");
+            "t,h1,A1,std.h1,std.A1,filtered.h1,filtered.A1,filtered_std.h1,filtered_std.A1,y_model.h1,innovation.h1");
   EXPECT_EQ(first, "0,0.40100000000000002,10.1,0.0050000000000000001,0.29999999999999999,0.40000000000000002,10,"
                    "0.01,1,0.40100000000000002,0");
 }

@@ -423,7 +423,8 @@ TEST_F(CliTest, ResultsExportAsCsvJsonAndMat) {
   EXPECT_EQ(result, nlohmann::json::parse(riccati("result " + job + " --json").out)["identification"]);
   std::string header;
   EXPECT_EQ(csv_rows(csv_file, &header).size(), 2000u);
-  EXPECT_EQ(header.rfind("t,x1,x2,A1,A2,k1,k2,", 0), 0u) << header;
+  // One naming everywhere (docs/results.md): states and parameters by name, outputs as quantity.output.
+  EXPECT_EQ(header, "t,h1,h2,A1,A2,k1,k2,y_model.h1,y_model.h2,innovation.h1,innovation.h2");
 
   const MatVariable t = read_mat_variable(mat_file.string(), "T");
   EXPECT_EQ(t.rows, 1u);
@@ -464,6 +465,12 @@ TEST_F(CliTest, ResultsExportAsCsvJsonAndMat) {
   ASSERT_EQ(riccati("result " + validation + " --export " + val_file.string()).exit_code, 0) << last_stderr();
   EXPECT_EQ(read_mat_variable(val_file.string(), "Y").cols, 2000u);
   EXPECT_EQ(read_mat_variable(val_file.string(), "Ymod").rows, 2u);
+  {
+    const MatVariable y = read_mat_variable(val_file.string(), "Y"), ymod = read_mat_variable(val_file.string(), "Ymod"),
+                      residuals = read_mat_variable(val_file.string(), "Residuals");
+    ASSERT_EQ(residuals.values.size(), y.values.size());
+    for (std::size_t i : {0u, 1u, 2001u, 3999u}) EXPECT_EQ(residuals.values[i], y.values[i] - ymod.values[i]) << i;
+  }
   // An extension that says no format: refused.
   r = riccati("result " + job + " --export " + (dir_.path() / "result.xlsx").string());
   EXPECT_EQ(r.exit_code, 2);
@@ -524,6 +531,35 @@ TEST_F(CliTest, IdentifyByOutputErrorFindsTheTwoTankTruth) {
   }
   EXPECT_NE(table.out.find("experiment 1 (ds-"), std::string::npos) << table.out;
   EXPECT_NE(table.out.find("residual diagnostics"), std::string::npos) << table.out;
+
+  // Exported as MAT (nlgreyest's users) and CSV: the estimate, and the
+  // residuals raw (Y - Ymod, the output's unit) and normalised (the result's).
+  const auto mat_file = dir_.path() / "oe.mat", csv_file = dir_.path() / "oe.csv";
+  for (const auto& file : {mat_file, csv_file}) {
+    ASSERT_EQ(riccati("result " + job + " --export " + file.string()).exit_code, 0) << last_stderr();
+  }
+  const MatVariable theta = read_mat_variable(mat_file.string(), "Theta");
+  ASSERT_EQ(theta.values.size(), 4u);
+  for (std::size_t i = 0; i < 4; ++i) EXPECT_EQ(theta.values[i], e["theta"][i].get<double>());
+  EXPECT_EQ(read_mat_variable(mat_file.string(), "ThetaUpper").values[0], e["ci_upper"][0].get<double>());
+  const MatVariable y = read_mat_variable(mat_file.string(), "Y"), ymod = read_mat_variable(mat_file.string(), "Ymod"),
+                    raw = read_mat_variable(mat_file.string(), "Residuals"),
+                    normalised = read_mat_variable(mat_file.string(), "ResidualsNormalised");
+  ASSERT_EQ(y.rows, 2u);
+  ASSERT_EQ(y.cols, 2000u);
+  ASSERT_EQ(raw.values.size(), 4000u);
+  ASSERT_EQ(normalised.values.size(), 4000u);
+  const auto& json_residuals = e["experiments"][0]["residuals"]["values"];
+  for (std::size_t i : {0u, 1u, 1001u, 3999u}) {
+    EXPECT_EQ(raw.values[i], y.values[i] - ymod.values[i]) << i;
+    EXPECT_EQ(normalised.values[i], json_residuals[i].get<double>()) << i;
+  }
+  EXPECT_EQ(read_mat_variable(mat_file.string(), "Experiment").cols, 2000u);
+  std::string header;
+  EXPECT_EQ(csv_rows(csv_file, &header).size(), 2000u);
+  EXPECT_EQ(header,
+            "experiment,t,y.h1,y.h2,y_model.h1,y_model.h2,residual.h1,residual.h2,residual_normalised.h1,"
+            "residual_normalised.h2,used.h1,used.h2");
   // The job's last progress: the optimiser's iteration and cost.
   const CliRun jobs = riccati("jobs");
   EXPECT_NE(jobs.out.find("iteration "), std::string::npos) << jobs.out;
@@ -659,7 +695,7 @@ TEST_F(CliTest, SmoothRunsTheSmootherOverARecord) {
   ASSERT_EQ(r.exit_code, 0) << last_stderr();
   const auto rows = csv_rows(csv, &header);
   ASSERT_EQ(rows.size(), clean.size());
-  EXPECT_EQ(header.rfind("t,h1,h2,A1,A2,k1,k2,std_h1,std_h2,", 0), 0u) << header;
+  EXPECT_EQ(header.rfind("t,h1,h2,A1,A2,k1,k2,std.h1,std.h2,", 0), 0u) << header;
   const std::size_t filtered = 1 + 2 * 6;  // t, the smoothed [x; theta], their std, then the filtered
   double smoothed_sq = 0.0, filtered_sq = 0.0;
   for (std::size_t k = 0; k < rows.size(); ++k) {
@@ -833,6 +869,10 @@ TEST_F(CliTest, SessionsAreListedShownRetunedAndClosed) {
   EXPECT_EQ(r.exit_code, 2) << last_stderr();
   r = riccati("--json sessions show " + id);
   EXPECT_EQ(nlohmann::json::parse(r.out)["retunings"].size(), 1u) << r.out;
+  // The noise it runs with now: R as retuned, Q as created (none given: 0).
+  r = riccati("sessions show " + id);
+  EXPECT_NE(r.out.find("  R: diag [0.01, 0.01]\n"), std::string::npos) << r.out;
+  EXPECT_NE(r.out.find("  Q: diag [0, 0, 0, 0, 0, 0]\n"), std::string::npos) << r.out;
 
   r = riccati("sessions close " + id);
   ASSERT_EQ(r.exit_code, 0) << last_stderr();
@@ -873,6 +913,108 @@ TEST_F(CliTest, StreamResumesAKeptSession) {
   ASSERT_EQ(whole_rows.size(), 2000u);
   EXPECT_EQ(resumed_rows.front(), whole_rows[1000]);  // t = 1000: the first row it had not seen
   EXPECT_EQ(resumed_rows.back(), whole_rows.back());
+}
+
+// A kept session resumed with a file it has seen to the end: nothing is
+// sent, and the command says why instead of a rate of 0 measurements/s; the
+// session is left as it was.
+TEST_F(CliTest, StreamOfRowsASessionHasSeenSaysSoAndSendsNothing) {
+  const auto rows50 = dir_.path() / "rows50.csv";
+  {
+    std::ifstream in(kData + "/two_tank.csv");
+    std::ofstream out(rows50);
+    std::string line;
+    for (int i = 0; i < 51 && std::getline(in, line); ++i) out << line << "\n";  // the header and 50 rows
+  }
+  const std::string settings = " --r 1e-3 --p0 0,0,10,10,10,10 --theta0 20,20,1,1";
+  CliRun r = riccati("stream --model two_tank --data " + rows50.string() + settings + " --keep -o " +
+                     (dir_.path() / "first.csv").string());
+  ASSERT_EQ(r.exit_code, 0) << last_stderr();
+  const std::string first = last_stderr();
+  const auto at = first.find("session ses-");
+  ASSERT_NE(at, std::string::npos) << first;
+  const std::string id = first.substr(at + 8, first.find('\n', at) - at - 8);
+  EXPECT_NE(last_stderr().find("50 estimates, 0 refused"), std::string::npos) << last_stderr();
+
+  const auto again = dir_.path() / "again.csv";
+  r = riccati("stream --session " + id + " --data " + rows50.string() + " -o " + again.string());
+  EXPECT_EQ(r.exit_code, 0) << last_stderr();
+  const std::string err = last_stderr();
+  EXPECT_NE(err.find("session " + id + " has seen every row of " + rows50.string() +
+                     " (50 rows, the last at t = 49 s; the session is at t = 49 s after 50 measurements): "
+                     "nothing to send; the session stays open"),
+            std::string::npos)
+      << err;
+  EXPECT_EQ(err.find("measurements/s"), std::string::npos) << err;
+  EXPECT_EQ(err.find("round trip"), std::string::npos) << err;
+  EXPECT_FALSE(std::filesystem::exists(again));
+  // Still open, where it was.
+  r = riccati("--json sessions show " + id);
+  ASSERT_EQ(r.exit_code, 0) << last_stderr();
+  EXPECT_EQ(nlohmann::json::parse(r.out)["measurements"], 50) << r.out;
+
+  // One row more in the file: that one is sent (and counted as one).
+  std::ofstream(rows50, std::ios::app) << "50,0.095046369632593539,0.030650165052652025,0.5,0.3\n";
+  r = riccati("stream --session " + id + " --data " + rows50.string() + " -o " + again.string());
+  ASSERT_EQ(r.exit_code, 0) << last_stderr();
+  EXPECT_NE(last_stderr().find("(50 rows skipped)"), std::string::npos) << last_stderr();
+  EXPECT_NE(last_stderr().find("\n1 estimate, 0 refused"), std::string::npos) << last_stderr();
+}
+
+// `job watch` says how the job ended, also when it had ended before the
+// watch: succeeded (and how to get its result), failed with the error, or
+// cancelled. The counts the command prints are in the singular for one.
+TEST_F(CliTest, JobWatchSaysHowTheJobEnded) {
+  // A model of one state, parameter, input and output whose state blows up
+  // (x' = k x^2 from x = 1 reaches infinity at t = 1): its filter diverges.
+  const auto model = dir_.path() / "blowup.yaml";
+  std::ofstream(model) << "model: blowup\nstates:\n  x: {unit: m}\ninputs:\n  u: {unit: m/s}\n"
+                          "parameters:\n  k: {value: 1}\nder:\n  x: k * x * x + u\noutputs:\n  y: x\n";
+  CliRun r = riccati("models add " + model.string());
+  ASSERT_EQ(r.exit_code, 0) << last_stderr();
+  EXPECT_EQ(r.out.rfind("blowup@1: 1 state, 1 parameter, 1 input, 1 output\n", 0), 0u) << r.out;
+  const auto record = dir_.path() / "blowup.csv";
+  {
+    std::ofstream out(record);
+    out << "t,u,y\n";
+    for (int k = 0; k < 50; ++k) out << k << ",0,1\n";
+  }
+
+  r = riccati("data upload " + kData + "/two_tank.csv --inputs F1,F2 --outputs h1,h2");
+  ASSERT_EQ(r.exit_code, 0) << last_stderr();
+  const std::string dataset = r.out.substr(0, r.out.find('\n'));
+  const std::string settings = " --theta0 20,20,1,1 --p0 0,0,10,10,10,10 --r 1e-3";
+  // Succeeded, watched after its end.
+  r = riccati("identify --model two_tank --passes 1 --data " + dataset + settings);
+  ASSERT_EQ(r.exit_code, 0) << last_stderr();
+  const std::string done = job_id_in(last_stderr());
+  r = riccati("job watch " + done);
+  EXPECT_EQ(r.exit_code, 0) << last_stderr();
+  EXPECT_EQ(r.out, "job " + done + " succeeded; its result: riccati result " + done + "\n");
+  EXPECT_EQ(riccati("result " + done).exit_code, 0) << last_stderr();
+
+  // Failed: the error, on stderr, exit 1; the same when watched again.
+  r = riccati("identify --model blowup --passes 1 --x0 1 --r 1e-3 --no-wait --data " + record.string());
+  ASSERT_EQ(r.exit_code, 0) << last_stderr();
+  const std::string failed = r.out.substr(0, r.out.find('\n'));
+  for (int watch = 0; watch < 2; ++watch) {
+    r = riccati("job watch " + failed);
+    EXPECT_EQ(r.exit_code, 1) << last_stderr();
+    EXPECT_EQ(r.out, "");
+    EXPECT_NE(last_stderr().find("riccati: job " + failed + " failed: pass 1, sample 2 (t = 1"), std::string::npos)
+        << last_stderr();
+    EXPECT_NE(last_stderr().find("filter diverged"), std::string::npos) << last_stderr();
+  }
+
+  // Cancelled.
+  r = riccati("identify --no-wait --model two_tank --passes 3000 --data " + dataset + settings);
+  ASSERT_EQ(r.exit_code, 0) << last_stderr();
+  const std::string cancelled = r.out.substr(0, r.out.find('\n'));
+  ASSERT_EQ(riccati("job cancel " + cancelled).exit_code, 0) << last_stderr();
+  r = riccati("job watch " + cancelled);
+  EXPECT_EQ(r.exit_code, 1) << last_stderr();
+  EXPECT_EQ(r.out, "");
+  EXPECT_NE(last_stderr().find("riccati: job " + cancelled + " cancelled"), std::string::npos) << last_stderr();
 }
 
 // The noisy two-tank record through an EKF session, from Hensen's start

@@ -1,4 +1,6 @@
 """Identification, validation and jobs through a real riccatid."""
+import dataclasses
+import io
 import json
 import os
 import subprocess
@@ -64,6 +66,11 @@ def test_result_is_what_riccatid_sent(hensen):
     # The normal 95 % interval about the reported estimate.
     assert (res.ci["lower"] < res.theta).all() and (res.theta < res.ci["upper"]).all()
     np.testing.assert_allclose(res.ci["upper"] - res.ci["lower"], 2 * 1.959963984540054 * res.std, rtol=1e-12)
+    summary = res.summary()
+    assert list(summary.columns) == ["estimate", "std", "lower", "upper", "rel_std_percent", "final"]
+    np.testing.assert_array_equal(summary["estimate"].to_numpy(), list(r.theta_mean))
+    np.testing.assert_array_equal(summary["final"].to_numpy(), list(r.theta))
+    assert repr(res).startswith(f"<IdentificationResult of job {res.job_id}, model two_tank: iterated filter, 10 passes")
 
 
 def test_traces_are_every_pass_sample_by_sample(hensen):
@@ -77,7 +84,7 @@ def test_traces_are_every_pass_sample_by_sample(hensen):
     # The toolbox's estimate is the last pass's mean, which the trace gives independently.
     np.testing.assert_allclose(res.traces.loc[10].mean().to_numpy(), res.theta.to_numpy(), rtol=1e-9)
     frame = res.to_frame()
-    assert list(frame.columns) == ["h1", "h2", "model_h1", "model_h2", "innovation_h1", "innovation_h2"]
+    assert list(frame.columns) == ["h1", "h2", "y_model.h1", "y_model.h2", "innovation.h1", "innovation.h2"]
     assert len(frame) == samples and frame.index[0] == 0.0
 
 
@@ -107,14 +114,15 @@ def test_validate_fits_agree_with_the_simulated_outputs(hensen):
     frame = fit.to_frame()
     # MATLAB's compare: 100 (1 - |y - yhat| / |y - mean(y)|), recomputed from the samples.
     for o in ("h1", "h2"):
-        y, yhat = frame[o].to_numpy(), frame[f"simulated_{o}"].to_numpy()
+        y, yhat = frame[f"y.{o}"].to_numpy(), frame[f"y_model.{o}"].to_numpy()
         expected = 100 * (1 - np.linalg.norm(y - yhat) / np.linalg.norm(y - y.mean()))
         assert fit.fits.loc[o, "fit_percent"] == pytest.approx(expected, rel=1e-9)
         assert fit.fits.loc[o, "rmse"] == pytest.approx(np.sqrt(np.mean((y - yhat) ** 2)), rel=1e-9)
         assert fit.fits.loc[o, "fit_percent"] > 99
     # The measured outputs are the uploaded ones.
     data = pd.read_csv(os.path.join(DATA, "two_tank.csv"), float_precision="round_trip")
-    np.testing.assert_array_equal(frame["h1"].to_numpy(), data["h1"].to_numpy())
+    np.testing.assert_array_equal(frame["y.h1"].to_numpy(), data["h1"].to_numpy())
+    np.testing.assert_array_equal(frame["residual.h2"].to_numpy(), (frame["y.h2"] - frame["y_model.h2"]).to_numpy())
     # Given values: the same simulation.
     again = c.validate("two_tank", ds, res.theta)
     np.testing.assert_array_equal(again.to_frame().to_numpy(), frame.to_numpy())
@@ -134,7 +142,13 @@ def test_output_error_with_intervals(client, truth):
     assert len(res.traces) == res.iterations or len(res.traces) == res.iterations + 1
     assert res.traces["cost"].iloc[-1] == pytest.approx(res.cost)
     frame = res.to_frame()
-    assert {"h1", "model_h1", "residual_h1", "used_h1"} <= set(frame.columns)
+    outputs = ["h1", "h2"]
+    assert list(frame.columns) == [f"{q}.{o}" for q in ("y", "y_model", "residual", "residual_normalised", "used")
+                                   for o in outputs]
+    # The raw residual in the output's unit; the normalised one is it over the sigma given (OE).
+    np.testing.assert_array_equal(frame["residual.h1"].to_numpy(), (frame["y.h1"] - frame["y_model.h1"]).to_numpy())
+    np.testing.assert_allclose(frame["residual_normalised.h1"].to_numpy(), frame["residual.h1"].to_numpy() / 0.005,
+                               rtol=1e-9, atol=1e-12)
     assert res.experiments[0].x0.index.tolist() == ["h1", "h2"]
     assert set(res.fits.index) == {"h1", "h2"}
     # The residual tests named by the model's outputs and inputs, with riccatid's p-values and dof.
@@ -201,7 +215,56 @@ def test_plots_of_traces_and_of_a_validation_are_written(hensen, tmp_path):
     overlay = tmp_path / "fit.svg"
     fig = fit.plot(overlay)
     assert [ax.get_ylabel() for ax in fig.axes] == ["h1", "h2"]
-    np.testing.assert_array_equal(fig.axes[0].lines[1].get_ydata(), fit.to_frame()["simulated_h1"].to_numpy())
+    np.testing.assert_array_equal(fig.axes[0].lines[1].get_ydata(), fit.to_frame()["y_model.h1"].to_numpy())
     root = ET.parse(overlay).getroot()  # parses as XML: an SVG document
     assert root.tag == "{http://www.w3.org/2000/svg}svg"
     assert len(root.findall(".//{http://www.w3.org/2000/svg}path")) > 10
+
+
+def test_an_output_error_result_explains_itself_and_plots(client, daemon, tmp_path):
+    seen = []
+    job = client.submit_identification("two_tank", os.path.join(DATA, "two_tank.csv"), method="oe",
+                                       theta0=[20, 20, 1, 1], **IO)
+    res = job.result(progress=lambda j: seen.append((j.state, j.progress)))
+    assert isinstance(res, riccati.EstimationResult)
+    # Progress: the optimiser's iterations of max_iterations (200 by default), not stuck at 0.
+    iterating = [(state, p) for state, p in seen if p.iteration > 0]
+    assert iterating, seen
+    assert all(p.method == "oe" and p.max_iterations == 200 for _, p in iterating)
+    fractions = [p.fraction for state, p in iterating if state != "succeeded"]
+    assert fractions == sorted(fractions)
+    assert seen[-1][0] == "succeeded" and seen[-1][1].fraction == 1.0
+    last = dataclasses.replace(seen[-1][1], succeeded=False)  # as it was before the end
+    assert last.iteration == res.iterations
+    assert last.fraction == pytest.approx(res.iterations / 200) and last.fraction > 0
+    assert str(last) == f"iteration {res.iterations}/200, cost {last.cost:.4g}"
+
+    # What it says of itself: the method, the job, the estimate.
+    text = repr(res)
+    assert text.startswith(f"<EstimationResult of job {job.id}, model two_tank: oe, converged after ")
+    assert f"A1 = {res.theta['A1']:.6g}" in text
+    summary = res.summary()
+    assert list(summary.columns) == ["estimate", "std", "lower", "upper", "rel_std_percent", "fixed"]
+    assert list(summary.index) == ["A1", "A2", "k1", "k2"]
+    np.testing.assert_array_equal(summary["estimate"].to_numpy(), list(res.proto.theta))
+    np.testing.assert_array_equal(summary["upper"].to_numpy(), list(res.proto.ci_upper))
+    np.testing.assert_allclose(summary["rel_std_percent"].to_numpy(),
+                               100 * np.asarray(res.proto.theta_std) / np.abs(res.proto.theta), rtol=1e-12)
+    printed = str(res)
+    assert printed.startswith(f"oe estimate of two_tank, job {job.id}: converged after {res.iterations} iterations")
+    assert summary.to_string() in printed and "experiment 1 (ds-" in printed
+
+    # The figure: per output the fit, then the residual.
+    fig = res.plot(tmp_path / "oe.png")
+    assert [ax.get_ylabel() for ax in fig.axes] == ["h1", "residual h1", "h2", "residual h2"]
+    frame = res.to_frame()
+    np.testing.assert_array_equal(fig.axes[1].lines[0].get_ydata(), frame["residual.h1"].to_numpy())
+    assert (tmp_path / "oe.png").read_bytes().startswith(b"\x89PNG")
+
+    # The CLI's CSV has the same columns as to_frame(), and the same values.
+    out = subprocess.run([CLI, "--server", daemon.address, "result", job.id, "--format", "csv"], check=True,
+                         capture_output=True, text=True).stdout
+    csv = pd.read_csv(io.StringIO(out), float_precision="round_trip")
+    assert list(csv.columns) == ["experiment", "t"] + list(frame.columns)
+    np.testing.assert_array_equal(csv["residual.h2"].to_numpy(), frame["residual.h2"].to_numpy())
+    np.testing.assert_array_equal(csv["used.h1"].to_numpy(), frame["used.h1"].astype(float).to_numpy())

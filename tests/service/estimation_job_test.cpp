@@ -428,6 +428,19 @@ TEST_F(EstimationJobTest, BadSettingsAreRefusedAtSubmitNamingTheField) {
     EXPECT_EQ(s.error_code(), grpc::StatusCode::INVALID_ARGUMENT) << s.error_message();
     EXPECT_NE(s.error_message().find("iterated filter"), std::string::npos) << s.error_message();
   }
+  // A validation of another model with the job's estimate (the workbench's
+  // Validate page did this): refused naming both models, not a FAILED job.
+  validation.set_estimate(v1::ESTIMATE_CHOICE_UNSPECIFIED);
+  validation.set_model("rotating_arm");
+  {
+    grpc::ClientContext ctx;
+    v1::Job job;
+    const grpc::Status s = jobs_->SubmitValidation(&ctx, validation, &job);
+    EXPECT_EQ(s.error_code(), grpc::StatusCode::INVALID_ARGUMENT) << s.error_message();
+    EXPECT_NE(s.error_message().find("job " + oe.id() + " identified model two_tank (A1, A2, k1, k2), not rotating_arm"),
+              std::string::npos)
+        << s.error_message();
+  }
   {
     grpc::ClientContext ctx;
     v1::ListJobsResponse list;
@@ -438,4 +451,55 @@ TEST_F(EstimationJobTest, BadSettingsAreRefusedAtSubmitNamingTheField) {
 }
 
 }  // namespace
+// A dataset whose columns do not fit the model is refused at submit by every
+// kind of job, naming the model's columns and the dataset's, and no job is made.
+TEST_F(EstimationJobTest, ADatasetWhoseColumnsDoNotFitTheModelIsRefusedAtSubmit) {
+  const std::string bytes = read_file(kData + "/two_tank.csv");
+  v1::DatasetInfo one_output, one_input;
+  ASSERT_TRUE(DaemonTest::upload("one_output.csv", bytes, {"F1", "F2"}, {"h2"}, &one_output).ok());
+  ASSERT_TRUE(DaemonTest::upload("one_input.csv", bytes, {"F1"}, {"h1", "h2"}, &one_input).ok());
+  const std::string outputs = "model two_tank has 2 outputs (h1, h2), the dataset has 1 (h2)";
+  const std::string inputs = "model two_tank has 2 inputs (F1, F2), the dataset has 1 (F1)";
+  const auto expect_refused = [&](const grpc::Status& s, const std::string& what, const std::string& dataset,
+                                  const std::string& message) {
+    EXPECT_EQ(s.error_code(), grpc::StatusCode::INVALID_ARGUMENT) << what << ": " << s.error_message();
+    EXPECT_NE(s.error_message().find(message), std::string::npos) << what << ": " << s.error_message();
+    EXPECT_NE(s.error_message().find(dataset), std::string::npos) << what << ": " << s.error_message();
+  };
+  for (const auto& [dataset, message] : {std::pair{one_output.id(), outputs}, std::pair{one_input.id(), inputs}}) {
+    v1::Job job;
+    expect_refused(try_submit(testing::hensen_spec(dataset), &job), "filter", dataset, message);
+    expect_refused(try_submit(output_error(dataset), &job), "oe", dataset, message);
+    {
+      v1::SmoothingSpec spec;
+      spec.set_model("two_tank");
+      spec.set_dataset_id(dataset);
+      spec.mutable_filter()->mutable_r()->set_scalar(1e-3);
+      spec.mutable_initial_state()->set_first_measurement(true);
+      grpc::ClientContext ctx;
+      expect_refused(jobs_->SubmitSmoothing(&ctx, spec, &job), "smoothing", dataset, message);
+    }
+    {
+      v1::ValidationSpec spec;
+      spec.set_model("two_tank");
+      spec.set_dataset_id(dataset);
+      for (double v : kTwoTankTruth) spec.mutable_theta()->add_values(v);
+      spec.mutable_initial_state()->set_first_measurement(true);
+      grpc::ClientContext ctx;
+      expect_refused(jobs_->SubmitValidation(&ctx, spec, &job), "validation", dataset, message);
+    }
+  }
+  // A second experiment that does not fit: named as that experiment.
+  v1::IdentificationSpec two = output_error(upload_two_tank());
+  v1::Experiment* second = two.add_experiments();
+  second->set_dataset_id(one_output.id());
+  second->mutable_initial_state()->set_first_measurement(true);
+  v1::Job job;
+  expect_refused(try_submit(two, &job), "experiment 2", "experiment 2 (" + one_output.id() + ")", outputs);
+  grpc::ClientContext ctx;
+  v1::ListJobsResponse list;
+  ASSERT_TRUE(jobs_->ListJobs(&ctx, {}, &list).ok());
+  EXPECT_EQ(list.jobs_size(), 0) << "a refused job was made";
+}
+
 }  // namespace riccati

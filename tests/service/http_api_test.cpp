@@ -564,6 +564,11 @@ TEST_F(HttpApiTest, ARetunedSessionsGainRespondsAtTheNextMeasurement) {
   EXPECT_EQ(retuned.retunings(0).measurements(), static_cast<std::uint64_t>(kSamples));
   EXPECT_DOUBLE_EQ(retuned.retunings(0).t(), data.t[kSamples - 1]);
   EXPECT_EQ(retuned.retunings(0).r().diagonal().values(0), 1000);
+  // The noise it runs with now, what a retuning starts from: r as retuned, q as created (none given: 0, nz x nz).
+  ASSERT_EQ(retuned.r().diagonal().values_size(), 2);
+  EXPECT_EQ(retuned.r().diagonal().values(1), 1000);
+  ASSERT_EQ(retuned.q().diagonal().values_size(), 6);
+  EXPECT_EQ(retuned.q().diagonal().values(0), 0.0);
 
   for (Fed& s : sessions) s.last = feed(s.id, kSamples, kSamples + 1, 0.05);
   const v1::Estimate& as_created = sessions[0].last.estimate();
@@ -583,6 +588,15 @@ TEST_F(HttpApiTest, ARetunedSessionsGainRespondsAtTheNextMeasurement) {
   v1::SessionInfo info;
   ASSERT_TRUE(sessions_->GetSession(as(kAlpha).get(), get, &info).ok());
   EXPECT_EQ(info.retunings_size(), 1);
+  EXPECT_EQ(info.r().diagonal().values(0), 1000);
+  {
+    v1::SessionInfo created;
+    v1::GetSessionRequest first;
+    first.set_id(sessions[0].id);
+    ASSERT_TRUE(sessions_->GetSession(as(kAlpha).get(), first, &created).ok());
+    ASSERT_EQ(created.r().diagonal().values_size(), 2);
+    EXPECT_EQ(created.r().diagonal().values(0), 1e-3);
+  }
   v1::RetuneSessionRequest wrong;
   wrong.set_id(sessions[1].id);
   wrong.mutable_r()->mutable_diagonal()->add_values(1.0);  // ny = 2

@@ -12,7 +12,11 @@ trace and overlay plots are drawn, validates the estimate, watches a session
 fed by `riccati stream` and retunes its R on-line, writes a text model in the
 Models page's editor (an error shown at its line as one types; fixed, it is
 uploaded, listed with its units and opens Identify), and shows a dataset named
-<script>alert(1)</script> as text. With --screenshots, saves a PNG of every page there.
+<script>alert(1)</script> as text. Also what issue 31 found: intervals and
+tick labels that read the same, no truth on the traces, a Validate page whose
+model was not its job's, a dataset that does not fit refused only as a job,
+a retune form that showed nothing and demanded every value, "Sign out"
+without a token, the favicon's 404. With --screenshots, saves a PNG of every page there.
 """
 import argparse
 import ctypes
@@ -25,6 +29,7 @@ import sys
 import tempfile
 import time
 import unittest
+import urllib.error
 import urllib.request
 
 from selenium import webdriver
@@ -165,6 +170,35 @@ class WorkbenchCase(unittest.TestCase):
                                f"a plot in {container_css} is blank")
         return canvases
 
+    # Each plot's y-axis tick labels, range and the series' finite values.
+    PLOTS = """
+        return [...document.querySelectorAll(arguments[0] + ' .plot')].map((box) => {
+          const u = box.uplot;
+          return {title: box.dataset.title, ticks: u.axes[1]._values || [], min: u.scales.y.min, max: u.scales.y.max,
+                  labels: u.series.slice(1).map((s) => s.label),
+                  data: u.data.slice(1).map((d) => Array.from(d).filter((v) => v !== null && Number.isFinite(v)))};
+        });"""
+
+    def plots(self, container_css):
+        return self.driver.execute_script(self.PLOTS, container_css)
+
+    def assert_ticks_distinct(self, container_css):
+        plots = self.plots(container_css)
+        self.assertTrue(plots, f"no plots in {container_css}")
+        for p in plots:
+            self.assertGreaterEqual(len(p["ticks"]), 2, p)
+            self.assertEqual(len(set(p["ticks"])), len(p["ticks"]), f"{p['title']}: tick labels repeat: {p['ticks']}")
+        return plots
+
+    def upload_raw(self, path, name, inputs, outputs):
+        with open(path, "rb") as f:
+            body = f.read()
+        request = urllib.request.Request(
+            self.base + f"api/v1/datasets?name={name}&input_columns={','.join(inputs)}&output_columns={','.join(outputs)}",
+            data=body, method="POST", headers={"Authorization": "Bearer " + TOKEN, "Content-Type": "text/csv"})
+        with urllib.request.urlopen(request, timeout=60) as response:
+            return json.loads(response.read())["id"]
+
     def wait_job(self, terminal_state="SUCCEEDED"):
         state = self.find("#job-state")
         self.wait(lambda d: state.text in ("SUCCEEDED", "FAILED", "CANCELLED"))
@@ -238,6 +272,9 @@ class Workbench(WorkbenchCase):
         token.send_keys(TOKEN)
         self.find("#signin-button").click()
         self.find("#signout")
+        # A favicon in the page itself: no request for /favicon.ico, no 404.
+        icon = self.driver.execute_script("return document.querySelector('link[rel=icon]').href")
+        self.assertTrue(icon.startswith("data:image/svg+xml"), icon)
         self.assertEqual([a.text for a in self.driver.find_elements(By.CSS_SELECTOR, "#nav a")],
                          ["Datasets", "Identify", "Validate", "Sessions", "Models", "Jobs"])
 
@@ -302,12 +339,61 @@ class Workbench(WorkbenchCase):
             sigmas = row.find_element(By.CSS_SELECTOR, 'td[data-col="Error (σ)"]')
             self.assertAlmostEqual(float(sigmas.get_attribute("data-value")),
                                    (result["thetaMean"][i] - TRUTH[name]) / result["thetaStd"][i], places=9)
+            # The interval with the digits that tell its ends apart, about the estimate.
+            interval = row.find_element(By.CSS_SELECTOR, 'td[data-col="95 % interval"]').text
+            lo, hi = (float(v) for v in interval.split(" … "))
+            self.assertLess(lo, hi, interval)
+            width = 2 * 1.96 * result["thetaStd"][i]
+            self.assertAlmostEqual((hi - lo) / width, 1.0, delta=0.1, msg=interval)
         # Hensen's estimates near the truth (two_tank.json: 10, 5, 0.0791, 0.1342).
         self.assertAlmostEqual(result["thetaMean"][0], 10, delta=1)
         self.find("#correlation")
         self.assert_plots_drawn("#traces", 4)
         self.assert_plots_drawn("#overlay", 2)
+        # Traces: the truth dashed (from the dataset); the axes span the passes after the
+        # first (its start from theta0 would flatten them) and the truth; the ticks differ.
+        self.assertEqual(self.find("#truth-input").get_attribute("value"), "A1=10, A2=5, k1=0.0791, k2=0.1342")
+
+        def assert_axes_span(first):
+            for p in self.assert_ticks_distinct("#traces"):
+                self.assertEqual(p["labels"], ["pass 1", "pass 2", "pass 3", "truth"], p["title"])
+                self.assertEqual(p["data"][-1][0], TRUTH[p["title"]])
+                values = [v for series in p["data"][first:] for v in series]
+                self.assertLessEqual(p["min"], min(values), p["title"])
+                self.assertGreaterEqual(p["max"], max(values), p["title"])
+                # Not much wider than that: the last passes are not a flat line.
+                self.assertLess(p["max"] - p["min"], 1.2 * (max(values) - min(values)), p["title"])
+        assert_axes_span(1)
+        self.assert_ticks_distinct("#overlay")
         self.shot("identify-result")
+        self.find("#traces-every-pass").click()
+        self.wait(lambda d: self.plots("#traces")[2]["max"] > 0.5)  # k1's first pass starts at 1
+        assert_axes_span(0)
+        self.find("#traces-every-pass").click()
+        # A truth the user types replaces the dataset's.
+        field = self.find("#truth-input")
+        field.clear()
+        field.send_keys("A1=11\n")
+        self.wait(lambda d: [p["labels"][-1] for p in self.plots("#traces")] == ["truth", "pass 3", "pass 3", "pass 3"])
+        self.assertEqual(self.plots("#traces")[0]["data"][-1][0], 11)
+
+    def test_4b_a_dataset_that_does_not_fit_is_refused_before_the_job(self):
+        # One output where two_tank has two: refused at submit, the columns named; no job made.
+        dataset = self.upload_raw(os.path.join(ARGS.source_dir, "tests/data/two_tank.csv"), "one_output.csv",
+                                  ["F1", "F2"], ["h2"])
+        jobs_before = len(self.api("/jobs").get("jobs", []))
+        self.go(f"identify?dataset={dataset}&model=two_tank")
+        # The page sees it from the columns, before anything is sent...
+        note = self.wait(lambda d: d.find_element(By.CSS_SELECTOR, "#identify-columns .error"))
+        self.assertIn("model two_tank has 2 outputs (h1, h2), dataset one_output.csv has 1 (h2)", note.text)
+        self.assertFalse(self.find("#identify-submit").is_enabled())
+        # ...and riccatid refuses the same request at submit.
+        with self.assertRaises(urllib.error.HTTPError) as e:
+            self.api("/jobs/identification", {"model": "two_tank", "datasetId": dataset})
+        self.assertIn(f"experiment 1 ({dataset}): model two_tank has 2 outputs (h1, h2), the dataset has 1 (h2)",
+                      json.loads(e.exception.read())["message"])
+        self.assertEqual(len(self.api("/jobs").get("jobs", [])), jobs_before)
+        self.api("/datasets/" + dataset, method="DELETE")
 
     def test_4b_estimation_diagnostics(self):
         # Output error on the noisy record, from the truth: the residual tests a
@@ -341,6 +427,19 @@ class Workbench(WorkbenchCase):
             self.find("#diagnostics").screenshot(os.path.join(ARGS.screenshots, "workbench-diagnostics.png"))
 
     def test_5_validate(self):
+        # Opened bare, the model is the chosen job's (its estimate fits it), not the first model listed.
+        self.go("validate")
+        source = Select(self.find("#validate-source"))
+        model = Select(self.find("#validate-model"))
+        self.assertEqual(source.first_selected_option.get_attribute("value"), Workbench.job)
+        self.assertEqual(model.first_selected_option.get_attribute("value"), "two_tank")
+        self.assertFalse(self.find("#validate-theta").is_displayed())
+        # Another model: its own parameters, typed in; the job again: its model again.
+        model.select_by_value("flexible_manipulator")
+        self.assertEqual(source.first_selected_option.get_attribute("value"), "")
+        self.assertTrue(self.find("#validate-theta").is_displayed())
+        source.select_by_value(Workbench.job)
+        self.assertEqual(model.first_selected_option.get_attribute("value"), "two_tank")
         self.go(f"jobs/{Workbench.job}")
         self.find("#validate-link").click()
         source = Select(self.find("#validate-source"))
@@ -432,21 +531,52 @@ class Workbench(WorkbenchCase):
                 return null;""", name)
         before = two_sigma("h1")
         self.assertIsNotNone(before)
-        for output in ("h1", "h2"):
-            self.find(f"#retune-r-{output}").send_keys("1")
+        # The fields show what the filter runs with (examples/two_tank_hensen.yaml: R = 1e-3 I, Q = 0).
+        self.assertEqual([self.find(f"#retune-r-{o}").get_attribute("value") for o in ("h1", "h2")], ["0.001", "0.001"])
+        self.assertEqual(self.find("#retune-q-A1").get_attribute("value"), "0")
+        # Applying with nothing changed sends nothing.
         self.find("#retune-apply").click()
-        self.wait(lambda d: d.find_element(By.ID, "retune-status").text != "")
-        self.assertIn("Retuned", self.driver.find_element(By.ID, "retune-status").text)
+        self.wait(lambda d: "Nothing changed" in d.find_element(By.ID, "retune-status").text)
+        # One value changed: R goes with the other output's as it was, Q is not sent.
+        field = self.find("#retune-r-h1")
+        field.clear()
+        field.send_keys("1")
+        self.find("#retune-apply").click()
+        self.wait(lambda d: "Retuned" in d.find_element(By.ID, "retune-status").text)
+        self.assertIn("Retuned R at", self.driver.find_element(By.ID, "retune-status").text)
         self.find("#retunings table tbody tr")
         info = self.api("/sessions/" + self.driver.current_url.split("#/sessions/")[1])
         self.assertEqual(len(info["retunings"]), 1)
-        self.assertEqual(info["retunings"][0]["r"]["diagonal"]["values"], [1, 1])
+        self.assertEqual(info["retunings"][0]["r"]["diagonal"]["values"], [1, 0.001])
+        self.assertNotIn("q", info["retunings"][0])
+        self.assertEqual(info["r"]["diagonal"]["values"], [1, 0.001])
+        self.assertEqual(self.find("#retune-r-h1").get_attribute("value"), "1")
         seen = []
         try:
             self.wait(lambda d: seen.append(two_sigma("h1")) or (seen[-1] or 0) > 1.5 * before, timeout=60)
         except TimeoutException:
             self.fail(f"the ±2σ of h1 did not grow after R was raised: {before} before, then {seen[-20:]}")
+        self.assert_ticks_distinct("#session-plots")
         self.shot("session")
+
+    def test_8_no_sign_out_without_a_token(self):
+        # A riccatid without a tokens file lets loopback in: nothing to sign out of.
+        data = os.path.join(self.dir, "open")
+        port_file = os.path.join(self.dir, "open_http_port")
+        daemon = subprocess.Popen(
+            [ARGS.riccatid, "--listen", "127.0.0.1:0", "--port-file", os.path.join(self.dir, "open_port"),
+             "--http-listen", "127.0.0.1:0", "--http-port-file", port_file, "--data-dir", data,
+             "--models-dir", ARGS.models_dir], stderr=subprocess.DEVNULL, preexec_fn=die_with_parent)
+        try:
+            port = wait_for_file(port_file, daemon, "its HTTP port")
+            self.driver.execute_script("sessionStorage.clear()")
+            self.driver.get(f"http://127.0.0.1:{port}/#/models")
+            self.find("#no-token")
+            self.assertEqual(self.driver.find_elements(By.ID, "signout"), [])
+            self.assertEqual(len(self.driver.find_elements(By.CSS_SELECTOR, "#nav a")), 6)
+        finally:
+            daemon.send_signal(signal.SIGTERM)
+            self.assertEqual(daemon.wait(timeout=60), 0)
 
 
 def main_args():

@@ -141,10 +141,10 @@ int data_show(Client& c, const std::string& id) {
     std::printf("%s\n", to_json(info).c_str());
     return kExitOk;
   }
-  std::printf("%s  %s\n  samples: %llu, t from %.6g to %.6g s\n  inputs:  %s\n  outputs: %s\n  size: %llu bytes\n",
+  std::printf("%s  %s\n  samples: %llu, t from %.6g to %.6g s\n  inputs:  %s\n  outputs: %s\n  size: %s\n",
               info.id().c_str(), info.name().c_str(), static_cast<unsigned long long>(info.samples()), info.t_start(),
               info.t_end(), join(info.input_names()).c_str(), join(info.output_names()).c_str(),
-              static_cast<unsigned long long>(info.size_bytes()));
+              counted(info.size_bytes(), "byte").c_str());
   if (!info.true_parameters().empty()) {
     // In name order, as a map's are not.
     const std::map<std::string, double> truth(info.true_parameters().begin(), info.true_parameters().end());

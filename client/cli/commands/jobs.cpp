@@ -67,7 +67,13 @@ int job_show(Client& c, const std::string& id) {
 int job_watch(Client& c, const std::string& id) {
   v1::Job last;
   const int rc = watch_until_done(c, id, &last);
-  if (c.json) std::printf("%s\n", to_json(last).c_str());
+  if (c.json) {
+    std::printf("%s\n", to_json(last).c_str());
+  } else if (last.state() == v1::JOB_STATE_SUCCEEDED) {
+    // Its end, and where the answer is (a job watched after it ended shows
+    // only its last progress, which says neither).
+    std::printf("job %s succeeded; its result: riccati result %s\n", id.c_str(), id.c_str());
+  }
   return rc;
 }
 
@@ -212,8 +218,9 @@ int watch_until_done(Client& c, const std::string& id, v1::Job* last, OnInterrup
   }
   if (!s.ok()) return c.fail("watching job " + id, s);
   if (last->state() != v1::JOB_STATE_SUCCEEDED) {
-    std::fprintf(stderr, "riccati: job %s %s: %s\n", id.c_str(), state_name(last->state()).c_str(),
-                 last->error().message().c_str());
+    const std::string& why = last->error().message();
+    std::fprintf(stderr, "riccati: job %s %s%s\n", id.c_str(), state_name(last->state()).c_str(),
+                 why.empty() ? "" : (": " + why).c_str());
     return kExitFailed;
   }
   return kExitOk;
@@ -319,11 +326,25 @@ int result_export(Client& c, const std::string& id, const std::string& path) {
     return rc;
   }
   v1::JobResult r;
-  auto ctx = c.context();
-  v1::GetResultRequest request;
-  request.set_job_id(id);
-  if (const grpc::Status s = c.jobs->GetResult(ctx.get(), request, &r); !s.ok()) return c.fail("result of job " + id, s);
-  if (const auto problem = write_result_mat(r, path)) {
+  {
+    auto ctx = c.context();
+    v1::GetResultRequest request;
+    request.set_job_id(id);
+    if (const grpc::Status s = c.jobs->GetResult(ctx.get(), request, &r); !s.ok()) {
+      return c.fail("result of job " + id, s);
+    }
+  }
+  v1::Job job;
+  {
+    auto ctx = c.context();
+    v1::GetJobRequest request;
+    request.set_id(id);
+    (void)c.jobs->GetJob(ctx.get(), request, &job);  // without it (deleted since), the names are numbered
+  }
+  std::vector<double> initial;
+  ModelNames names;
+  job_context(c, job, &initial, &names);
+  if (const auto problem = write_result_mat(r, names, path)) {
     std::fprintf(stderr, "riccati: --export %s: %s\n", path.c_str(), problem->c_str());
     return kExitFailed;
   }

@@ -133,10 +133,12 @@ int models_add(Client& c, const std::string& file) {
     std::printf("%s\n", to_json(info).c_str());
     return kExitOk;
   }
-  std::printf("%s@%llu: %zu states, %zu parameters, %zu inputs, %zu outputs\n", info.name().c_str(),
-              static_cast<unsigned long long>(info.text().revision()), static_cast<std::size_t>(info.state_names_size()),
-              static_cast<std::size_t>(info.param_names_size()), static_cast<std::size_t>(info.input_names_size()),
-              static_cast<std::size_t>(info.output_names_size()));
+  std::printf("%s@%llu: %s, %s, %s, %s\n", info.name().c_str(),
+              static_cast<unsigned long long>(info.text().revision()),
+              counted(static_cast<unsigned>(info.state_names_size()), "state").c_str(),
+              counted(static_cast<unsigned>(info.param_names_size()), "parameter").c_str(),
+              counted(static_cast<unsigned>(info.input_names_size()), "input").c_str(),
+              counted(static_cast<unsigned>(info.output_names_size()), "output").c_str());
   const v1::JacobianCheck& check = info.jacobian_check();
   if (check.checked() && !check.agrees()) {
     std::printf("  WRONG: its Jacobians disagree with finite differences (%s)\n", check.detail().c_str());

@@ -55,11 +55,20 @@ int session_show(Client& c, const std::string& id) {
     std::printf("%s\n", to_json(info).c_str());
     return kExitOk;
   }
-  std::printf("%s  %s (%s)\n  state: %s, %llu measurements, t = %.17g s\n  instance: %s\n", info.id().c_str(),
+  std::printf("%s  %s (%s)\n  state: %s, %s, t = %.17g s\n  instance: %s\n", info.id().c_str(),
               info.model().c_str(), filter_name(info.filter()).c_str(), session_state(info.state()).c_str(),
-              static_cast<unsigned long long>(info.measurements()), info.t(),
+              counted(info.measurements(), "measurement").c_str(), info.t(),
               info.instance().empty() ? "-" : info.instance().c_str());
   if (info.state_estimate_size() > 0) std::printf("  estimate: %s\n", values_list(info.state_estimate()).c_str());
+  // The noise the filter runs with now (what `sessions retune` changes).
+  const auto noise = [](const char* name, const v1::Covariance& c) {
+    if (c.has_diagonal()) std::printf("  %s: diag %s\n", name, values_list(c.diagonal().values()).c_str());
+    if (c.has_full()) std::printf("  %s: %u x %u, full\n", name, c.full().rows(), c.full().cols());
+  };
+  noise("Q", info.q());
+  noise("R", info.r());
+  noise("V", info.v());
+  noise("W", info.w());
   if (info.has_error()) std::printf("  diverged: %s\n", info.error().message().c_str());
   return kExitOk;
 }
@@ -89,8 +98,8 @@ int session_retune(Client& c, const std::string& id, const RunSettings& s) {
     std::printf("%s\n", to_json(info).c_str());
     return kExitOk;
   }
-  std::printf("retuned %s at t = %.17g s, after %llu measurements (retuning %d)\n", info.id().c_str(), info.t(),
-              static_cast<unsigned long long>(info.measurements()), info.retunings_size());
+  std::printf("retuned %s at t = %.17g s, after %s (retuning %d)\n", info.id().c_str(), info.t(),
+              counted(info.measurements(), "measurement").c_str(), info.retunings_size());
   return kExitOk;
 }
 

@@ -213,10 +213,15 @@ bool wants_live_view(const std::string& live, std::FILE* out) {
 }
 
 void print_summary(const Tally& tally, double seconds, RoundTrips* trips) {
-  std::fprintf(stderr,
-               "%zu estimates, %zu refused, %.2f s (%.0f measurements/s), round trip p50 %.0f us, p99 %.0f us\n",
-               tally.estimates, tally.refused, seconds, static_cast<double>(tally.estimates + tally.refused) / seconds,
-               trips->quantile(0.5), trips->quantile(0.99));
+  const std::size_t answered = tally.estimates + tally.refused;
+  if (answered == 0) {
+    // No rate nor round trip to speak of.
+    std::fprintf(stderr, "no estimates, %.2f s\n", seconds);
+    return;
+  }
+  std::fprintf(stderr, "%s, %zu refused, %.2f s (%.0f measurements/s), round trip p50 %.0f us, p99 %.0f us\n",
+               counted(tally.estimates, "estimate").c_str(), tally.refused, seconds,
+               static_cast<double>(answered) / seconds, trips->quantile(0.5), trips->quantile(0.99));
 }
 
 }  // namespace
@@ -255,11 +260,22 @@ int stream(Client& c, const StreamOptions& o) {
   if (!o.session.empty() && resumed.measurements() > 0) {
     // The rows the session has not seen: those after its time.
     std::size_t seen = 0;
+    const double last_t = recording.table.rows() > 0 ? recording.table.row(recording.table.rows() - 1)[0] : 0.0;
     while (seen < recording.table.rows() && recording.table.row(seen)[0] <= resumed.t()) ++seen;
     recording.table.values.erase(recording.table.values.begin(),
                                  recording.table.values.begin() + static_cast<std::ptrdiff_t>(seen * recording.table.columns));
-    std::fprintf(stderr, "resuming session %s after t = %.17g s (%zu rows skipped)\n", o.session.c_str(),
-                 resumed.t(), seen);
+    if (recording.table.rows() == 0) {
+      // Nothing to send: say so rather than open a stream for no rows. The
+      // session is left as it was (open), with or without --keep.
+      std::fprintf(stderr,
+                   "session %s has seen every row of %s (%s, the last at t = %.17g s; the session is at t = %.17g "
+                   "s after %s): nothing to send; the session stays open\n",
+                   o.session.c_str(), o.file.c_str(), counted(seen, "row").c_str(), last_t, resumed.t(),
+                   counted(resumed.measurements(), "measurement").c_str());
+      return kExitOk;
+    }
+    std::fprintf(stderr, "resuming session %s after t = %.17g s (%s skipped)\n", o.session.c_str(), resumed.t(),
+                 counted(seen, "row").c_str());
   }
   std::FILE* out = o.output.empty() ? stdout : std::fopen(o.output.c_str(), "w");
   if (out == nullptr) {

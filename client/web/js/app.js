@@ -19,6 +19,7 @@ const kPages = [
 ];
 
 const main = document.getElementById('main');
+const kNoToken = '-';  // what is sent to a riccatid that asks for none
 let current = null;  // the page's AbortController: its streams and timers end when it is left
 
 // "#/jobs/abc?x=1" -> {page: 'jobs', id: 'abc', query: URLSearchParams}
@@ -60,7 +61,7 @@ async function render() {
   if (!token()) {
     // Without a tokens file riccatid lets loopback in as tenant "default": try first.
     try {
-      setToken('-');
+      setToken(kNoToken);
       await api('GET', '/models');
     } catch (_) {
       setToken('');
@@ -70,7 +71,9 @@ async function render() {
   const r = route();
   const nav = document.getElementById('nav');
   clear(nav, kPages.map(([key, title]) => h('a', {href: '#/' + key, class: key === r.page ? 'active' : ''}, title)));
-  clear(document.getElementById('account'),
+  // Signed in with a token: it can be signed out. Let in without one (a
+  // riccatid without a tokens file, on loopback): nothing to sign out of.
+  clear(document.getElementById('account'), token() === kNoToken ? h('span', {class: 'muted', id: 'no-token'}, 'no sign-in needed') :
     h('button', {id: 'signout', onclick: () => { setToken(''); signIn(); }}, 'Sign out'));
   if (current) current.abort();
   current = new AbortController();

@@ -46,6 +46,43 @@ export function fmt(v, digits = 4) {
   return a >= 1e5 || a < 1e-3 ? x.toExponential(digits - 1) : Number(x.toPrecision(digits)).toString();
 }
 
+// An interval "lo … hi" with enough significant digits to read its width to
+// two digits (at least `digits`): 0.13412 … 0.13418, not 0.1341 … 0.1341.
+export function fmtInterval(lo, hi, digits = 4) {
+  const a = num(lo), b = num(hi);
+  if (!Number.isFinite(a) || !Number.isFinite(b) || a === b) return `${fmt(a, digits)} … ${fmt(b, digits)}`;
+  const scale = Math.max(Math.abs(a), Math.abs(b));
+  const needed = Math.floor(Math.log10(scale)) - Math.floor(Math.log10(Math.abs(b - a))) + 2;
+  const d = Math.min(15, Math.max(digits, needed));
+  return `${fmt(a, d)} … ${fmt(b, d)}`;
+}
+
+// Tick labels that differ: fixed decimals from the ticks' spacing (uPlot's
+// default keeps 3 decimals, so ticks 0.13405, 0.1341, 0.13415 all read
+// 0.134), exponents for very large or small values; more digits if any two
+// still read the same.
+export function tickLabels(values, increment) {
+  const finite = values.filter(Number.isFinite);
+  const big = finite.some((v) => Math.abs(v) >= 1e6);
+  const small = finite.length > 0 && finite.every((v) => v === 0 || Math.abs(v) < 1e-3);
+  const step = Math.abs(num(increment)) || 1;
+  let decimals = Math.max(0, Math.ceil(-Math.log10(step) - 1e-9));
+  const label = (v, n) => {
+    if (!Number.isFinite(v)) return '';
+    if (big || small) return v === 0 ? '0' : v.toExponential(Math.min(14, n));
+    return v.toFixed(Math.min(15, n));
+  };
+  if (big || small) {
+    const scale = Math.max(...finite.map((v) => Math.abs(v)).filter((v) => v > 0), step);
+    decimals = Math.max(1, Math.ceil(Math.log10(scale / step) - 1e-9));
+  }
+  for (let n = decimals; n <= decimals + 6; ++n) {
+    const out = values.map((v) => label(v, n));
+    if (new Set(out).size === out.length) return out.map((t) => (t === '-0' ? '0' : t));
+  }
+  return values.map((v) => label(v, decimals + 6));
+}
+
 export function when(ts) {
   if (!ts) return '';
   const d = new Date(ts);

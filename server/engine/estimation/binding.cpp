@@ -27,15 +27,19 @@ std::string join(const std::vector<std::string>& names) {
   return out;
 }
 
+Status check_counts(const char* what, const std::vector<std::string>& wanted, const std::vector<std::string>& have,
+                    const std::string& model_name) {
+  if (have.size() == wanted.size()) return Status::ok();
+  return invalid_argument("model " + model_name + " has " + std::to_string(wanted.size()) + " " + what + " (" +
+                          join(wanted) + "), the dataset has " + std::to_string(have.size()) + " (" +
+                          (have.empty() ? std::string("none") : join(have)) + ")");
+}
+
 // Reorders the rows of m (one variable per row) as `wanted` says they are
 // named in `have`; positional when the names do not all match.
 Status bind_rows(const char* what, const std::vector<std::string>& wanted, const std::vector<std::string>& have,
                  const std::string& model_name, Eigen::MatrixXd* m, std::vector<std::string>* names) {
-  if (have.size() != wanted.size()) {
-    return invalid_argument("model " + model_name + " has " + std::to_string(wanted.size()) + " " + what + " (" +
-                            join(wanted) + "), the dataset has " + std::to_string(have.size()) + " (" + join(have) +
-                            ")");
-  }
+  RICCATI_RETURN_IF_ERROR(check_counts(what, wanted, have, model_name));
   const auto order = order_by_name(wanted, have);
   if (!order.empty()) {
     Eigen::MatrixXd reordered(m->rows(), m->cols());
@@ -47,6 +51,12 @@ Status bind_rows(const char* what, const std::vector<std::string>& wanted, const
 }
 
 }  // namespace
+
+Status check_columns(const Model& model, const std::vector<std::string>& inputs,
+                     const std::vector<std::string>& outputs) {
+  RICCATI_RETURN_IF_ERROR(check_counts("inputs", model.input_names(), inputs, model.name()));
+  return check_counts("outputs", model.output_names(), outputs, model.name());
+}
 
 Result<Dataset> bind_dataset(const Model& model, const Dataset& data) {
   RICCATI_RETURN_IF_ERROR(validate_dataset(data));

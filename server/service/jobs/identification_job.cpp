@@ -4,6 +4,7 @@
 #include <cmath>
 #include <limits>
 
+#include "engine/estimation/binding.hpp"
 #include "engine/filters/filter_kinds.hpp"
 #include "service/convert.hpp"
 #include "service/jobs/job_convert.hpp"
@@ -242,12 +243,17 @@ Result<IdentificationJob> identification_from_proto(const v1::IdentificationSpec
   return internal_error(std::string("method ") + identification_method_name(job.method) + " has no optimiser");
 }
 
+Status dataset_fits_model(const DatasetRecord& record, const Model& model) {
+  return check_columns(model, record.input_names, record.output_names);
+}
+
 Status check_against_datasets(const IdentificationJob& job, const std::vector<DatasetRecord>& records,
                               const Model& model) {
   for (std::size_t e = 0; e < job.experiments.size(); ++e) {
     const ExperimentSpec& spec = job.experiments[e];
     const DatasetRecord& record = records[e];
     const std::string which = "experiment " + std::to_string(e + 1) + " (" + record.id + ")";
+    RICCATI_RETURN_IF_ERROR(dataset_fits_model(record, model).with_context(which));
     for (const v1::SampleRange& range : spec.mask.excluded()) {
       if (range.end() > static_cast<uint64_t>(record.samples)) {
         return invalid_argument(which + ": the excluded range [" + std::to_string(range.first()) + ", " +

@@ -45,6 +45,13 @@ Result<IdentificationJob> identification_from_proto(const v1::IdentificationSpec
 // What needs the datasets' records: each experiment's dataset (records[e])
 // has the samples its mask and the trial range name, and the outputs its
 // "first measurement" takes.
+// The dataset's input and output columns against the model's (their counts,
+// as bind_dataset() needs them; names are matched, or taken by position, when
+// the job runs): INVALID_ARGUMENT naming both, so a mismatch is refused at
+// submit instead of failing the job. Every submit (identification, smoothing,
+// validation) checks it.
+Status dataset_fits_model(const DatasetRecord& record, const Model& model);
+
 Status check_against_datasets(const IdentificationJob& job, const std::vector<DatasetRecord>& records,
                               const Model& model);
 

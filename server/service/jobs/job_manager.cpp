@@ -147,6 +147,7 @@ Result<JobRecord> JobManager::submit_smoothing(const std::string& tenant, const 
   RICCATI_RETURN_IF_ERROR(check_settings_apply(spec));
   RICCATI_ASSIGN_OR_RETURN(const SmootherSettings settings, from_proto(spec, *model));
   RICCATI_ASSIGN_OR_RETURN(const DatasetRecord dataset, store_.get_dataset(tenant, spec.dataset_id()));
+  RICCATI_RETURN_IF_ERROR(dataset_fits_model(dataset, *model).with_context("dataset " + dataset.id));
   const Eigen::Index end = settings.end_sample < 0 ? dataset.samples : settings.end_sample;
   if (end > dataset.samples || end - settings.first_sample < 2) {
     return invalid_argument("the sample range [" + std::to_string(settings.first_sample) + ", " + std::to_string(end) +
@@ -199,12 +200,27 @@ Result<JobRecord> JobManager::submit_validation(const std::string& tenant, const
     const bool iterated_filter = !source_spec.ParseFromString(source.spec) ||
                                  source_spec.method() == v1::IDENTIFICATION_METHOD_UNSPECIFIED ||
                                  source_spec.method() == v1::IDENTIFICATION_METHOD_FILTER;
+    // Its estimate is of its own model's parameters: another model's
+    // validation would only fail as a job ("theta needs 6 values, got 4").
+    const Result<ResolvedModel> identified = models_.resolve(tenant, source.model);
+    if (identified.is_ok() && identified.value().model->param_names() != model->param_names()) {
+      const auto list = [](const std::vector<std::string>& names) {
+        std::string out;
+        for (const std::string& n : names) out += (out.empty() ? "" : ", ") + n;
+        return out;
+      };
+      return invalid_argument("job " + source.id + " identified model " + identified.value().model->name() + " (" +
+                              list(identified.value().model->param_names()) + "), not " + model->name() + " (" +
+                              list(model->param_names()) + "): validate it with model " +
+                              identified.value().model->name());
+    }
     if (spec.estimate() != v1::ESTIMATE_CHOICE_UNSPECIFIED && !iterated_filter) {
       return invalid_argument("estimate: job " + source.id +
                               " is an output-error or likelihood identification, with one estimate; the choice between "
                               "the last pass's mean and its end is the iterated filter's");
     }
   }
+  RICCATI_RETURN_IF_ERROR(dataset_fits_model(dataset, *model).with_context("dataset " + dataset.id));
   RICCATI_ASSIGN_OR_RETURN(const std::vector<bool> estimated, estimated_states(spec.initial_state(), *model, "initial_state"));
   const bool any = std::find(estimated.begin(), estimated.end(), true) != estimated.end();
   if (spec.estimate_x0_samples() > 0 && !any) {

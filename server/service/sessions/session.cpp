@@ -118,6 +118,14 @@ v1::SessionInfo Session::info() const {
   set_timestamp(last_active_ms_, info.mutable_last_active());
   if (!diverged_.is_ok()) *info.mutable_error() = to_error(diverged_);
   *info.mutable_retunings() = retunings_;
+  const FilterSettings& settings = runner_.filter().settings();
+  if (settings.kind == FilterKind::kOptimal) {
+    *info.mutable_v() = to_covariance(settings.optimal.V);
+    *info.mutable_w() = to_covariance(settings.optimal.W);
+  } else {
+    *info.mutable_q() = to_covariance(settings.Q);
+    *info.mutable_r() = to_covariance(settings.R);
+  }
   return info;
 }
 

@@ -16,7 +16,8 @@ def _state_name(number):
 @dataclasses.dataclass(frozen=True)
 class Progress:
     """Where a job stands: the pass (1-based) of passes, the sample of samples
-    in it, the current estimate; iteration and cost for output error and likelihood."""
+    in it, the current estimate; for output error and likelihood ("oe", "ml")
+    the optimiser's iteration of max_iterations and the cost after it."""
     pass_number: int
     passes: int
     sample: int
@@ -24,18 +25,49 @@ class Progress:
     theta: tuple
     iteration: int
     cost: float
+    method: str = "filter"
+    max_iterations: int = 0
+    succeeded: bool = False
 
     @property
     def fraction(self):
-        """How much of the filter's passes is done, 0 to 1 (the optimiser's iterations are not counted)."""
-        if self.passes == 0 or self.samples == 0:
-            return 0.0
-        return min(1.0, (max(self.pass_number - 1, 0) + self.sample / self.samples) / self.passes)
+        """How much is done, 0 to 1. The iterated filter (and smoothing): the
+        passes' samples. Output error and likelihood: the optimiser's
+        iterations of max_iterations (an upper bound on the work: it usually
+        converges before, and the job then ends early), the filter passes
+        that give its start counting as the first iteration. A job that
+        succeeded: 1."""
+        if self.succeeded:
+            return 1.0
+        passes = 0.0
+        if self.passes > 0 and self.samples > 0:
+            passes = min(1.0, (max(self.pass_number - 1, 0) + self.sample / self.samples) / self.passes)
+        if self.max_iterations == 0:
+            return passes
+        if self.iteration == 0:
+            return passes / self.max_iterations
+        return min(1.0, self.iteration / self.max_iterations)
+
+    def __str__(self):
+        if self.max_iterations and (self.iteration or not self.passes):
+            return f"iteration {self.iteration}/{self.max_iterations}, cost {self.cost:.4g}"
+        if self.passes:
+            return f"pass {self.pass_number}/{self.passes}, sample {self.sample}/{self.samples}"
+        return "not started"
 
 
-def _progress(p):
+# What riccatid takes for max_iterations 0 (EstimationSettings in jobs.proto).
+_DEFAULT_MAX_ITERATIONS = 200
+
+
+def _progress(p, spec=None, succeeded=False):
+    method, max_iterations = "filter", 0
+    if spec is not None and spec.method in (jobs_pb2.IDENTIFICATION_METHOD_OE, jobs_pb2.IDENTIFICATION_METHOD_ML):
+        method = "oe" if spec.method == jobs_pb2.IDENTIFICATION_METHOD_OE else "ml"
+        max_iterations = spec.estimation.max_iterations or _DEFAULT_MAX_ITERATIONS
     return Progress(pass_number=p.pass_number, passes=p.passes, sample=p.sample, samples=p.samples,
-                    theta=tuple(p.theta), iteration=p.iteration, cost=p.cost)
+                    theta=tuple(p.theta), iteration=p.iteration, cost=p.cost, method=method,
+                    max_iterations=max_iterations, succeeded=succeeded)
 
 
 class Job:
@@ -50,7 +82,9 @@ class Job:
         self.proto = message
         self.id = message.id
         self.state = _state_name(message.state)
-        self.progress = _progress(message.progress)
+        self.progress = _progress(message.progress,
+                                  message.identification if message.HasField("identification") else None,
+                                  self.state == "succeeded")
         self.attempts = message.attempts
         self.error = (errors.status_code(message.error.code), message.error.message) \
             if message.HasField("error") and message.error.message else None

@@ -1,7 +1,10 @@
 """Results of jobs, as pandas objects indexed by the model's names.
 
 Every result keeps the message riccatid sent as `.proto` (riccati.v1 types),
-for anything not shown here.
+for anything not shown here. to_frame() names its columns as the CLI's CSV
+and MAT exports do (docs/results.md): a state or parameter by its name
+("h1", "A1"), anything else as quantity.name ("y.h1", "y_model.h1",
+"residual.h1", "std.A1").
 """
 import numpy as np
 import pandas as pd
@@ -35,6 +38,12 @@ def _correlation(covariance):
     with np.errstate(divide="ignore", invalid="ignore"):
         out = covariance / np.outer(std, std)
     return out
+
+
+def column(quantity, name):
+    """The one naming of exported columns (docs/results.md): "y_model.h1"; a
+    state or parameter (quantity "") by its name alone."""
+    return f"{quantity}.{name}" if quantity else name
 
 
 def _frame(m, columns, t):
@@ -73,8 +82,17 @@ class _Result:
         self.proto = message
         self.model = model  # riccati.v1.ModelInfo of the job's model
 
+    def _describe(self):
+        return ""
+
     def __repr__(self):
-        return f"<{type(self).__name__} of job {self.job_id}>"
+        what = self._describe()
+        return f"<{type(self).__name__} of job {self.job_id}, model {self.model.name}" + \
+            (f": {what}>" if what else ">")
+
+
+def _values(series):
+    return ", ".join(f"{n} = {v:.6g}" for n, v in series.items())
 
 
 class IdentificationResult(_Result):
@@ -84,11 +102,14 @@ class IdentificationResult(_Result):
     - theta_final: the estimate at the end of the last pass
     - std: sqrt(diag P) of the parameters at the end
     - ci: theta -/+ 1.96 std (columns lower, upper), the normal 95 % interval
+    - summary(): those in one table, as `riccati result` prints it
     - covariance, correlation: of the parameters at the end (DataFrames)
     - traces: the estimate after every sample of every pass, a DataFrame
       indexed by (pass, t), a column per parameter (the toolbox's Trace)
-    - passes: per pass, its final and mean estimate, NIS and innovation RMS
-    - to_frame(): the last pass by sample: states, model outputs (Ymod), innovations
+    - passes: per pass, its final and mean estimate (final.A1, mean.A1), NIS
+      (nis_mean) and innovation RMS (innovation_rms.h1)
+    - to_frame(): the last pass by sample: states, model outputs (y_model.o,
+      the toolbox's Ymod), innovations (innovation.o)
     """
 
     def __init__(self, job_id, message, model):
@@ -118,10 +139,19 @@ class IdentificationResult(_Result):
         self.traces = pd.concat(traces) if traces else pd.DataFrame(columns=names)
         self.passes = pd.DataFrame(
             [{"nis_mean": p_result.nis_mean,
-              **{f"final_{n_}": v for n_, v in zip(names, p_result.theta_final)},
-              **{f"mean_{n_}": v for n_, v in zip(names, p_result.theta_mean)},
-              **{f"innovation_rms_{o}": v for o, v in zip(model.output_names, p_result.innovation_rms)}}
+              **{column("final", n_): v for n_, v in zip(names, p_result.theta_final)},
+              **{column("mean", n_): v for n_, v in zip(names, p_result.theta_mean)},
+              **{column("innovation_rms", o): v for o, v in zip(model.output_names, p_result.innovation_rms)}}
              for p_result in r.passes], index=pd.Index(range(1, len(r.passes) + 1), name="pass"))
+
+    def summary(self):
+        """The parameter table, as `riccati result` prints it: the estimate (the
+        mean over the last pass), its std, the normal 95 % interval, the std
+        relative to the estimate (%) and the estimate at the end of the last pass."""
+        with np.errstate(divide="ignore", invalid="ignore"):
+            relative = 100.0 * self.std / self.theta.abs()
+        return pd.DataFrame({"estimate": self.theta, "std": self.std, "lower": self.ci["lower"],
+                             "upper": self.ci["upper"], "rel_std_percent": relative, "final": self.theta_final})
 
     def plot_traces(self, path=None):
         """The parameters' traces (the toolbox's Trace), a subplot per parameter, the
@@ -143,12 +173,18 @@ class IdentificationResult(_Result):
         return _save(fig, path)
 
     def to_frame(self):
+        """The last pass by sample: the states (h1), the model's outputs along it
+        (y_model.h1, the toolbox's Ymod) and the innovations (innovation.h1)."""
         r = self.proto
         t = np.asarray(r.t, dtype=float)
+        outputs = self.model.output_names
         parts = [_frame(r.x_trace, self.model.state_names, t),
-                 _frame(r.y_model, [f"model_{o}" for o in self.model.output_names], t),
-                 _frame(r.innovations, [f"innovation_{o}" for o in self.model.output_names], t)]
+                 _frame(r.y_model, [column("y_model", o) for o in outputs], t),
+                 _frame(r.innovations, [column("innovation", o) for o in outputs], t)]
         return pd.concat(parts, axis=1)
+
+    def _describe(self):
+        return f"iterated filter, {len(self.proto.passes)} passes, theta {_values(self.theta)}"
 
 
 class Diagnostics:
@@ -239,14 +275,23 @@ class ExperimentFit(_Result):
                                        model.input_names)
 
     def to_frame(self):
-        """By sample: each output measured, the model's, the normalised residual and whether it was used."""
+        """By sample, per output o: y.o measured, y_model.o (OE: simulated, ML: one
+        step ahead), residual.o = y - y_model in the output's unit,
+        residual_normalised.o (what the diagnostics test: OE divided by sigma, ML
+        whitened by the innovation covariance; 0 where left out), used.o."""
         e = self.proto
         t = np.asarray(e.t, dtype=float)
         outputs = list(self.model.output_names)
-        parts = [_frame(e.y_measured, outputs, t), _frame(e.y_model, [f"model_{o}" for o in outputs], t),
-                 _frame(e.residuals, [f"residual_{o}" for o in outputs], t)]
-        used = _frame(e.mask, [f"used_{o}" for o in outputs], t).astype(bool)
+        y = _frame(e.y_measured, [column("y", o) for o in outputs], t)
+        y_model = _frame(e.y_model, [column("y_model", o) for o in outputs], t)
+        raw = pd.DataFrame(y.to_numpy() - y_model.to_numpy(), index=y.index,
+                           columns=[column("residual", o) for o in outputs])
+        parts = [y, y_model, raw, _frame(e.residuals, [column("residual_normalised", o) for o in outputs], t)]
+        used = _frame(e.mask, [column("used", o) for o in outputs], t).astype(bool)
         return pd.concat(parts + [used], axis=1)
+
+    def _describe(self):
+        return f"dataset {self.dataset_id}"
 
 
 class EstimationResult(_Result):
@@ -295,13 +340,65 @@ class EstimationResult(_Result):
             return frames[0]
         return pd.concat(frames, keys=range(1, len(frames) + 1), names=["experiment"])
 
+    def summary(self):
+        """The parameter table, as `riccati result` prints it: by parameter the
+        estimate, its standard error, the 95 % interval, the standard error
+        relative to the estimate (%) and whether it was fixed."""
+        with np.errstate(divide="ignore", invalid="ignore"):
+            relative = 100.0 * self.std / self.theta.abs()
+        return pd.DataFrame({"estimate": self.theta, "std": self.std, "lower": self.ci["lower"],
+                             "upper": self.ci["upper"], "rel_std_percent": relative, "fixed": self.fixed})
+
+    def plot(self, path=None):
+        """Per output of each experiment the measured and the model's output over
+        time, with the fit %, and under it the residual (y - y_model, the
+        output's unit; samples left out not drawn). Returns the matplotlib
+        Figure; saves it to `path` if given (PNG, SVG, ...)."""
+        outputs = list(self.model.output_names)
+        rows = [(k, e, o) for k, e in enumerate(self.experiments, 1) for o in outputs]
+        fig, axes = _figure(2 * len(rows))
+        for i, (k, e, name) in enumerate(rows):
+            frame = e.to_frame()
+            fit_ax, residual_ax = axes[2 * i], axes[2 * i + 1]
+            label = name if len(self.experiments) == 1 else f"{name} (exp. {k})"
+            fit_ax.plot(frame.index, frame[column("y", name)], color="0.4", lw=1, label="measured")
+            fit_ax.plot(frame.index, frame[column("y_model", name)], color="C1", lw=1.2,
+                        label="simulated" if self.method == "oe" else "one step ahead")
+            fit = e.fits.loc[name, "fit_percent"] if name in e.fits.index else float("nan")
+            fit_ax.set_ylabel(label)
+            fit_ax.set_title(f"{label}: fit {fit:.2f} %", fontsize="small", loc="left")
+            fit_ax.legend(loc="upper right", fontsize="small")
+            residual = frame[column("residual", name)].where(frame[column("used", name)])
+            residual_ax.plot(frame.index, residual, color="C0", lw=0.8)
+            residual_ax.axhline(0.0, color="0.6", lw=0.8)
+            residual_ax.set_ylabel(f"residual {name}")
+        axes[-1].set_xlabel("t [s]")
+        fig.suptitle(f"{self.model.name}: {self.method} estimate, job {self.job_id}")
+        return _save(fig, path)
+
+    def _describe(self):
+        end = "converged" if self.converged else "not converged"
+        return f"{self.method}, {end} after {self.iterations} iterations, cost {self.cost:.6g}, " \
+               f"theta {_values(self.theta)}"
+
+    def __str__(self):
+        lines = [f"{self.method} estimate of {self.model.name}, job {self.job_id}: "
+                 f"{'converged' if self.converged else 'not converged'} after {self.iterations} iterations "
+                 f"({self.termination}), cost {self.cost:.6g}",
+                 self.summary().to_string()]
+        lines += [f"warning: {w}" for w in self.warnings]
+        for k, e in enumerate(self.experiments, 1):
+            lines += [f"experiment {k} ({e.dataset_id}):", e.fits.to_string()]
+        return "\n".join(lines)
+
 
 class ValidationResult(_Result):
     """The model simulated over a dataset's inputs and compared with its outputs.
 
     - theta: the parameters simulated with; x0: the initial states
     - fits: a DataFrame by output: rmse, fit_percent (MATLAB's compare), vaf_percent, rrse
-    - to_frame(): by sample, each output measured and simulated_<output>
+    - to_frame(): by sample, per output o: y.o measured, y_model.o simulated and
+      residual.o = y - y_model (the output's unit)
     """
 
     def __init__(self, job_id, message, model):
@@ -321,8 +418,8 @@ class ValidationResult(_Result):
         outputs = list(self.model.output_names)
         fig, axes = _figure(len(outputs))
         for ax, name in zip(axes, outputs):
-            ax.plot(frame.index, frame[name], color="0.4", lw=1, label="measured")
-            ax.plot(frame.index, frame[f"simulated_{name}"], color="C1", lw=1.2, label="simulated")
+            ax.plot(frame.index, frame[column("y", name)], color="0.4", lw=1, label="measured")
+            ax.plot(frame.index, frame[column("y_model", name)], color="C1", lw=1.2, label="simulated")
             fit = self.fits.loc[name, "fit_percent"] if name in self.fits.index else float("nan")
             ax.set_ylabel(name)
             ax.set_title(f"{name}: fit {fit:.2f} %", fontsize="small", loc="left")
@@ -335,13 +432,21 @@ class ValidationResult(_Result):
         r = self.proto
         t = np.asarray(r.t, dtype=float)
         outputs = list(self.model.output_names)
-        return pd.concat([_frame(r.y_measured, outputs, t),
-                          _frame(r.y_simulated, [f"simulated_{o}" for o in outputs], t)], axis=1)
+        y = _frame(r.y_measured, [column("y", o) for o in outputs], t)
+        y_model = _frame(r.y_simulated, [column("y_model", o) for o in outputs], t)
+        raw = pd.DataFrame(y.to_numpy() - y_model.to_numpy(), index=y.index,
+                           columns=[column("residual", o) for o in outputs])
+        return pd.concat([y, y_model, raw], axis=1)
+
+    def _describe(self):
+        fits = ", ".join(f"{n} {f:.2f} %" for n, f in self.fits["fit_percent"].items())
+        return f"validation, fit {fits}" if fits else "validation"
 
 
 class SmoothingResult(_Result):
     """States and parameters given every sample: to_frame() has the smoothed
-    estimate and std_<name> by sample; filtered() the forward filter's."""
+    estimate (h1, A1) and its std (std.h1) by sample; filtered() the forward
+    filter's, named the same."""
 
     def __init__(self, job_id, message, model):
         super().__init__(job_id, message, model)
@@ -349,13 +454,16 @@ class SmoothingResult(_Result):
 
     def _pair(self, z, std):
         t = np.asarray(self.proto.t, dtype=float)
-        return pd.concat([_frame(z, self.names, t), _frame(std, [f"std_{n}" for n in self.names], t)], axis=1)
+        return pd.concat([_frame(z, self.names, t), _frame(std, [column("std", n) for n in self.names], t)], axis=1)
 
     def to_frame(self):
         return self._pair(self.proto.z_smoothed, self.proto.std_smoothed)
 
     def filtered(self):
         return self._pair(self.proto.z_filtered, self.proto.std_filtered)
+
+    def _describe(self):
+        return f"smoothing of {len(self.names)} states and parameters over {len(self.proto.t)} samples"
 
 
 def from_proto(job_result, model):

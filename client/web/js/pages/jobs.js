@@ -11,6 +11,32 @@ const specOf = (job) => job.identification || job.validation || job.smoothing ||
 const stateOf = (job) => enumName(job.state, 'JOB_STATE_');
 const terminal = (s) => ['SUCCEEDED', 'FAILED', 'CANCELLED'].includes(s);
 
+// Output error and likelihood: the optimiser's iteration limit (0: riccatid's 200).
+function maxIterationsOf(job) {
+  const spec = job.identification || {};
+  if (!['IDENTIFICATION_METHOD_OE', 'IDENTIFICATION_METHOD_ML'].includes(spec.method)) return 0;
+  return num((spec.estimation || {}).maxIterations) || 200;
+}
+
+// How far a job is, 0 to 1: the passes' samples; for output error and
+// likelihood the iterations of max_iterations (an upper bound: it usually
+// converges first), the passes that give its start counting as the first.
+function fractionDone(job) {
+  const p = job.progress || {};
+  const passes = num(p.passes) || 0, samples = num(p.samples) || 0;
+  const inPasses = passes && samples ? Math.min(1, ((num(p.passNumber) || 1) - 1 + (num(p.sample) || 0) / samples) / passes) : 0;
+  const maxIterations = maxIterationsOf(job);
+  if (!maxIterations) return inPasses;
+  return num(p.iteration) ? Math.min(1, num(p.iteration) / maxIterations) : inPasses / maxIterations;
+}
+
+// "pass 3/10", "iteration 12/200": the list's column.
+function progressText(job) {
+  const p = job.progress || {}, maxIterations = maxIterationsOf(job);
+  if (maxIterations && num(p.iteration)) return `iteration ${num(p.iteration)}/${maxIterations}`;
+  return num(p.passes) ? `pass ${num(p.passNumber)}/${num(p.passes)}` : '';
+}
+
 export async function show(main, r, signal) {
   if (r.id) return showJob(main, r.id, signal);
   const draw = async () => {
@@ -28,7 +54,7 @@ export async function show(main, r, signal) {
             h('td', {class: 'state ' + state}, state),
             h('td', {}, spec.model || ''),
             h('td', {}, names[spec.datasetId] || spec.datasetId || ''),
-            h('td', {}, num(p.passes) ? `pass ${num(p.passNumber)}/${num(p.passes)}` : ''),
+            h('td', {}, progressText(job)),
             h('td', {}, when(job.created)), h('td', {}, when(job.started)), h('td', {}, when(job.finished)),
             h('td', {}, terminal(state) ? null : h('button', {class: 'danger', onclick: async () => {
               await api('POST', `/jobs/${encodeURIComponent(job.id)}/cancel`);
@@ -62,19 +88,24 @@ async function showJob(main, id, signal) {
     h('div', {class: 'panel row'}, 'State: ', stateEl, h('div', {class: 'progress'}, bar), progressText, cancel),
     live, result);
 
-  // Live parameter estimates: one point per event (decimated by riccatid).
+  // Live parameter estimates: one point per event (decimated by riccatid),
+  // beside the truth where the dataset declares it.
+  const dataset = job.identification && spec.datasetId
+    ? await api('GET', '/datasets/' + encodeURIComponent(spec.datasetId), undefined, {signal}).catch(() => null) : null;
+  const truth = (dataset && dataset.trueParameters) || {};
   const xs = [], ys = params.map(() => []);
+  const withTruth = (i) => (params[i] in truth ? [ys[i], xs.map(() => num(truth[params[i]]))] : [ys[i]]);
   let tracePlot = null;
   const update = (j) => {
     const state = stateOf(j), p = j.progress || {};
     stateEl.className = 'state ' + state;
     clear(stateEl, state);
     cancel.style.display = terminal(state) ? 'none' : '';
-    const passes = num(p.passes) || 1, samples = num(p.samples) || 1;
-    const done = state === 'SUCCEEDED' ? 1 : ((num(p.passNumber) || 1) - 1 + (num(p.sample) || 0) / samples) / passes;
+    const done = state === 'SUCCEEDED' ? 1 : fractionDone(j);
     bar.style.width = `${Math.min(100, 100 * done).toFixed(1)}%`;
+    const maxIterations = maxIterationsOf(j);
     clear(progressText, num(p.passes) ? `pass ${num(p.passNumber)} of ${num(p.passes)}, sample ${num(p.sample)} of ${num(p.samples)}` : '',
-      num(p.iteration) ? ` · iteration ${num(p.iteration)}, cost ${fmt(p.cost)}` : '');
+      num(p.iteration) ? ` · iteration ${num(p.iteration)} of at most ${maxIterations}, cost ${fmt(p.cost)}` : '');
     if (j.error && j.error.message) clear(result, errorBox(j.error.message));
     const theta = (p.theta || []).map(num);
     if (theta.length === params.length && params.length > 0 && !terminal(state)) {
@@ -83,9 +114,11 @@ async function showJob(main, id, signal) {
       if (!tracePlot) {
         tracePlot = h('div', {class: 'plots', id: 'live-traces'});
         live.append(h('h2', {}, 'Estimates as it runs'), tracePlot);
-        params.forEach((n, i) => plot(tracePlot, {title: n, x: xs, xLabel: 'update', width: 300, height: 180, series: [{label: n, values: ys[i], points: true}]}));
+        params.forEach((n, i) => plot(tracePlot, {title: n, x: xs, xLabel: 'update', width: 300, height: 180, series: [
+          {label: n, values: ys[i], points: true},
+          ...(n in truth ? [{label: 'truth', values: withTruth(i)[1], color: '#2da44e', dash: [6, 4], width: 1.5}] : [])]}));
       } else {
-        [...tracePlot.children].forEach((box, i) => setData(box, xs, [ys[i]]));
+        [...tracePlot.children].forEach((box, i) => setData(box, xs, withTruth(i)));
       }
     }
   };

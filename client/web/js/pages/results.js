@@ -3,7 +3,7 @@
 // measured against modelled outputs, and the residual diagnostics with their
 // bands; a validation's measured against simulated outputs with fit %.
 import {api} from '../api.js';
-import {clear, fmt, h, num, row} from '../dom.js';
+import {clear, fmt, fmtInterval, h, num, row} from '../dom.js';
 import {color, plot} from '../plot.js';
 
 export async function showResult(el, job, result, model, signal) {
@@ -29,6 +29,28 @@ function truthColumns(names, truth, estimate, std) {
   const sigmas = (i) => (estimate[i] - value(i)) / std[i];
   return [['Truth', (i) => (names[i] in truth ? fmt(value(i), 5) : '–'), value],
     ['Error (σ)', (i) => (Number.isFinite(sigmas(i)) ? sigmas(i).toFixed(2) : '–'), sigmas]];
+}
+
+// "A1=10, k1 = 0.0791" (or "A1:10") -> {A1: 10, k1: 0.0791}; what does not read is left out.
+function parseTruth(text) {
+  const out = {};
+  for (const part of String(text || '').split(',')) {
+    const m = part.match(/^\s*([^=:\s]+)\s*[=:]\s*(\S+)\s*$/);
+    if (m && Number.isFinite(Number(m[2]))) out[m[1]] = Number(m[2]);
+  }
+  return out;
+}
+
+// [min, max] over every series' finite values, padded by 5 %: an axis that
+// shows every pass, not only the first's range.
+function rangeOf(seriesValues) {
+  let lo = Infinity, hi = -Infinity;
+  for (const values of seriesValues) {
+    for (const v of values) if (Number.isFinite(v)) { lo = Math.min(lo, v); hi = Math.max(hi, v); }
+  }
+  if (!Number.isFinite(lo)) return [0, 1];
+  const pad = hi > lo ? 0.05 * (hi - lo) : Math.max(Math.abs(lo) * 0.01, 1e-12);
+  return [lo - pad, hi + pad];
 }
 
 // The parameters' estimates, a row each, with the unit the model declares.
@@ -84,7 +106,7 @@ async function identification(el, job, r, model, signal) {
     resultTable(names, [
       ['Estimate', (i) => fmt(mean[i], 5), (i) => mean[i]],
       ['Std error', (i) => fmt(std[i], 3), (i) => std[i]],
-      ['95 % interval', (i) => `${fmt(mean[i] - 1.96 * std[i], 4)} … ${fmt(mean[i] + 1.96 * std[i], 4)}`],
+      ['95 % interval', (i) => fmtInterval(mean[i] - 1.96 * std[i], mean[i] + 1.96 * std[i])],
       ['End of last pass', (i) => fmt(end[i], 5)],
       ...truthColumns(names, truth, mean, std)], model),
     h('p', {class: 'muted'}, 'Estimate: the mean over the last pass (the toolbox\'s); std error: √diag P at its end.'),
@@ -95,13 +117,33 @@ async function identification(el, job, r, model, signal) {
     const C = (i, j) => num(r.covariance.values[(nx + i) + (nx + j) * nz]);
     el.append(h('h2', {}, 'Correlation of the estimates'), correlationTable(names, (i, j) => C(i, j) / Math.sqrt(C(i, i) * C(j, j))));
   }
-  // Parameter traces, a series per pass.
+  // Parameter traces, a series per pass, the axis over every pass (and the
+  // truth, drawn dashed where the dataset declares it or the user gives it).
   const t = (r.t || []).map(num);
   const traces = h('div', {class: 'plots', id: 'traces'});
-  el.append(h('h2', {}, 'Parameter traces per pass'), traces);
   const passes = r.passes || [];
-  names.forEach((n, i) => plot(traces, {title: n, x: t, width: 420, height: 220,
-    series: passes.map((p, k) => ({label: `pass ${k + 1}`, values: row(p.thetaTrace, i), color: k === passes.length - 1 ? '#d1242f' : `hsl(215, 60%, ${80 - 45 * (k + 1) / passes.length}%)`, width: k === passes.length - 1 ? 2 : 1}))}));
+  const truthInput = h('input', {id: 'truth-input', size: 40, placeholder: 'A1=10, k1=0.0791',
+    value: names.filter((n) => n in truth).map((n) => `${n}=${num(truth[n])}`).join(', ')});
+  // The axes: the passes after the first (whose start from theta0 would
+  // flatten the others into a line) and the truth; or every pass.
+  const everyPass = h('input', {type: 'checkbox', id: 'traces-every-pass', checked: passes.length < 2});
+  const drawTraces = () => {
+    const given = parseTruth(truthInput.value);
+    clear(traces);
+    names.forEach((n, i) => {
+      const series = passes.map((p, k) => ({label: `pass ${k + 1}`, values: row(p.thetaTrace, i), color: k === passes.length - 1 ? '#d1242f' : `hsl(215, 60%, ${80 - 45 * (k + 1) / passes.length}%)`, width: k === passes.length - 1 ? 2 : 1}));
+      if (n in given) series.push({label: 'truth', values: t.map(() => given[n]), color: '#2da44e', dash: [6, 4], width: 1.5});
+      const scaled = everyPass.checked ? series : series.slice(1);
+      plot(traces, {title: n, x: t, width: 420, height: 220, yRange: rangeOf(scaled.map((s) => s.values)), series});
+    });
+  };
+  truthInput.addEventListener('change', drawTraces);
+  everyPass.addEventListener('change', drawTraces);
+  el.append(h('h2', {}, 'Parameter traces per pass'),
+    h('p', {class: 'row'}, h('label', {class: 'inline'}, 'Truth (drawn dashed): ', truthInput),
+      passes.length < 2 ? null : h('label', {class: 'inline'}, everyPass, 'Axes over every pass (else passes 2 to ' + passes.length + ' and the truth)')),
+    traces);
+  drawTraces();
   // Outputs: measured against the model along the last pass.
   const data = await api('GET', `/datasets/${encodeURIComponent(spec.datasetId)}/data`, undefined, {signal}).catch(() => null);
   const outputs = (model.outputNames || []);
@@ -136,7 +178,7 @@ async function estimation(el, job, r, model, signal) {
     resultTable(names, [
       ['Estimate', (i) => fmt(theta[i], 5), (i) => theta[i]],
       ['Std error', (i) => (r.fixed || [])[i] ? 'fixed' : fmt(std[i], 3), (i) => std[i]],
-      ['95 % interval', (i) => `${fmt((r.ciLower || [])[i], 4)} … ${fmt((r.ciUpper || [])[i], 4)}`],
+      ['95 % interval', (i) => fmtInterval((r.ciLower || [])[i], (r.ciUpper || [])[i])],
       ...truthColumns(names, truth, theta, std)], model),
     h('p', {class: 'muted'}, `${r.converged ? 'Converged' : 'Did not converge'} after ${num(r.iterations)} iterations (${r.termination || ''}); cost ${fmt(r.cost)}; gradient: ${r.gradient || ''}.`),
     (r.warnings || []).map((w) => h('p', {class: 'warn'}, w)),

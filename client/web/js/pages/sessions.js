@@ -87,47 +87,84 @@ function covarianceText(c) {
   return '';
 }
 
+// A covariance as the API gives it (diagonal, full or scalar) as an n x n
+// column-major array; null when absent.
+function fullOf(c, n) {
+  if (!c) return null;
+  const m = new Array(n * n).fill(0);
+  if (c.full) (c.full.values || []).forEach((v, k) => { m[k] = num(v); });
+  else if (c.diagonal) (c.diagonal.values || []).forEach((v, k) => { if (k < n) m[k + k * n] = num(v); });
+  else if (c.scalar !== undefined) for (let k = 0; k < n; ++k) m[k + k * n] = num(c.scalar);
+  else return null;
+  return m;
+}
+
+const isDiagonal = (m, n) => m.every((v, k) => v === 0 || k % n === Math.floor(k / n));
+
 // Live retuning: new noise weights between two measurements (the EKF's and
 // UKF's R by output and Q by state and parameter; the optimal filter's V and
-// W as diagonals), recorded in the session's history.
+// W diagonals), each field showing what the filter runs with now
+// (SessionInfo's q, r, v, w). Only what was changed is sent: R or Q whole,
+// the off-diagonal entries of a full one kept.
 function retuneForm(id, info, model, drawRetunings) {
   const optimal = info.filter === 'FILTER_KIND_OPTIMAL';
   const outputs = model.outputNames || [], nz = [...(model.stateNames || []), ...(model.paramNames || [])];
   const status = h('span', {id: 'retune-status'});
-  const input = (key) => h('input', {type: 'number', step: 'any', id: key, placeholder: 'unchanged'});
-  const fields = optimal
-    ? [h('label', {}, 'V (diagonal, comma-separated)', h('input', {id: 'retune-v', size: 30, placeholder: 'unchanged'})),
-       h('label', {}, 'W (diagonal, comma-separated)', h('input', {id: 'retune-w', size: 30, placeholder: 'unchanged'}))]
-    : [outputs.map((y) => h('label', {}, `R of ${y}`, input('retune-r-' + y))),
-       nz.map((n) => h('label', {}, `Q of ${n}`, input('retune-q-' + n)))];
+  // key -> {names (one field each), current (n x n), fields}
+  const weights = optimal
+    ? {v: {title: 'V', names: null}, w: {title: 'W', names: nz}}
+    : {r: {title: 'R', names: outputs}, q: {title: 'Q', names: nz}};
+  const setCurrent = (from) => {
+    for (const [key, wt] of Object.entries(weights)) {
+      const c = from[key];
+      const n = wt.names ? wt.names.length : (c && c.diagonal ? (c.diagonal.values || []).length : c && c.full ? num(c.full.rows) : 0);
+      wt.n = n;
+      wt.current = fullOf(c, n);
+      (wt.fields || []).forEach((field, k) => {
+        field.value = wt.current ? String(wt.current[k + k * n]) : '';
+        field.placeholder = wt.current ? '' : 'unchanged';
+      });
+    }
+  };
+  const fields = [];
+  for (const [key, wt] of Object.entries(weights)) {
+    const c = info[key];
+    const n = wt.names ? wt.names.length : (c && c.diagonal ? (c.diagonal.values || []).length : c && c.full ? num(c.full.rows) : 0);
+    const labels = wt.names || Array.from({length: n}, (_, k) => String(k + 1));
+    wt.fields = labels.map((name) => h('input', {type: 'number', step: 'any', id: `retune-${key}-${name}`, size: 9}));
+    fields.push(h('fieldset', {class: 'row', id: `retune-${key}`}, h('legend', {}, `${wt.title} (diagonal; now)`),
+      wt.fields.map((field, k) => h('label', {}, `${wt.title} of ${labels[k]}`, field))));
+  }
+  setCurrent(info);
   const form = h('form', {class: 'panel', id: 'retune'}, h('h3', {}, 'Retune the filter while it runs'),
     h('div', {class: 'row'}, fields, h('label', {}, '\u00a0', h('button', {class: 'primary', id: 'retune-apply', type: 'submit'}, 'Apply'))),
     status);
-  const diag = (values) => ({diagonal: {values}});
-  const list = (text) => text.split(',').map((v) => v.trim()).filter((v) => v !== '').map(Number);
   form.addEventListener('submit', async (e) => {
     e.preventDefault();
     const request = {};
-    if (optimal) {
-      const v = list(document.getElementById('retune-v').value), w = list(document.getElementById('retune-w').value);
-      if (v.length) request.v = diag(v);
-      if (w.length) request.w = diag(w);
-    } else {
-      // A weight left empty keeps its value: R and Q go whole, so empty ones need theirs.
-      const r = outputs.map((y) => document.getElementById('retune-r-' + y).value.trim());
-      const q = nz.map((n) => document.getElementById('retune-q-' + n).value.trim());
-      if (r.some((v) => v !== '')) {
-        if (r.some((v) => v === '')) return clear(status, errorBox('Give R for every output.'));
-        request.r = diag(r.map(Number));
+    for (const [key, wt] of Object.entries(weights)) {
+      const n = wt.fields.length;
+      const typed = wt.fields.map((f) => f.value.trim());
+      const bad = typed.findIndex((v) => v !== '' && !Number.isFinite(Number(v)));
+      if (bad >= 0) return clear(status, errorBox(`${wt.title}: "${typed[bad]}" is not a number.`));
+      if (!wt.current) {
+        // Nothing known of it: all or none.
+        if (typed.every((v) => v === '')) continue;
+        if (typed.some((v) => v === '')) return clear(status, errorBox(`${wt.title}: give every value, or none.`));
+        request[key] = {diagonal: {values: typed.map(Number)}};
+        continue;
       }
-      if (q.some((v) => v !== '')) {
-        if (q.some((v) => v === '')) return clear(status, errorBox('Give Q for every state and parameter.'));
-        request.q = diag(q.map(Number));
-      }
+      const next = wt.current.slice();
+      typed.forEach((v, k) => { if (v !== '') next[k + k * n] = Number(v); });
+      if (next.every((v, k) => v === wt.current[k])) continue;  // unchanged
+      request[key] = isDiagonal(next, n) ? {diagonal: {values: Array.from({length: n}, (_, k) => next[k + k * n])}}
+        : {full: {rows: n, cols: n, values: next}};
     }
+    if (Object.keys(request).length === 0) return clear(status, h('span', {class: 'muted'}, 'Nothing changed.'));
     try {
       const updated = await api('POST', `/sessions/${encodeURIComponent(id)}/retune`, request);
-      clear(status, h('span', {class: 'ok'}, `Retuned at t = ${fmt(updated.t)} s.`));
+      clear(status, h('span', {class: 'ok'}, `Retuned ${Object.keys(request).map((k) => weights[k].title).join(' and ')} at t = ${fmt(updated.t)} s.`));
+      setCurrent(updated);
       drawRetunings(updated.retunings);
     } catch (err) {
       clear(status, errorBox(err));

@@ -6,19 +6,36 @@ import {api} from '../api.js';
 import {clear, enumName, errorBox, h, num, when} from '../dom.js';
 import {select} from './identify.js';
 
+// "FILTER", "OE", "ML"; unspecified is the iterated filter (jobs.proto).
+const methodName = (m) => (!m || m === 'IDENTIFICATION_METHOD_UNSPECIFIED' ? 'FILTER' : enumName(m, 'IDENTIFICATION_METHOD_'));
+
 export async function show(main, r, signal) {
   const [models, datasets, jobs] = await Promise.all([api('GET', '/models', undefined, {signal}),
     api('GET', '/datasets', undefined, {signal}), api('GET', '/jobs', undefined, {signal})]);
   const modelList = models.models || [], datasetList = datasets.datasets || [];
   const identifications = (jobs.jobs || []).filter((j) => j.identification && j.state === 'JOB_STATE_SUCCEEDED');
-  const job = identifications.find((j) => j.id === r.query.get('job'));
+  // The parameters' source first: the model and the dataset follow the job
+  // chosen (its parameters fit its model only), unless the link names them.
+  const defaultSource = r.query.get('job') || (identifications[0] || {id: ''}).id;
+  const job = identifications.find((j) => j.id === defaultSource);
   const modelSelect = select('validate-model', modelList.map((m) => [m.name, m.name]),
-    r.query.get('model') || (job && job.identification.model) || (modelList[0] || {}).name);
+    (job && job.identification.model) || r.query.get('model') || (modelList[0] || {}).name);
   const datasetSelect = select('validate-dataset', datasetList.map((d) => [d.id, d.name]),
     r.query.get('dataset') || (job && job.identification.datasetId) || (datasetList[0] || {}).id);
   const source = select('validate-source', [
-    ...identifications.map((j) => [j.id, `estimate of job ${j.id} (${j.identification.model}, ${enumName(j.identification.method || 'IDENTIFICATION_METHOD_FILTER', 'IDENTIFICATION_METHOD_')}, ${when(j.finished)})`]),
-    ['', 'the parameters below']], r.query.get('job') || (identifications[0] || {id: ''}).id);
+    ...identifications.map((j) => [j.id, `estimate of job ${j.id} (${j.identification.model}, ${methodName(j.identification.method)}, ${when(j.finished)})`]),
+    ['', 'the parameters below']], defaultSource);
+  source.addEventListener('change', () => {
+    const chosen = identifications.find((j) => j.id === source.value);
+    if (!chosen) return;
+    modelSelect.value = chosen.identification.model;
+    if (datasetList.some((d) => d.id === chosen.identification.datasetId)) datasetSelect.value = chosen.identification.datasetId;
+  });
+  // A model the chosen job was not of: its own parameters, then.
+  modelSelect.addEventListener('change', () => {
+    const chosen = identifications.find((j) => j.id === source.value);
+    if (chosen && chosen.identification.model !== modelSelect.value) source.value = '';
+  });
   const thetaBox = h('div', {class: 'row', id: 'validate-theta'});
   const drawTheta = () => {
     const m = modelList.find((x) => x.name === modelSelect.value) || {};
