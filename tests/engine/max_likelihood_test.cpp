@@ -102,7 +102,10 @@ TEST(MaxLikelihood, IntervalsCoverTheTruthAndTheNisIsInItsBand) {
   }
   std::printf("covered %d %d %d %d of %d, NIS in its band in %d\n", covered[0], covered[1], covered[2], covered[3],
               kRuns, nis_in_band);
-  if (kRuns < 100) return;
+  if (kRuns < 100) {
+    GTEST_SKIP() << "the coverage needs 100 runs; under the sanitizers " << kRuns
+                 << " ran, for the code path only, and nothing is asserted of them";
+  }
   for (Eigen::Index i = 0; i < 4; ++i) {
     EXPECT_GE(covered[i], 90) << model->param_names()[static_cast<std::size_t>(i)];
     EXPECT_LE(covered[i], 99) << model->param_names()[static_cast<std::size_t>(i)];
