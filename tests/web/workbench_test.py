@@ -9,10 +9,13 @@ Signs in with a token (a wrong one refused), uploads the two-tank CSV, plots
 its signals, runs an identification whose result table must hold the JSON
 API's numbers (the API's own test holds them equal to gRPC's), checks that the
 trace and overlay plots are drawn, validates the estimate, watches a session
-fed by `riccati stream` and retunes its R on-line, writes a text model in the
+fed by `riccati stream` (in parts the test waits on, so a slow host takes
+longer rather than timing out) and retunes its R on-line, writes a text model in the
 Models page's editor (an error shown at its line as one types; fixed, it is
 uploaded, listed with its units and opens Identify), and shows a dataset named
 <script>alert(1)</script> as text. With --screenshots, saves a PNG of every page there.
+Each test signs in and makes the datasets and jobs it uses: they run alone
+or in any order, sharing only the daemon.
 """
 import argparse
 import ctypes
@@ -163,6 +166,36 @@ class Workbench(unittest.TestCase):
                                f"a plot in {container_css} is blank")
         return canvases
 
+    def setUp(self):
+        # Nothing carries from one test to the next but the daemon: each
+        # starts signed out, and makes the datasets and jobs it uses.
+        self.driver.get(self.base)
+        self.driver.execute_script("sessionStorage.clear(); localStorage.clear();")
+
+    def sign_in(self):
+        self.driver.get(self.base)
+        token = self.find("#token")
+        token.clear()
+        token.send_keys(TOKEN)
+        self.find("#signin-button").click()
+        self.find("#signout")
+
+    def identify(self, dataset):
+        """Runs Hensen's settings (examples/two_tank_hensen.yaml), three passes,
+        from the Identify page on `dataset`; returns the job's id once it succeeded."""
+        self.go(f"identify?dataset={dataset}&model=two_tank")
+        self.find("#theta0-A1")
+        self.shot("identify")
+        fields = {"passes": 3, "theta0-A1": 20, "theta0-A2": 20, "theta0-k1": 1, "theta0-k2": 1,
+                  "p0-h1": 0, "p0-h2": 0, "p0-A1": 10, "p0-A2": 10, "p0-k1": 10, "p0-k2": 10,
+                  "r-h1": 1e-3, "r-h2": 1e-3, "substeps": 10}
+        for field, value in fields.items():
+            element = self.driver.find_element(By.ID, field)
+            element.clear()
+            element.send_keys(str(value))
+        self.find("#identify-submit").click()
+        return self.wait_job()
+
     def wait_job(self, terminal_state="SUCCEEDED"):
         state = self.find("#job-state")
         self.wait(lambda d: state.text in ("SUCCEEDED", "FAILED", "CANCELLED"))
@@ -179,12 +212,15 @@ class Workbench(unittest.TestCase):
         field.send_keys(name)
         if truth:
             self.find("#upload-truth").send_keys(truth)
+        before = {d["id"] for d in self.api("/datasets").get("datasets", [])}
         self.find("#upload-button").click()
         self.wait(lambda d: "Stored" in d.find_element(By.ID, "upload-status").text
                   or "error" in d.find_element(By.ID, "upload-status").get_attribute("innerHTML"))
         self.assertIn("Stored", self.driver.find_element(By.ID, "upload-status").text)
+        # This upload's row: a name another test uploaded too is another row.
         rows = self.wait(lambda d: [r for r in d.find_elements(By.CSS_SELECTOR, "#datasets tbody tr")
-                                    if r.find_element(By.CSS_SELECTOR, "td.name").text == name])
+                                    if r.find_element(By.CSS_SELECTOR, "td.name").text == name
+                                    and r.get_attribute("data-id") not in before])
         return rows[0].get_attribute("data-id")
 
     # -- the tests, in the order a user goes ---------------------------------
@@ -205,23 +241,28 @@ class Workbench(unittest.TestCase):
                          ["Datasets", "Identify", "Validate", "Sessions", "Models", "Jobs"])
 
     def test_2_upload_and_plot(self):
-        csv = os.path.join(ARGS.source_dir, "tests/data/two_tank.csv")
-        # With the parameters it was simulated with (tests/data/two_tank.json).
-        Workbench.dataset = self.upload(csv, "two_tank.csv", truth="A1:10, A2:5, k1:0.0791, k2:0.1342")
-        info = self.api("/datasets/" + Workbench.dataset)
+        self.sign_in()
+        dataset = self.upload_two_tank("two_tank.csv")
+        info = self.api("/datasets/" + dataset)
         self.assertEqual(int(info["samples"]), 2000)
         self.assertEqual(info["inputNames"], ["F1", "F2"])
         self.assertEqual(info["outputNames"], ["h1", "h2"])
         self.assertEqual(info["trueParameters"], TRUTH)
         self.shot("datasets")
-        self.go("datasets/" + Workbench.dataset)
+        self.go("datasets/" + dataset)
         self.assertEqual(self.find("#dataset-name").text, "two_tank.csv")
         self.assertEqual(self.find("#dataset-truth").text,
                          "True parameters: A1 = 10, A2 = 5, k1 = 0.0791, k2 = 0.1342")
         self.assert_plots_drawn("#signal-plots", 4)
         self.shot("dataset")
 
+    def upload_two_tank(self, name):
+        csv = os.path.join(ARGS.source_dir, "tests/data/two_tank.csv")
+        # With the parameters it was simulated with (tests/data/two_tank.json).
+        return self.upload(csv, name, truth="A1:10, A2:5, k1:0.0791, k2:0.1342")
+
     def test_3_a_name_is_text(self):
+        self.sign_in()
         csv = os.path.join(ARGS.source_dir, "tests/data/two_tank.csv")
         name = "<script>alert(1)</script>"
         dataset = self.upload(csv, name)
@@ -237,20 +278,8 @@ class Workbench(unittest.TestCase):
         self.api("/datasets/" + dataset, method="DELETE")
 
     def test_4_identify(self):
-        self.go(f"identify?dataset={Workbench.dataset}&model=two_tank")
-        self.find("#theta0-A1")
-        self.shot("identify")
-        # Hensen's settings (examples/two_tank_hensen.yaml), three passes.
-        fields = {"passes": 3, "theta0-A1": 20, "theta0-A2": 20, "theta0-k1": 1, "theta0-k2": 1,
-                  "p0-h1": 0, "p0-h2": 0, "p0-A1": 10, "p0-A2": 10, "p0-k1": 10, "p0-k2": 10,
-                  "r-h1": 1e-3, "r-h2": 1e-3, "substeps": 10}
-        for field, value in fields.items():
-            element = self.driver.find_element(By.ID, field)
-            element.clear()
-            element.send_keys(str(value))
-        self.find("#identify-submit").click()
-        job = self.wait_job()
-        Workbench.job = job
+        self.sign_in()
+        job = self.identify(self.upload_two_tank("identify.csv"))
         table = self.find("#result-table")
         result = self.api(f"/jobs/{job}/result")["identification"]
         names = result["paramNames"]
@@ -278,10 +307,12 @@ class Workbench(unittest.TestCase):
         self.shot("identify-result")
 
     def test_5_validate(self):
-        self.go(f"jobs/{Workbench.job}")
+        self.sign_in()
+        identified = self.identify(self.upload_two_tank("validate.csv"))
+        self.go(f"jobs/{identified}")
         self.find("#validate-link").click()
         source = Select(self.find("#validate-source"))
-        self.assertEqual(source.first_selected_option.get_attribute("value"), Workbench.job)
+        self.assertEqual(source.first_selected_option.get_attribute("value"), identified)
         self.shot("validate")
         self.find("#validate-submit").click()
         job = self.wait_job()
@@ -293,10 +324,12 @@ class Workbench(unittest.TestCase):
         self.shot("validate-result")
 
     def test_6_jobs_and_models(self):
+        self.sign_in()
+        job = self.identify(self.upload_two_tank("jobs.csv"))
         self.go("jobs")
-        rows = self.wait(lambda d: (lambda r: r if len(r) >= 2 else False)(
+        rows = self.wait(lambda d: (lambda r: r if job in [e.get_attribute("data-id") for e in r] else False)(
             d.find_elements(By.CSS_SELECTOR, "#jobs tbody tr")))
-        self.assertIn(Workbench.job, [r.get_attribute("data-id") for r in rows])
+        self.assertIn(job, [r.get_attribute("data-id") for r in rows])
         self.shot("jobs")
         self.go("models")
         self.find('#model-list section[data-model="two_tank"]')
@@ -305,6 +338,7 @@ class Workbench(unittest.TestCase):
         self.assertEqual(unit.text, "m^2.5/s")
 
     def test_6b_write_a_model(self):
+        self.sign_in()
         self.go("models")
         source = self.find("#model-source")
         # A model with an error on line 4: the error is shown at its line as one types.
@@ -337,26 +371,48 @@ class Workbench(unittest.TestCase):
         self.assertEqual(self.find('#parameters tr[data-param="A"] th').text, "A [m^2]")
         self.assertIn("#/identify?model=wb_tank", self.driver.current_url)
 
-    def test_7_session_live(self):
-        # A rig: `riccati stream` replays the record into a session at 100 Hz.
-        self.__class__.stream = subprocess.Popen(
+    def stream_rows(self, rows, *args):
+        """`riccati stream` as a rig: the first `rows` rows of the two-tank
+        record (the rows after the session's t, when resuming one), at 50 Hz."""
+        part = os.path.join(self.dir, f"two_tank_{rows}.csv")
+        with open(os.path.join(ARGS.source_dir, "tests/data/two_tank.csv")) as f, open(part, "w") as out:
+            out.writelines(line for i, line in zip(range(rows + 1), f))
+        process = subprocess.Popen(
             [ARGS.riccati, "--server", f"127.0.0.1:{self.grpc_port}", "--token-file", self.token_file,
-             "stream", "--config", os.path.join(ARGS.source_dir, "examples/two_tank_hensen.yaml"),
-             "--data", os.path.join(ARGS.source_dir, "tests/data/two_tank.csv"), "--rate", "50",
-             "--live", "never", "--output", os.path.join(self.dir, "estimates.csv")],
-            stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
+             "stream", "--data", part, "--rate", "50", "--keep", "--live", "never", *args],
+            stdout=subprocess.DEVNULL, stderr=subprocess.PIPE, text=True)
+        Workbench.stream = process  # stopped with the daemon, should the test end first
+        return process
+
+    def finished(self, process):
+        _, err = process.communicate(timeout=WAIT)
+        self.assertEqual(process.returncode, 0, err)
+        return err
+
+    def measurements_shown(self):
+        summary = self.driver.find_element(By.ID, "session-summary").text
+        return int(summary.split(" · ")[1].split()[0]) if " measurements" in summary else -1
+
+    def test_7_session_live(self):
+        # The rig streams in parts the test waits on, never against the
+        # clock: a slow host takes longer, it does not time out. Its first
+        # 100 rows make the session (kept open between parts).
+        self.sign_in()
+        err = self.finished(self.stream_rows(100, "--config", os.path.join(ARGS.source_dir, "examples/two_tank_hensen.yaml")))
+        session = [w for line in err.splitlines() if line.startswith("session ") for w in line.split()[1:2]][0]
         self.go("sessions")
-        link = self.wait(lambda d: d.find_elements(By.CSS_SELECTOR, "#sessions tbody tr td a"))[0]
+        link = self.wait(lambda d: [a for a in d.find_elements(By.CSS_SELECTOR, "#sessions tbody tr td a")
+                                    if a.text == session])[0]
         self.shot("sessions")
         link.click()
-        summary = self.find("#session-summary")
-        # Estimates update: the count of measurements moves, twice.
-        counts = []
-        for _ in range(3):
-            self.wait(lambda d: "measurements" in summary.text and
-                      (not counts or int(summary.text.split(" · ")[1].split()[0]) > counts[-1]))
-            counts.append(int(summary.text.split(" · ")[1].split()[0]))
-        self.assertEqual(counts, sorted(set(counts)))
+        self.find("#session-summary")
+        self.wait(lambda d: self.measurements_shown() == 100)
+        # Estimates update as they come: the count shown follows each part
+        # streamed while the page is open.
+        for rows in (300, 500):
+            streaming = self.stream_rows(rows, "--session", session)
+            self.wait(lambda d: self.measurements_shown() == rows)
+            self.finished(streaming)
         self.assert_plots_drawn("#session-plots", 6)
 
         # Retune on-line: R 1000 times larger. The filter leans on the model
@@ -375,14 +431,18 @@ class Workbench(unittest.TestCase):
         self.wait(lambda d: d.find_element(By.ID, "retune-status").text != "")
         self.assertIn("Retuned", self.driver.find_element(By.ID, "retune-status").text)
         self.find("#retunings table tbody tr")
-        info = self.api("/sessions/" + self.driver.current_url.split("#/sessions/")[1])
+        info = self.api("/sessions/" + session)
         self.assertEqual(len(info["retunings"]), 1)
         self.assertEqual(info["retunings"][0]["r"]["diagonal"]["values"], [1, 1])
+        # The filter retuned, the rig goes on: 500 rows more.
+        streaming = self.stream_rows(1000, "--session", session)
         seen = []
         try:
-            self.wait(lambda d: seen.append(two_sigma("h1")) or (seen[-1] or 0) > 1.5 * before, timeout=60)
+            self.wait(lambda d: seen.append(two_sigma("h1")) or (seen[-1] or 0) > 1.5 * before)
         except TimeoutException:
             self.fail(f"the ±2σ of h1 did not grow after R was raised: {before} before, then {seen[-20:]}")
+        self.wait(lambda d: self.measurements_shown() == 1000)
+        self.finished(streaming)
         self.shot("session")
 
 
