@@ -6,6 +6,7 @@
 #include <string>
 
 #include "commands/commands.hpp"
+#include "riccati/enum_names.hpp"
 #include "riccati/settings_schema.hpp"
 
 namespace riccati::cli {
