@@ -161,8 +161,13 @@ const std::vector<const char*> kMigrations = {
 };
 
 // Leases are read against the database's clock, so that instances on hosts
-// whose clocks disagree still agree on when a lease has expired.
-#define RICCATI_PG_NOW_MS "(extract(epoch FROM clock_timestamp()) * 1000)::bigint"
+// whose clocks disagree still agree on when a lease has expired; unless a
+// clock was given at open (tests), whose time each operation sets on its
+// connection first (riccati.now_ms, read here; unset, current_setting gives
+// NULL, or '' once a session has had it reset).
+#define RICCATI_PG_NOW_MS                                              \
+  "coalesce(nullif(current_setting('riccati.now_ms', true), '')::bigint, " \
+  "(extract(epoch FROM clock_timestamp()) * 1000)::bigint)"
 // When a session's lease ends: 0 once released; else its own term (from its
 // claim or last put) or its owner's renewed term, whichever is later.
 #define RICCATI_PG_SESSION_LEASE_UNTIL                                                                  \
@@ -427,8 +432,8 @@ class Lease {
 
 class PostgresStore final : public Store {
  public:
-  PostgresStore(const std::string& conninfo, std::string shown)
-      : shown_(std::move(shown)), pool_(conninfo, shown_, kPoolSize) {}
+  PostgresStore(const std::string& conninfo, std::string shown, std::shared_ptr<StoreClock> clock)
+      : shown_(std::move(shown)), pool_(conninfo, shown_, kPoolSize), clock_(std::move(clock)) {}
 
   Status migrate() {
     const int known = static_cast<int>(kMigrations.size());
@@ -1055,6 +1060,11 @@ class PostgresStore final : public Store {
       if (!lease.ok()) return lease.status();
       try {
         Tx tx(lease.connection());
+        if (clock_ != nullptr) {
+          // Session-wide (not local to a transaction: a nontransaction has
+          // none), and set again by every operation on this connection.
+          tx.exec_params("SELECT set_config('riccati.now_ms', $1, false)", std::to_string(clock_->now_ms()));
+        }
         R out = body(tx);
         if (out.is_ok()) tx.commit();  // else tx rolls back as it goes
         return out;
@@ -1092,6 +1102,7 @@ class PostgresStore final : public Store {
 
   const std::string shown_;  // the URL without its password
   ConnectionPool pool_;
+  const std::shared_ptr<StoreClock> clock_;  // none: the database server's
 };
 
 }  // namespace
@@ -1121,8 +1132,8 @@ std::string redact_database_url(const std::string& url) {
   return out;
 }
 
-Result<std::unique_ptr<Store>> open_postgres_store(const std::string& url) {
-  auto store = std::make_unique<PostgresStore>(with_default_params(url), redact_database_url(url));
+Result<std::unique_ptr<Store>> open_postgres_store(const std::string& url, std::shared_ptr<StoreClock> clock) {
+  auto store = std::make_unique<PostgresStore>(with_default_params(url), redact_database_url(url), std::move(clock));
   RICCATI_RETURN_IF_ERROR(store->migrate());
   return std::unique_ptr<Store>(std::move(store));
 }

@@ -16,8 +16,11 @@ namespace riccati {
 // starting at once do not race. The tables go to the first schema of the
 // connection's search_path (`?options=-csearch_path%3Dname` selects one).
 // UNAVAILABLE if the server cannot be reached; FAILED_PRECONDITION if the
-// schema is newer than this binary.
-Result<std::unique_ptr<Store>> open_postgres_store(const std::string& url);
+// schema is newer than this binary. Leases are reckoned in the database
+// server's clock, so that instances on hosts whose clocks disagree agree on
+// when one has expired; a `clock` given (tests) stands in for it.
+Result<std::unique_ptr<Store>> open_postgres_store(const std::string& url,
+                                                   std::shared_ptr<StoreClock> clock = nullptr);
 
 // `url` with its password replaced by "***" (in the user-info part of a URI
 // and in any password=... parameter), for logs and error messages.

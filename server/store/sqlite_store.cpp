@@ -293,10 +293,6 @@ constexpr const char* kJobColumns =
     "id, tenant, kind, state, spec, pass, passes, sample, samples, theta, error_code, error_message, created_ms, "
     "started_ms, finished_ms, owner, lease_until_ms, cancel_requested, iteration, cost, attempts, model";
 
-std::int64_t wall_clock_ms() {
-  return std::chrono::duration_cast<std::chrono::milliseconds>(std::chrono::system_clock::now().time_since_epoch())
-      .count();
-}
 
 JobRecord read_job(const Statement& s) {
   JobRecord j;
@@ -349,7 +345,8 @@ DatasetRecord read_dataset(const Statement& s) {
 
 class SqliteStore final : public Store {
  public:
-  SqliteStore(std::unique_ptr<sqlite3, CloseDb> db, std::string path) : db_(std::move(db)), path_(std::move(path)) {}
+  SqliteStore(std::unique_ptr<sqlite3, CloseDb> db, std::string path, std::shared_ptr<StoreClock> clock)
+      : db_(std::move(db)), path_(std::move(path)), clock_(std::move(clock)) {}
   // The log is kept (SQLITE_FCNTL_PERSIST_WAL) but emptied as the connection
   // closes: its frames, all copied into the database by then, would
   // otherwise be read again at the next start in place of the database's
@@ -524,7 +521,7 @@ class SqliteStore final : public Store {
       Statement q(db_.get(),
                   "INSERT INTO request_ids (tenant, request_id, kind, object_id, created_ms) VALUES (?, ?, ?, ?, ?) "
                   "ON CONFLICT (tenant, request_id) DO NOTHING");
-      q.text(tenant).text(request_id).text(kind).text(object_id).integer(wall_clock_ms());
+      q.text(tenant).text(request_id).text(kind).text(object_id).integer(clock_->now_ms());
       RICCATI_RETURN_IF_ERROR(done(q, "storing request id " + request_id));
     }
     Statement q(db_.get(), "SELECT kind, object_id FROM request_ids WHERE tenant = ? AND request_id = ?");
@@ -609,7 +606,7 @@ class SqliteStore final : public Store {
   Result<std::optional<JobRecord>> claim_job(const std::string& owner, std::int64_t lease_ms) override {
     std::lock_guard lock(mu_);
     return in_transaction("claiming a job", [&]() -> Result<std::optional<JobRecord>> {
-      const std::int64_t now = wall_clock_ms();
+      const std::int64_t now = clock_->now_ms();
       Statement q(db_.get(), (std::string("SELECT ") + kJobColumns +
                               " FROM jobs WHERE (state = 'queued' OR (state = 'running' AND lease_until_ms < ?)) "
                               "AND kind IN (" + known_job_kinds_sql() + ") ORDER BY created_ms, rowid LIMIT 1")
@@ -638,7 +635,7 @@ class SqliteStore final : public Store {
     Statement q(db_.get(),
                 "UPDATE jobs SET lease_until_ms = ?, pass = ?, passes = ?, sample = ?, samples = ?, theta = ?, "
                 "iteration = ?, cost = ? WHERE id = ? AND owner = ? AND state = 'running' RETURNING cancel_requested");
-    q.integer(wall_clock_ms() + lease_ms).integer(p.pass).integer(p.passes).integer(p.sample).integer(p.samples)
+    q.integer(clock_->now_ms() + lease_ms).integer(p.pass).integer(p.passes).integer(p.sample).integer(p.samples)
         .blob(to_blob(p.theta.data(), p.theta.size())).integer(p.iteration).real(p.cost).text(p.id).text(owner);
     if (!q.prepared()) return error("renewing the lease of job " + p.id);
     const int rc = q.step();
@@ -690,7 +687,7 @@ class SqliteStore final : public Store {
                   "WHEN 'queued' THEN 'cancelled before it started' ELSE error_message END, finished_ms = CASE state "
                   "WHEN 'queued' THEN ? ELSE finished_ms END WHERE id = ? AND tenant = ? AND state IN ('queued', "
                   "'running')");
-      q.integer(static_cast<int>(StatusCode::kCancelled)).integer(wall_clock_ms()).text(id).text(tenant);
+      q.integer(static_cast<int>(StatusCode::kCancelled)).integer(clock_->now_ms()).text(id).text(tenant);
       RICCATI_RETURN_IF_ERROR(done(q, "cancelling job " + id));
     }
     return get_job(tenant, id);
@@ -814,7 +811,7 @@ class SqliteStore final : public Store {
     const std::string doing = batch.size() == 1 ? "storing the snapshot of session " + std::string(batch[0].session_id)
                                                 : "storing " + std::to_string(batch.size()) + " session snapshots";
     return in_transaction(doing, [&]() -> Result<std::vector<Status>> {
-      const std::int64_t now = wall_clock_ms();
+      const std::int64_t now = clock_->now_ms();
       Statement q(db_.get(), "SELECT tenant, owner, " RICCATI_SQLITE_SESSION_LEASE_UNTIL
                              " FROM session_snapshots WHERE session_id = ?");
       Statement w(db_.get(),
@@ -855,7 +852,7 @@ class SqliteStore final : public Store {
     std::lock_guard lock(mu_);
     const std::string doing = "claiming session " + session_id;
     return in_transaction(doing, [&]() -> Result<std::string> {
-      const std::int64_t now = wall_clock_ms();
+      const std::int64_t now = clock_->now_ms();
       Statement q(db_.get(), "SELECT owner, " RICCATI_SQLITE_SESSION_LEASE_UNTIL
                              ", snapshot FROM session_snapshots WHERE session_id = ? AND tenant = ?");
       q.text(session_id).text(tenant);
@@ -880,7 +877,7 @@ class SqliteStore final : public Store {
       Statement w(db_.get(),
                   "INSERT INTO session_owner_leases (owner, lease_until_ms) VALUES (?, ?) ON CONFLICT (owner) DO "
                   "UPDATE SET lease_until_ms = excluded.lease_until_ms");
-      w.text(owner).integer(wall_clock_ms() + lease_ms);
+      w.text(owner).integer(clock_->now_ms() + lease_ms);
       RICCATI_RETURN_IF_ERROR(done(w, doing));
       Statement q(db_.get(), "SELECT count(*) FROM session_snapshots WHERE owner = ? AND lease_until_ms > 0");
       q.text(owner);
@@ -917,7 +914,7 @@ class SqliteStore final : public Store {
       const int rc = q.step();
       if (rc == SQLITE_DONE) return not_found("no snapshot of session " + session_id);
       if (rc != SQLITE_ROW) return error(doing);
-      if (q.column_text(0) != owner && q.column_int(1) > wall_clock_ms()) return session_lease_lost(session_id, owner);
+      if (q.column_text(0) != owner && q.column_int(1) > clock_->now_ms()) return session_lease_lost(session_id, owner);
       Statement d(db_.get(), "DELETE FROM session_snapshots WHERE session_id = ?");
       d.text(session_id);
       return done(d, doing);
@@ -929,7 +926,7 @@ class SqliteStore final : public Store {
     Statement q(db_.get(),
                 "SELECT session_id, CASE WHEN " RICCATI_SQLITE_SESSION_LEASE_UNTIL " > ? THEN owner ELSE '' END, snapshot "
                 "FROM session_snapshots WHERE tenant = ? ORDER BY session_id");
-    q.integer(wall_clock_ms()).text(tenant);
+    q.integer(clock_->now_ms()).text(tenant);
     std::vector<SessionSnapshotRecord> records;
     int rc;
     while ((rc = q.step()) == SQLITE_ROW) records.push_back({q.column_text(0), q.column_text(1), q.column_blob(2)});
@@ -939,7 +936,7 @@ class SqliteStore final : public Store {
 
   Result<int> delete_abandoned_session_snapshots(std::int64_t idle_ms) override {
     std::lock_guard lock(mu_);
-    const std::int64_t now = wall_clock_ms();
+    const std::int64_t now = clock_->now_ms();
     Statement q(db_.get(), "DELETE FROM session_snapshots WHERE " RICCATI_SQLITE_SESSION_LEASE_UNTIL
                            " <= ? AND updated_ms < ?");
     q.integer(now).integer(now - idle_ms);
@@ -1320,13 +1317,14 @@ class SqliteStore final : public Store {
   std::mutex mu_;  // one connection, one statement at a time
   std::unique_ptr<sqlite3, CloseDb> db_;
   const std::string path_;
+  const std::shared_ptr<StoreClock> clock_;  // leases and stored times
   bool room_needed_ = false;  // a write found no room: make_room() once no transaction is open
   bool reserve_made_ = false;  // the reserve was in place once: new data waits for it when it is gone
 };
 
 }  // namespace
 
-Result<std::unique_ptr<Store>> open_sqlite_store(const std::string& path) {
+Result<std::unique_ptr<Store>> open_sqlite_store(const std::string& path, std::shared_ptr<StoreClock> clock) {
   // An empty file is what a truncated database looks like: starting a new
   // store over it would hide the loss, so the operator decides.
   std::error_code ec;
@@ -1343,7 +1341,8 @@ Result<std::unique_ptr<Store>> open_sqlite_store(const std::string& path) {
     return failed_precondition("cannot open database " + path + ": " +
                                (raw != nullptr ? sqlite3_errmsg(raw) : sqlite3_errstr(rc)));
   }
-  auto store = std::make_unique<SqliteStore>(std::move(db), path);
+  if (clock == nullptr) clock = std::make_shared<SystemStoreClock>();
+  auto store = std::make_unique<SqliteStore>(std::move(db), path, std::move(clock));
   RICCATI_RETURN_IF_ERROR(store->check_integrity());
   RICCATI_RETURN_IF_ERROR(store->migrate());
   store->keep_reserve_at_start();

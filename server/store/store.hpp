@@ -26,6 +26,7 @@
 
 #include "engine/data/dataset.hpp"
 #include "engine/status.hpp"
+#include "store/clock.hpp"
 
 namespace riccati {
 
@@ -353,7 +354,9 @@ class Store {
 // Opens (creating if needed) the SQLite store in `path` and brings its schema
 // up to date (versioned migrations, applied in one transaction each). An
 // empty file (a truncated database) and a damaged one (PRAGMA quick_check)
-// are refused: FAILED_PRECONDITION naming the file and what to do.
-Result<std::unique_ptr<Store>> open_sqlite_store(const std::string& path);
+// are refused: FAILED_PRECONDITION naming the file and what to do. Leases
+// and stored times are read from `clock` (none: the system's, clock.hpp).
+Result<std::unique_ptr<Store>> open_sqlite_store(const std::string& path,
+                                                 std::shared_ptr<StoreClock> clock = nullptr);
 
 }  // namespace riccati

@@ -100,6 +100,17 @@ TEST_P(TwoTankHensen, LastPassMeanWithinOnePointFivePercentOfTruth) {
     // The first pass starts from theta0 = [20 20 1 1]: far off.
     EXPECT_GT(std::abs(r.passes[0].theta_trace(i, 0) - truth[i]) / truth[i], 0.5);
   }
+  // Hensen's published mean over the last pass (his EKF), within the
+  // tolerance two_tank.json states and says why.
+  if (GetParam() == FilterKind::kEkf) {
+    const auto& h = meta["hensen_settings"];
+    const Eigen::VectorXd published = vec(h["hensen_result_last_pass_mean"]);
+    const double tolerance = h["hensen_result_relative_tolerance"].get<double>();
+    for (int i = 0; i < 4; ++i) {
+      EXPECT_LT(std::abs(r.theta_mean[i] - published[i]) / published[i], tolerance)
+          << r.param_names[i] << ": " << r.theta_mean[i] << ", Hensen's " << published[i];
+    }
+  }
   // Multi-pass bookkeeping: pass k+1 starts where pass k ended.
   EXPECT_EQ(r.passes[9].theta_final, r.theta);
   EXPECT_TRUE(r.theta_std.allFinite());

@@ -8,6 +8,7 @@
 #include "engine/estimation/binding.hpp"
 #include "engine/estimation/identification.hpp"
 #include "engine/estimation/output_error.hpp"
+#include "engine/estimation/sensitivity.hpp"
 #include "engine/models/plugin_loader.hpp"
 
 namespace riccati {
@@ -215,7 +216,10 @@ TEST(OutputError, ConfidenceIntervalsCoverTheTruthAtTheirLevel) {
   }
   std::printf("covered %d %d %d %d of %d; mean sigma-hat %.6g (true %.6g)\n", covered[0], covered[1], covered[2],
               covered[3], kRuns, mean_sigma, kSigma);
-  if (kRuns < 100) return;
+  if (kRuns < 100) {
+    GTEST_SKIP() << "the coverage needs 100 runs; under the sanitizers " << kRuns
+                 << " ran, for the code path only, and nothing is asserted of them";
+  }
   for (Eigen::Index i = 0; i < 4; ++i) {
     EXPECT_GE(covered[i], 90) << model->param_names()[static_cast<std::size_t>(i)];
     EXPECT_LE(covered[i], 99) << model->param_names()[static_cast<std::size_t>(i)];
@@ -324,7 +328,154 @@ TEST(OutputError, BoundsFixedParametersAndSeveralExperiments) {
   EXPECT_TRUE(warned);
   ASSERT_EQ(r->experiments.size(), 2u);
   EXPECT_EQ(r->experiments[0].x0, Eigen::Vector2d(0.4, 0.15)) << "given, not estimated";
+  // A1 held 5 % off its truth biases the fit, so b's initial state is not
+  // checked against its truth here but below, where nothing is held.
   EXPECT_GT(r->experiments[1].x0_std[0], 0.0);
+  EXPECT_NE(r->experiments[1].x0, Eigen::Vector2d(0.25, 0.25)) << "estimated: it moved from its start";
+}
+
+// Two experiments sharing the parameters, the second from an initial state
+// that is estimated (started from (0.25, 0.25), truth (0.2, 0.3)): on the
+// noise-free records it is the truth to the solver's precision; with noise
+// of 5 mm on each level it is within 4 of its standard errors of the truth
+// (a correct estimate and std fail that with probability 6e-5 per state,
+// so the fixed seed passes or fails for good), and its std is below the
+// noise of one sample (600 samples inform it).
+TEST(OutputError, SeveralExperimentsEachRecoverTheirInitialState) {
+  const ModelPtr model = registry().get("two_tank").value();
+  const Eigen::VectorXd truth = model->theta_default();
+  const Eigen::Vector2d x0_b(0.2, 0.3);
+  SimulationSettings sim;
+  const ColumnMapping mapping{"t", {"F1", "F2"}, {"h1", "h2"}};
+  const Experiment a = simulated_experiment(model, "two_tank.csv", mapping, Eigen::Vector2d(0.4, 0.15), truth, sim, 600);
+  Experiment b = simulated_experiment(model, "two_tank.csv", mapping, x0_b, truth, sim, 600);
+  b.x0 = Eigen::Vector2d(0.25, 0.25);
+  b.estimate_x0 = {true, true};
+  OutputErrorSettings s;
+  s.simulation = sim;
+  s.parameters = default_parameters(*model, truth.cwiseProduct(Eigen::Vector4d(1.1, 0.9, 1.1, 0.9)));
+  const auto clean = output_error(model, {a, b}, s);
+  ASSERT_TRUE(clean.is_ok()) << clean.status().to_string();
+  EXPECT_LT((clean->experiments[1].x0 - x0_b).cwiseAbs().maxCoeff(), 1e-8) << clean->experiments[1].x0.transpose();
+  EXPECT_LT(worst_relative_error(clean->theta, truth), 1e-8);
+
+  constexpr double kSigma = 0.005;
+  std::mt19937_64 rng(31);
+  std::normal_distribution<double> noise(0.0, kSigma);
+  Experiment noisy_a = a, noisy_b = b;
+  for (Experiment* e : {&noisy_a, &noisy_b}) {
+    for (Eigen::Index k = 0; k < e->data.size(); ++k) {
+      for (Eigen::Index i = 0; i < 2; ++i) e->data.y(i, k) += noise(rng);
+    }
+  }
+  const auto r = output_error(model, {noisy_a, noisy_b}, s);
+  ASSERT_TRUE(r.is_ok()) << r.status().to_string();
+  const ExperimentResult& eb = r->experiments[1];
+  for (Eigen::Index i = 0; i < 2; ++i) {
+    EXPECT_GT(eb.x0_std[i], 0.0);
+    EXPECT_LT(eb.x0_std[i], kSigma);
+    EXPECT_LT(std::abs(eb.x0[i] - x0_b[i]), 4.0 * eb.x0_std[i])
+        << "state " << i << ": " << eb.x0[i] << " +- " << eb.x0_std[i] << ", truth " << x0_b[i];
+  }
+}
+
+// Log scales. A log-scaled parameter is estimated as phi = log(theta): the
+// conversions are exp and log, d theta / d phi = theta = exp(phi), and the
+// Jacobian the optimiser sees is d y / d phi = d y / d theta * theta (the
+// chain rule, as output_error forms it from the sensitivities), here
+// against central differences of the simulation in phi.
+TEST(OutputError, LogScaleConversionsAndTheirChainRule) {
+  const ModelPtr model = registry().get("two_tank").value();
+  ParameterSettings p = default_parameters(*model, model->theta_default());
+  p.log_scale[2] = p.log_scale[3] = true;
+  for (const double theta : {1e-3, 0.0791, 1.0, 42.0}) {
+    EXPECT_DOUBLE_EQ(to_solver(p, 2, theta), std::log(theta));
+    EXPECT_DOUBLE_EQ(from_solver(p, 2, std::log(theta)), theta);
+    EXPECT_DOUBLE_EQ(from_solver(p, 2, to_solver(p, 2, theta)), theta);
+    EXPECT_EQ(to_solver(p, 0, theta), theta) << "A1 is not log-scaled";
+    EXPECT_EQ(from_solver(p, 0, theta), theta);
+    EXPECT_EQ(theta_per_phi(p, 0, theta), 1.0);
+    const double phi = std::log(theta), h = 1e-6;
+    const double numeric = (from_solver(p, 2, phi + h) - from_solver(p, 2, phi - h)) / (2 * h);
+    EXPECT_NEAR(theta_per_phi(p, 2, theta), numeric, 1e-8 * theta) << "d theta / d phi at theta = " << theta;
+  }
+
+  SimulationSettings sim;
+  const Experiment e = simulated_experiment(model, "two_tank.csv", ColumnMapping{"t", {"F1", "F2"}, {"h1", "h2"}},
+                                            Eigen::Vector2d(0.4, 0.15), model->theta_default(), sim, 300);
+  auto simulator = SensitivitySimulator::create(model, sim, false);
+  ASSERT_TRUE(simulator.is_ok()) << simulator.status().to_string();
+  const Eigen::VectorXd theta = model->theta_default().cwiseProduct(Eigen::Vector4d(1.1, 0.9, 1.2, 0.8));
+  SimulatedRecord at;
+  ASSERT_TRUE(simulator->simulate(e.data.t, e.data.u, e.x0, theta, true, &at).is_ok());
+  for (const Eigen::Index j : {Eigen::Index{2}, Eigen::Index{3}}) {
+    const double h = 1e-5;  // in log theta: a relative step of 1e-5
+    SimulatedRecord plus, minus;
+    Eigen::VectorXd tp = theta, tm = theta;
+    tp[j] = from_solver(p, j, to_solver(p, j, theta[j]) + h);
+    tm[j] = from_solver(p, j, to_solver(p, j, theta[j]) - h);
+    ASSERT_TRUE(simulator->simulate(e.data.t, e.data.u, e.x0, tp, false, &plus).is_ok());
+    ASSERT_TRUE(simulator->simulate(e.data.t, e.data.u, e.x0, tm, false, &minus).is_ok());
+    const Eigen::MatrixXd numeric = (plus.y - minus.y) / (2 * h);  // [ny x N]
+    const Eigen::Map<const Eigen::MatrixXd> numeric_rows(numeric.data(), numeric.size(), 1);
+    const Eigen::VectorXd chain = at.dy_dtheta.col(j) * theta_per_phi(p, j, theta[j]);
+    const double scale = numeric_rows.cwiseAbs().maxCoeff();
+    ASSERT_GT(scale, 0.0);
+    EXPECT_LT((chain - numeric_rows.col(0)).cwiseAbs().maxCoeff(), 1e-6 * scale)
+        << model->param_names()[static_cast<std::size_t>(j)];
+    // Without the factor theta the two differ by 1 / theta (k ~ 0.1: a factor 10).
+    EXPECT_GT((at.dy_dtheta.col(j) - numeric_rows.col(0)).cwiseAbs().maxCoeff(), 0.5 * scale);
+  }
+}
+
+// A fit with k1 and k2 on log scales finds what the fit in theta finds:
+// the truth on the noise-free record; on a noisy one the same estimate, and
+// the same standard errors, in theta's unit (the covariance is formed in
+// theta: the delta method, std(theta) = theta std(log theta)). Its 95 %
+// interval is the one of log theta mapped back, theta exp(+-1.96 std / theta):
+// positive, and wider above than below.
+TEST(OutputError, ALogScaledFitRecoversTheTruthAndReportsItsStdInTheParametersUnit) {
+  const ModelPtr model = registry().get("two_tank").value();
+  const Eigen::VectorXd truth = model->theta_default();
+  SimulationSettings sim;
+  const Experiment clean = simulated_experiment(model, "two_tank.csv", ColumnMapping{"t", {"F1", "F2"}, {"h1", "h2"}},
+                                                Eigen::Vector2d(0.4, 0.15), truth, sim, 800);
+  OutputErrorSettings linear;
+  linear.simulation = sim;
+  linear.parameters = default_parameters(*model, truth.cwiseProduct(Eigen::Vector4d(1.1, 0.9, 1.3, 0.7)));
+  OutputErrorSettings logs = linear;
+  for (const Eigen::Index j : {Eigen::Index{2}, Eigen::Index{3}}) {
+    logs.parameters.log_scale[static_cast<std::size_t>(j)] = true;
+    logs.parameters.lower[j] = 1e-4;
+  }
+  const auto exact = output_error(model, {clean}, logs);
+  ASSERT_TRUE(exact.is_ok()) << exact.status().to_string();
+  EXPECT_TRUE(exact->converged) << exact->termination;
+  EXPECT_LT(worst_relative_error(exact->theta, truth), 1e-8);
+
+  Experiment noisy = clean;
+  std::mt19937_64 rng(20261128);
+  std::normal_distribution<double> noise(0.0, 0.005);
+  for (Eigen::Index k = 0; k < noisy.data.size(); ++k) {
+    for (Eigen::Index i = 0; i < 2; ++i) noisy.data.y(i, k) += noise(rng);
+  }
+  const auto in_theta = output_error(model, {noisy}, linear);
+  const auto in_log = output_error(model, {noisy}, logs);
+  ASSERT_TRUE(in_theta.is_ok()) << in_theta.status().to_string();
+  ASSERT_TRUE(in_log.is_ok()) << in_log.status().to_string();
+  for (Eigen::Index j = 0; j < 4; ++j) {
+    const std::string& name = model->param_names()[static_cast<std::size_t>(j)];
+    EXPECT_NEAR(in_log->theta[j], in_theta->theta[j], 1e-6 * std::abs(in_theta->theta[j])) << name;
+    EXPECT_NEAR(in_log->theta_std[j], in_theta->theta_std[j], 1e-4 * in_theta->theta_std[j]) << name;
+    EXPECT_LT(std::abs(in_log->theta[j] - truth[j]), 4.0 * in_log->theta_std[j]) << name;
+  }
+  for (const Eigen::Index j : {Eigen::Index{2}, Eigen::Index{3}}) {
+    const double v = in_log->theta[j], sd = in_log->theta_std[j], z = 1.959963984540054;
+    EXPECT_NEAR(in_log->ci_lower[j], v * std::exp(-z * sd / v), 1e-12 * v);
+    EXPECT_NEAR(in_log->ci_upper[j], v * std::exp(z * sd / v), 1e-12 * v);
+    EXPECT_GT(in_log->ci_upper[j] - v, v - in_log->ci_lower[j]) << "wider above";
+    EXPECT_NEAR(in_theta->ci_upper[j], in_theta->theta[j] + z * in_theta->theta_std[j], 1e-12 * v) << "symmetric in theta";
+  }
 }
 
 // Every parameter fixed and no initial state to estimate: nothing to

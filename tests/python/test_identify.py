@@ -169,7 +169,8 @@ def test_refusals_carry_the_code_and_message(client, two_tank_csv):
     with pytest.raises(riccati.InvalidArgument) as e:
         client.identify("two_tank", two_tank_csv, r=[1e-3, 1e-3, 1e-3], **IO)
     assert e.value.code.name == "INVALID_ARGUMENT"
-    assert "r" in e.value.message.lower()
+    # R given three values for the two outputs: the field and the count.
+    assert "filter.r.diagonal needs 2 values, got 3" in e.value.message, e.value.message
     with pytest.raises(ValueError, match="ekf"):
         client.submit_identification("two_tank", "some-id", filter="kalman")
     with pytest.raises(TypeError, match="passs"):

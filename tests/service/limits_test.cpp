@@ -5,7 +5,9 @@
 
 #include <atomic>
 #include <cmath>
+#include <filesystem>
 #include <fstream>
+#include <map>
 #include <mutex>
 #include <sstream>
 #include <thread>
@@ -403,6 +405,30 @@ TEST(StreamLimits, ABatchStopsWhenItsStreamIsCancelled) {
 // run, neither with a deadline (they once held riccatid 17-26 s against its
 // 5 s grace): both stop within the grace period, between two steps, and
 // riccatid exits 0 soon after it.
+//
+// The CPU time each thread of process `pid` has used, in ms, by thread id
+// (/proc/PID/task/TID/stat: utime and stime, the 14th and 15th fields).
+std::map<int, long> thread_cpu_ms(pid_t pid) {
+  std::map<int, long> out;
+  const long ticks = ::sysconf(_SC_CLK_TCK);
+  std::error_code ec;
+  for (const auto& task : std::filesystem::directory_iterator("/proc/" + std::to_string(pid) + "/task", ec)) {
+    std::ifstream in(task.path() / "stat");
+    std::string stat((std::istreambuf_iterator<char>(in)), std::istreambuf_iterator<char>());
+    const std::size_t end_of_name = stat.rfind(')');  // the name may hold spaces
+    if (end_of_name == std::string::npos) continue;
+    std::istringstream fields(stat.substr(end_of_name + 2));
+    std::string field;
+    long utime = 0, stime = 0;
+    for (int i = 3; i <= 15 && fields >> field; ++i) {
+      if (i == 14) utime = std::stol(field);
+      if (i == 15) stime = std::stol(field);
+    }
+    out[std::stoi(task.path().filename().string())] = (utime + stime) * 1000 / ticks;
+  }
+  return out;
+}
+
 TEST(Shutdown, LongSimulationsAndBatchesStopWithinTheGracePeriod) {
   TempDir dir;
   DaemonProcess daemon(dir.path() / "data", {"--max-simulation-steps", "400000000"});
@@ -418,6 +444,7 @@ TEST(Shutdown, LongSimulationsAndBatchesStopWithinTheGracePeriod) {
     grpc::ClientContext ctx;
     ASSERT_TRUE(sessions->CreateSession(&ctx, create, &session).ok());
   }
+  const std::map<int, long> idle_cpu = thread_cpu_ms(daemon.pid());
   std::atomic<int> answered{0};
   grpc::Status simulated, streamed;
   std::thread simulating([&] {
@@ -438,7 +465,19 @@ TEST(Shutdown, LongSimulationsAndBatchesStopWithinTheGracePeriod) {
     while (stream->Read(&response)) answered += response.results_size();
     streamed = stream->Finish();
   });
-  std::this_thread::sleep_for(std::chrono::seconds(1));  // both well under way
+  // Both well under way: two of riccatid's threads (the simulation's and the
+  // session's) each computing for 300 ms of CPU time since the calls were
+  // made. (The batch is answered at its end: nothing to see on the stream.)
+  EXPECT_TRUE(testing::wait_until(
+      [&] {
+        int busy = 0;
+        for (const auto& [tid, ms] : thread_cpu_ms(daemon.pid())) {
+          const auto before = idle_cpu.find(tid);
+          busy += ms - (before == idle_cpu.end() ? 0 : before->second) >= 300;
+        }
+        return busy >= 2;
+      },
+      testing::kWait, "the simulation and the batch both under way"));
 
   const auto signalled = std::chrono::steady_clock::now();
   const int status = daemon.stop();

@@ -23,6 +23,7 @@
 
 #include "store/postgres_store.hpp"
 #include "store/store.hpp"
+#include "support/manual_clock.hpp"
 #include "support/postgres.hpp"
 
 namespace riccati {
@@ -42,18 +43,21 @@ class TempDir {
 };
 
 using testing::PostgresSchema;
+using namespace std::chrono_literals;
 
 // Where a test keeps its store: made for the test, removed after it.
 class StorePlace {
  public:
   virtual ~StorePlace() = default;
   // Opens the store kept here (every open finds the same data).
-  virtual Result<std::unique_ptr<Store>> open() = 0;
+  virtual Result<std::unique_ptr<Store>> open(std::shared_ptr<StoreClock> clock) = 0;
 };
 
 class SqlitePlace final : public StorePlace {
  public:
-  Result<std::unique_ptr<Store>> open() override { return open_sqlite_store((dir_.path() / "riccati.db").string()); }
+  Result<std::unique_ptr<Store>> open(std::shared_ptr<StoreClock> clock) override {
+    return open_sqlite_store((dir_.path() / "riccati.db").string(), std::move(clock));
+  }
 
  private:
   TempDir dir_;
@@ -61,7 +65,9 @@ class SqlitePlace final : public StorePlace {
 
 class PostgresPlace final : public StorePlace {
  public:
-  Result<std::unique_ptr<Store>> open() override { return open_postgres_store(schema_.url()); }
+  Result<std::unique_ptr<Store>> open(std::shared_ptr<StoreClock> clock) override {
+    return open_postgres_store(schema_.url(), std::move(clock));
+  }
 
  private:
   PostgresSchema schema_;
@@ -83,8 +89,9 @@ class StoreTest : public ::testing::TestWithParam<StoreKind> {
     place_ = GetParam().make_place();
   }
 
+  // The store on the test's clock: leases expire when the test advances it.
   std::unique_ptr<Store> open() {
-    auto s = place_->open();
+    auto s = place_->open(clock_);
     EXPECT_TRUE(s.is_ok()) << s.status().to_string();
     return std::move(s).value();
   }
@@ -139,6 +146,7 @@ class StoreTest : public ::testing::TestWithParam<StoreKind> {
   }
 
   std::unique_ptr<StorePlace> place_;
+  std::shared_ptr<testing::ManualClock> clock_ = std::make_shared<testing::ManualClock>();
 };
 
 TEST_P(StoreTest, DatasetRoundTripIsBitExact) {
@@ -646,8 +654,11 @@ TEST_P(StoreTest, ConcurrentClaimsNeverShareAJob) {
 TEST_P(StoreTest, AnExpiredLeaseIsTakenOverAndOnlyTheHolderEndsTheJob) {
   auto store = open();
   ASSERT_TRUE(store->put_job(job("job-1", "t", 1)).is_ok());
-  JobRecord held = store->claim_job("a", 1).value().value();  // a 1 ms lease: "a" died
-  std::this_thread::sleep_for(std::chrono::milliseconds(20));
+  JobRecord held = store->claim_job("a", 60000).value().value();
+  EXPECT_EQ(held.lease_until_ms, clock_->peek() + 60000);
+  clock_->advance(59999ms);  // "a" died: its lease runs out
+  EXPECT_FALSE(store->claim_job("b", 60000).value().has_value()) << "a's lease holds to its last millisecond";
+  clock_->advance(2ms);
   const auto taken = store->claim_job("b", 60000).value();
   ASSERT_TRUE(taken.has_value()) << "an expired lease must be taken over";
   EXPECT_EQ(taken->id, "job-1");
@@ -670,7 +681,9 @@ TEST_P(StoreTest, AnExpiredLeaseIsTakenOverAndOnlyTheHolderEndsTheJob) {
   EXPECT_EQ(mid.pass, 2);
   EXPECT_EQ(mid.sample, 50);
   EXPECT_EQ(mid.theta, progress.theta);
-  EXPECT_GT(mid.lease_until_ms, progress.lease_until_ms - 1);
+  clock_->advance(1000ms);
+  EXPECT_FALSE(store->renew_job(progress, "b", 60000).value());
+  EXPECT_EQ(store->get_job("t", "job-1").value().lease_until_ms, clock_->peek() + 60000) << "renewed from now";
 
   JobRecord end_b = progress;
   end_b.state = JobState::kSucceeded;
@@ -710,6 +723,22 @@ TEST_P(StoreTest, ReleasedJobsAreQueuedAgainAndCancelsReachTheirOwner) {
   EXPECT_EQ(store->cancel_job("t", running.id).value().state, JobState::kCancelled) << "an ended job stays as it is";
 }
 
+// riccatid gives no clock: SQLite then reckons in the system's time,
+// PostgreSQL in the database server's (here on the same host).
+TEST_P(StoreTest, WithoutAClockGivenLeasesAreReckonedInRealTime) {
+  auto opened = place_->open(nullptr);
+  ASSERT_TRUE(opened.is_ok()) << opened.status().to_string();
+  auto store = std::move(opened).value();
+  ASSERT_TRUE(store->put_job(job("job-1", "t", 1)).is_ok());
+  const std::int64_t before = SystemStoreClock().now_ms();
+  const JobRecord held = store->claim_job("a", 60000).value().value();
+  const std::int64_t after = SystemStoreClock().now_ms();
+  // Rounding to milliseconds either side (PostgreSQL's extract is exact to microseconds).
+  EXPECT_GE(held.lease_until_ms, before + 60000 - 1);
+  EXPECT_LE(held.lease_until_ms, after + 60000 + 1);
+  EXPECT_FALSE(store->claim_job("b", 60000).value().has_value()) << "a's lease is live";
+}
+
 // The retry budget's count: every claim is an attempt, whether the job was
 // queued or taken over from a dead owner; a release by a stopping owner
 // takes its claim back, one after a death (at start) does not.
@@ -717,8 +746,8 @@ TEST_P(StoreTest, EveryClaimOfAJobCountsAsAnAttemptUnlessItsOwnerStoppedIt) {
   auto store = open();
   ASSERT_TRUE(store->put_job(job("job-1", "t", 1)).is_ok());
   EXPECT_EQ(store->get_job("t", "job-1").value().attempts, 0);
-  EXPECT_EQ(store->claim_job("a", 1).value()->attempts, 1);  // a 1 ms lease: "a" died
-  std::this_thread::sleep_for(std::chrono::milliseconds(20));
+  EXPECT_EQ(store->claim_job("a", 60000).value()->attempts, 1);
+  clock_->advance(60001ms);  // "a" died: its lease ran out
   EXPECT_EQ(store->claim_job("b", 60000).value()->attempts, 2) << "a takeover is an attempt";
   EXPECT_EQ(store->get_job("t", "job-1").value().attempts, 2);
   EXPECT_EQ(store->release_jobs("b", true).value(), 1);
@@ -795,8 +824,11 @@ TEST_P(StoreTest, SessionSnapshotsAreStoredTogetherEachJudgedAlone) {
 
 TEST_P(StoreTest, AnExpiredOrReleasedSessionLeaseIsTakenOverAndItsOldOwnerRefused) {
   auto store = open();
-  ASSERT_TRUE(store->put_session_snapshot("t", "ses-1", "a", 1, "a's").is_ok());  // a 1 ms lease: "a" died
-  std::this_thread::sleep_for(std::chrono::milliseconds(20));
+  ASSERT_TRUE(store->put_session_snapshot("t", "ses-1", "a", 60000, "a's").is_ok());
+  clock_->advance(59999ms);  // "a" died: its lease runs out
+  EXPECT_EQ(store->claim_session_snapshot("t", "ses-1", "b", 60000).status().code(), StatusCode::kFailedPrecondition)
+      << "a's lease holds to its last millisecond";
+  clock_->advance(2ms);
   EXPECT_EQ(store->renew_session_leases("b", 60000).value(), 0) << "b holds nothing yet";
   EXPECT_EQ(store->claim_session_snapshot("t", "ses-1", "b", 60000).value(), "a's");
   EXPECT_EQ(store->put_session_snapshot("t", "ses-1", "a", 60000, "late").code(), StatusCode::kAborted);
@@ -828,8 +860,10 @@ TEST_P(StoreTest, AnExpiredOrReleasedSessionLeaseIsTakenOverAndItsOldOwnerRefuse
   // A renewal keeps a lease past its first term.
   ASSERT_TRUE(store->put_session_snapshot("t", "ses-3", "a", 10, "three").is_ok());
   EXPECT_EQ(store->renew_session_leases("a", 60000).value(), 1);
-  std::this_thread::sleep_for(std::chrono::milliseconds(30));
+  clock_->advance(30ms);
   EXPECT_EQ(store->claim_session_snapshot("t", "ses-3", "b", 60000).status().code(), StatusCode::kFailedPrecondition);
+  clock_->advance(60000ms);
+  EXPECT_EQ(store->claim_session_snapshot("t", "ses-3", "b", 60000).value(), "three") << "the renewal ran out";
 }
 
 // A renewal is the owner's, not each session's: it covers a session the
@@ -839,12 +873,14 @@ TEST_P(StoreTest, ASessionLeaseLastsAsLongAsItsOwnersRenewal) {
   EXPECT_EQ(store->renew_session_leases("a", 100).value(), 0);
   ASSERT_TRUE(store->put_session_snapshot("t", "ses-1", "a", 1, "one").is_ok());  // its own term: 1 ms
   ASSERT_TRUE(store->put_session_snapshot("t", "ses-2", "b", 1, "two").is_ok());  // b has renewed nothing
-  std::this_thread::sleep_for(std::chrono::milliseconds(20));
+  clock_->advance(20ms);
   EXPECT_EQ(store->claim_session_snapshot("t", "ses-1", "c", 60000).status().code(), StatusCode::kFailedPrecondition)
       << "a's renewal, 100 ms, holds it";
   EXPECT_EQ(store->claim_session_snapshot("t", "ses-2", "c", 60000).value(), "two") << "b's own 1 ms are over";
+  clock_->advance(81ms);
+  EXPECT_EQ(store->list_session_snapshots("t").value().front().holder, "") << "a's renewal, 100 ms, is over";
   EXPECT_EQ(store->renew_session_leases("a", 60000).value(), 1);
-  std::this_thread::sleep_for(std::chrono::milliseconds(150));
+  clock_->advance(150ms);
   EXPECT_EQ(store->delete_abandoned_session_snapshots(0).value(), 0) << "held by a";
   EXPECT_EQ(store->list_session_snapshots("t").value().front().holder, "a");
   EXPECT_EQ(store->release_sessions("a").value(), 1);
@@ -881,9 +917,10 @@ TEST_P(StoreTest, AbandonedSessionSnapshotsAreDeletedAfterTheIdleTime) {
   auto store = open();
   ASSERT_TRUE(store->put_session_snapshot("t", "ses-dead", "a", 1, "dead").is_ok());
   ASSERT_TRUE(store->put_session_snapshot("t", "ses-held", "b", 60000, "held").is_ok());
-  std::this_thread::sleep_for(std::chrono::milliseconds(20));
+  clock_->advance(20ms);
   EXPECT_EQ(store->delete_abandoned_session_snapshots(60000).value(), 0) << "stored too recently";
-  EXPECT_EQ(store->delete_abandoned_session_snapshots(5).value(), 1);
+  EXPECT_EQ(store->delete_abandoned_session_snapshots(20).value(), 0) << "stored 20 ms ago, not before";
+  EXPECT_EQ(store->delete_abandoned_session_snapshots(19).value(), 1);
   EXPECT_EQ(store->claim_session_snapshot("t", "ses-dead", "c", 60000).status().code(), StatusCode::kNotFound);
   EXPECT_EQ(store->claim_session_snapshot("t", "ses-held", "b", 60000).value(), "held");
 }

@@ -61,9 +61,10 @@ int session_show(Client& c, const std::string& id) {
               info.instance().empty() ? "-" : info.instance().c_str());
   if (info.state_estimate_size() > 0) std::printf("  estimate: %s\n", values_list(info.state_estimate()).c_str());
   // The noise the filter runs with now (what `sessions retune` changes).
-  const auto noise = [](const char* name, const v1::Covariance& c) {
-    if (c.has_diagonal()) std::printf("  %s: diag %s\n", name, values_list(c.diagonal().values()).c_str());
-    if (c.has_full()) std::printf("  %s: %u x %u, full\n", name, c.full().rows(), c.full().cols());
+  const auto noise = [](const char* name, const v1::Covariance& given) {
+    if (given.has_diagonal()) std::printf("  %s: diag %s\n", name, values_list(given.diagonal().values()).c_str());
+    if (given.has_full()) std::printf("  %s: %u x %u, full\n", name, given.full().rows(), given.full().cols());
+    if (given.form_case() == v1::Covariance::kScalar) std::printf("  %s: %.17g on the diagonal\n", name, given.scalar());
   };
   noise("Q", info.q());
   noise("R", info.r());
