@@ -27,7 +27,8 @@ import urllib.error
 from selenium.webdriver.common.by import By
 from selenium.webdriver.support.select import Select
 
-import workbench_test as wb
+sys.dont_write_bytecode = True  # no __pycache__ of workbench_test in the source tree
+import workbench_test as wb  # noqa: E402 (after the line above)
 
 # The flags of the CLI's tests, per method. Values as the CLI takes them;
 # None: a switch, or a names flag given alone.
