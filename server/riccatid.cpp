@@ -40,6 +40,16 @@ int main(int argc, char** argv) {
   // lock-order graph under one global lock: a few per cent of a stream's CPU,
   // and contention between the streams' threads (docs/benchmarks-log.md).
   absl::SetMutexDeadlockDetectionMode(absl::OnDeadlockCycle::kIgnore);
+  // Signals are taken by one thread with sigwait, so every other thread
+  // must block them: block before any starts. grpc_init() below starts
+  // gRPC's threads, which inherit the mask; one started before it was set
+  // could take a SIGTERM and die of it (exit 143, not a drain).
+  sigset_t signals;
+  sigemptyset(&signals);
+  sigaddset(&signals, SIGTERM);
+  sigaddset(&signals, SIGINT);
+  sigaddset(&signals, SIGHUP);  // read the models directory again
+  pthread_sigmask(SIG_BLOCK, &signals, nullptr);
   // gRPC's library stays initialised to the end of the process: the last
   // grpc_shutdown (when the server is destroyed at stop) joins gRPC's
   // executor threads, and one of them polling with a 10 s timeout held
@@ -190,14 +200,6 @@ int main(int argc, char** argv) {
   logger->set_level(spdlog::level::from_str(config.log_level));
   spdlog::set_default_logger(logger);
 
-  // Signals are taken by one thread with sigwait, so every other thread
-  // (gRPC's, the workers) must block them: block before any starts.
-  sigset_t signals;
-  sigemptyset(&signals);
-  sigaddset(&signals, SIGTERM);
-  sigaddset(&signals, SIGINT);
-  sigaddset(&signals, SIGHUP);  // read the models directory again
-  pthread_sigmask(SIG_BLOCK, &signals, nullptr);
   // A write past a file size limit (ulimit -f, systemd's LimitFSIZE) would
   // kill the daemon with SIGXFSZ, logging nothing; ignored, the write fails
   // with EFBIG, which the store reports like a full disk.
