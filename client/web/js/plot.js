@@ -9,6 +9,11 @@ export function color(i) { return kPalette[i % kPalette.length]; }
 // The ticks' labels, from their spacing (tickLabels: distinct).
 const ticks = (u, splits, axis, space, increment) => tickLabels(splits, increment);
 
+// The least room between two y ticks: uPlot's 30 px, but never so much that a
+// short plot (a live session's) gets fewer than three ticks, which could
+// leave one label on its axis and no scale to read.
+const ySpace = (u, axis, min, max, plotHeight) => Math.min(30, plotHeight / 4);
+
 const clean = (values) => Array.from(values, (v) => (Number.isFinite(v) ? v : null));
 
 // plot(parent, {title, x, xLabel, yLabel, series: [{label, values, color, dash}], bands: [[upper, lower]],
@@ -35,7 +40,7 @@ export function plot(parent, opts) {
     series,
     bands: (opts.bands || []).map(([a, b]) => ({series: [a, b], fill: 'rgba(31,111,235,0.13)'})),
     scales: opts.yRange ? {x: {time: false}, y: {auto: false, range: () => opts.yRange}} : {x: {time: false}},
-    axes: [{label: opts.xLabel || 't (s)', values: ticks}, {label: opts.yLabel || '', values: ticks, size: 60}],
+    axes: [{label: opts.xLabel || 't (s)', values: ticks}, {label: opts.yLabel || '', values: ticks, size: 60, space: ySpace}],
     legend: {live: true},
   }, [clean(opts.x), ...opts.series.map((s) => clean(s.values))], box);
   box.uplot = u;
