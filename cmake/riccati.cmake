@@ -2,7 +2,10 @@
 
 # Warnings for our own targets.
 function(riccati_warnings target)
-  target_compile_options(${target} PRIVATE -Wall -Wextra -Wpedantic -Wshadow -Wno-missing-field-initializers)
+  target_compile_options(${target} PRIVATE -Wall -Wextra -Wpedantic -Wshadow -Wno-missing-field-initializers
+                                            # A unity build includes each file: GCC then takes a file's
+                                            # own anonymous-namespace types for a header's.
+                                            $<$<CXX_COMPILER_ID:GNU>:-Wno-subobject-linkage>)
 endfunction()
 
 # riccati_add_model_plugin(NAME src...): a model plugin (shared module) named

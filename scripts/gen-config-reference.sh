@@ -92,22 +92,15 @@ reference() {
   echo "$end"
 }
 
-current_section() {
-  awk -v b="$begin" -v e="$end" '$0 == b { on = 1 } on { print } $0 == e { on = 0 }' "$doc"
-}
+. scripts/lib/generated-section.sh
 
 case $mode in
   print) reference ;;
   update)
-    grep -qxF "$begin" "$doc" || { echo "gen-config-reference: $doc has no line $begin" >&2; exit 1; }
     new=$(mktemp)
     trap 'rm -f "$new"' EXIT
     reference >"$new"
-    awk -v b="$begin" -v e="$end" -v f="$new" '
-      $0 == b { while ((getline l < f) > 0) print l; skip = 1; next }
-      $0 == e { skip = 0; next }
-      !skip { print }' "$doc" >"$doc.tmp"
-    mv "$doc.tmp" "$doc"
+    section_update "$doc" "$begin" "$end" "$new"
     echo "gen-config-reference: updated $doc"
     ;;
   check)
@@ -119,9 +112,8 @@ case $mode in
     }
     trap cleanup EXIT
     status=0
-    if ! diff -u <(current_section) <(reference) >"$work/diff"; then
-      echo "gen-config-reference: the reference in $doc is out of date (run scripts/gen-config-reference.sh --update):" >&2
-      cat "$work/diff" >&2
+    reference >"$work/reference"
+    if ! section_check "$doc" "$begin" "$end" "$work/reference" gen-config-reference; then
       status=1
     else
       echo "gen-config-reference: $doc lists every flag of riccatid --help, with its default"

@@ -16,7 +16,7 @@ packages=(
   build-essential cmake ninja-build ccache pkg-config   # toolchain, one cached build
   libeigen3-dev                                         # linear algebra
   libboost-dev                                          # Boost.Math (header-only): chi-square quantiles in residual diagnostics
-  libsundials-dev                                       # CVODE / ARKODE integrators
+  libsundials-cvode6 libsundials-arkode5                # CVODE / ARKODE integrators (headers: below)
   libspdlog-dev                                         # logging
   libmatio-dev                                          # MAT files (the 1999 toolbox's T/U/Y layout)
   zlib1g-dev                                            # inflating MAT variable headers to check them first
@@ -62,15 +62,38 @@ for set in "$@"; do
   esac
 done
 
+installed() { dpkg-query -W -f='${Status}' "$1" 2>/dev/null | grep -q "install ok installed"; }
 missing=()
 for p in "${packages[@]}"; do
-  dpkg-query -W -f='${Status}' "$p" 2>/dev/null | grep -q "install ok installed" || missing+=("$p")
+  installed "$p" || missing+=("$p")
 done
-[ ${#missing[@]} -eq 0 ] && exit 0
 
-echo "install-deps: installing ${missing[*]}"
 sudo_cmd=()
 [ "$(id -u)" -eq 0 ] || sudo_cmd=(sudo)
 export DEBIAN_FRONTEND=noninteractive
-"${sudo_cmd[@]}" apt-get update -qq
-"${sudo_cmd[@]}" apt-get install -y -qq --no-install-recommends "${missing[@]}" >/dev/null
+updated=0
+if [ ${#missing[@]} -gt 0 ]; then
+  echo "install-deps: installing ${missing[*]}"
+  "${sudo_cmd[@]}" apt-get update -qq
+  updated=1
+  "${sudo_cmd[@]}" apt-get install -y -qq --no-install-recommends "${missing[@]}" >/dev/null
+fi
+
+# SUNDIALS' headers: libsundials-dev depends on MPI, PETSc, hypre and gfortran
+# (about 150 packages) for parallel vectors riccati never uses, so unless it
+# is installed its headers alone are unpacked from the package into
+# build/_deps/sundials (cmake/sundials_runtime.cmake looks there).
+headers="$(cd "$(dirname "$0")/.." && pwd)/build/_deps/sundials"
+if ! installed libsundials-dev && [ ! -f "$headers/include/sundials/sundials_config.h" ]; then
+  echo "install-deps: unpacking SUNDIALS' headers from libsundials-dev into $headers"
+  [ $updated -eq 1 ] || "${sudo_cmd[@]}" apt-get update -qq
+  download=$(mktemp -d)
+  # apt-get download checks the package against the signed index; run as
+  # root, apt drops to the _apt user, which needs to write there.
+  chmod 0777 "$download"
+  (cd "$download" && apt-get download -qq libsundials-dev)
+  rm -rf "$headers" && mkdir -p "$headers"
+  dpkg-deb -x "$download"/libsundials-dev_*.deb "$download/root"
+  mv "$download/root/usr/include" "$headers/include"
+  rm -rf "$download"
+fi

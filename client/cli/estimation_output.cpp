@@ -181,6 +181,12 @@ std::string estimation_table(const v1::EstimationResult& r, const std::vector<do
                 r.sigma2() != 1.0 ? ("; residual variance " + format("%.4g", r.sigma2()) + " (scales the covariance)").c_str()
                                   : "");
   out += line;
+  if (r.samples() > 0) {  // (results stored before the criteria have none)
+    std::snprintf(line, sizeof line, "log-likelihood %.10g; AIC %.10g, AICc %.10g, BIC %.10g (k = %u estimated, n = %llu)\n",
+                  r.log_likelihood(), r.aic(), r.aicc(), r.bic(), r.estimated_quantities(),
+                  static_cast<unsigned long long>(r.samples()));
+    out += line;
+  }
   if (r.has_init_passes() && r.init_passes().passes_size() > 0) {
     out += "start: the mean over the last of " +
            counted(static_cast<unsigned>(r.init_passes().passes_size()), "pass", "passes") + " of the iterated filter " + values_list(r.init_passes().theta_mean()) + "\n";
@@ -243,6 +249,9 @@ std::string estimation_table(const v1::EstimationResult& r, const std::vector<do
             (estimated ? " (std " + format("%.2g", i < x.x0_std_size() ? x.x0_std(i) : 0.0) + ")" : " (given)");
     }
     out += x0 + "\n";
+    // ML's model output is the predictor's one step ahead, OE's the simulation.
+    out += r.method() == v1::IDENTIFICATION_METHOD_ML ? "  fit of the one-step-ahead predictions:\n"
+                                                       : "  fit of the simulation:\n";
     out += fit_table(x.fits(), "  ");
     if (x.has_diagnostics()) {
       ModelNames with_outputs = names;

@@ -193,6 +193,13 @@ int main(int argc, char** argv) {
                          "Trace, X, Ymod, ...; validations T, Y, Ymod)")
       ->excludes("--output");
 
+  std::vector<std::string> compare_ids;
+  auto* compare_cmd = app.add_subcommand(
+      "compare",
+      "Output-error and likelihood fits side by side: log-likelihood, AIC, AICc, BIC, fit per output; a "
+      "likelihood-ratio test for each nested pair");
+  compare_cmd->add_option("jobs", compare_ids, "Two or more jobs of --method oe or ml")->required()->expected(2, -1);
+
   ValidateOptions val;
   auto* validate_cmd = app.add_subcommand("validate", "Simulate a model against measured data: the fit table");
   RunFlags val_flags(validate_cmd, Command::kValidate);
@@ -325,6 +332,7 @@ int main(int argc, char** argv) {
     if (!export_path.empty()) return result_export(client, job_id, export_path);
     return result(client, job_id, json && format == "table" ? "json" : format, output, truth);
   }
+  if (*compare_cmd) return compare(client, compare_ids);
   if (*validate_cmd) {
     if (!settings_from("", val_flags, &val.settings)) return kExitUsage;
     return validate(client, val);

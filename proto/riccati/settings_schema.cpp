@@ -4,6 +4,7 @@
 #include <google/protobuf/util/json_util.h>
 
 #include <algorithm>
+#include <deque>
 #include <map>
 #include <mutex>
 #include <stdexcept>
@@ -23,6 +24,54 @@ using google::protobuf::Reflection;
 
 bool has_setting(const FieldDescriptor& field) { return field.options().HasExtension(v1::setting); }
 
+// The first declaration with help of the setting `flag` among the requests'
+// fields (setting_requests() order: identification first), or null.
+const v1::Setting* declaration_of(const Descriptor& type, std::string_view flag, int depth) {
+  for (int i = 0; i < type.field_count(); ++i) {
+    const FieldDescriptor* field = type.field(i);
+    if (has_setting(*field)) {
+      const v1::Setting& setting = field->options().GetExtension(v1::setting);
+      if (setting.flag() == flag && !setting.help().empty()) return &setting;
+    }
+    if (field->type() == FieldDescriptor::TYPE_MESSAGE && !field->is_repeated() && depth < 8) {
+      if (const v1::Setting* found = declaration_of(*field->message_type(), flag, depth + 1)) return found;
+    }
+  }
+  return nullptr;
+}
+
+// A setting written as its flag alone ("[(setting) = { flag: \"--x0\" }]",
+// where a request repeats a setting of another) takes the rest from the
+// flag's declaration; what it states itself stays. Kept for the process, as
+// the options are.
+const v1::Setting* completed(const v1::Setting& own) {
+  if (!own.help().empty()) return &own;
+  const v1::Setting* declared = nullptr;
+  for (const Descriptor* request : setting_requests()) {
+    if ((declared = declaration_of(*request, own.flag(), 0)) != nullptr) break;
+  }
+  if (declared == nullptr) throw std::logic_error("setting " + own.flag() + " has no help and no declaration with help");
+  static std::deque<v1::Setting> completed_settings;  // settings_of's lock guards it
+  v1::Setting& out = completed_settings.emplace_back(*declared);
+  const Reflection& reflection = *own.GetReflection();
+  for (int i = 0; i < v1::Setting::descriptor()->field_count(); ++i) {
+    const FieldDescriptor* f = v1::Setting::descriptor()->field(i);
+    const bool stated = f->is_repeated() ? reflection.FieldSize(own, f) > 0 : reflection.HasField(own, f);
+    if (!stated) continue;
+    out.GetReflection()->ClearField(&out, f);
+    if (f->is_repeated()) {
+      for (int k = 0; k < reflection.FieldSize(own, f); ++k) {
+        out.GetReflection()->AddString(&out, f, reflection.GetRepeatedString(own, f, k));
+      }
+    } else if (f->cpp_type() == FieldDescriptor::CPPTYPE_STRING) {
+      out.GetReflection()->SetString(&out, f, reflection.GetString(own, f));
+    } else {
+      out.GetReflection()->SetDouble(&out, f, reflection.GetDouble(own, f));
+    }
+  }
+  return &out;
+}
+
 void walk(const Descriptor& type, std::vector<const FieldDescriptor*>* chain, std::vector<SettingField>* out) {
   for (int i = 0; i < type.field_count(); ++i) {
     const FieldDescriptor* field = type.field(i);
@@ -32,7 +81,7 @@ void walk(const Descriptor& type, std::vector<const FieldDescriptor*>* chain, st
       for (const FieldDescriptor* f : *chain) s.path += (s.path.empty() ? "" : ".") + std::string(f->name());
       s.chain = *chain;
       s.field = field;
-      s.setting = &field->options().GetExtension(v1::setting);
+      s.setting = completed(field->options().GetExtension(v1::setting));
       s.kind = value_kind(*field);
       out->push_back(std::move(s));
     }

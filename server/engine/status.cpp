@@ -10,6 +10,12 @@ std::string message_number(double v, int significant) {
   return text;
 }
 
+std::string join_names(const std::vector<std::string>& names) {
+  std::string out;
+  for (const auto& name : names) out += (out.empty() ? "" : ", ") + name;
+  return out;
+}
+
 const char* status_code_name(StatusCode code) {
   switch (code) {
     case StatusCode::kOk: return "OK";

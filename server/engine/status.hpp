@@ -7,6 +7,7 @@
 #pragma once
 
 #include <string>
+#include <vector>
 #include <utility>
 #include <variant>
 
@@ -52,6 +53,13 @@ class [[nodiscard]] Status {
   StatusCode code_ = StatusCode::kOk;
   std::string message_;
 };
+
+// For messages: names joined with ", ", and a matrix's size ("2 x 3").
+std::string join_names(const std::vector<std::string>& names);
+template <typename Matrix>
+std::string size_text(const Matrix& m) {
+  return std::to_string(m.rows()) + " x " + std::to_string(m.cols());
+}
 
 inline Status invalid_argument(std::string m) { return {StatusCode::kInvalidArgument, std::move(m)}; }
 inline Status not_found(std::string m) { return {StatusCode::kNotFound, std::move(m)}; }

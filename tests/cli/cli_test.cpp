@@ -1135,5 +1135,18 @@ TEST(SchemaFlags, MessagesNameTheFlagBesideTheField) {
   EXPECT_EQ(with_flags("dataset ds-1 has 2 outputs; the fixed point"), "dataset ds-1 has 2 outputs; the fixed point");
 }
 
+// The chi-square upper tail compare's likelihood-ratio test reads its p-value
+// from, against the 95 % quantiles of the tables and a value by hand
+// (P(chi2_1 > 1) = P(|Z| > 1)).
+TEST(Compare, ChiSquareSurvivalAtTheTablesQuantiles) {
+  const std::vector<std::pair<unsigned, double>> quantile95 = {
+      {1, 3.841458820694124}, {2, 5.991464547107979}, {3, 7.814727903251178}, {5, 11.070497693516351},
+      {10, 18.307038053275146}};
+  for (const auto& [dof, x] : quantile95) EXPECT_NEAR(chi_square_survival(x, dof), 0.05, 1e-12) << dof;
+  EXPECT_NEAR(chi_square_survival(1.0, 1), 0.31731050786291410, 1e-14);
+  EXPECT_EQ(chi_square_survival(0.0, 3), 1.0);
+  EXPECT_EQ(chi_square_survival(std::numeric_limits<double>::infinity(), 2), 0.0);
+}
+
 }  // namespace
 }  // namespace riccati::cli

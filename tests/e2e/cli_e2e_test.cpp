@@ -466,15 +466,79 @@ TEST_F(CliTest, ResultsExportAsCsvJsonAndMat) {
   EXPECT_EQ(read_mat_variable(val_file.string(), "Y").cols, 2000u);
   EXPECT_EQ(read_mat_variable(val_file.string(), "Ymod").rows, 2u);
   {
-    const MatVariable y = read_mat_variable(val_file.string(), "Y"), ymod = read_mat_variable(val_file.string(), "Ymod"),
+    const MatVariable y = read_mat_variable(val_file.string(), "Y"),
+                      simulated = read_mat_variable(val_file.string(), "Ymod"),
                       residuals = read_mat_variable(val_file.string(), "Residuals");
     ASSERT_EQ(residuals.values.size(), y.values.size());
-    for (std::size_t i : {0u, 1u, 2001u, 3999u}) EXPECT_EQ(residuals.values[i], y.values[i] - ymod.values[i]) << i;
+    for (std::size_t i : {0u, 1u, 2001u, 3999u}) EXPECT_EQ(residuals.values[i], y.values[i] - simulated.values[i]) << i;
   }
   // An extension that says no format: refused.
   r = riccati("result " + job + " --export " + (dir_.path() / "result.xlsx").string());
   EXPECT_EQ(r.exit_code, 2);
   EXPECT_NE(last_stderr().find(".csv, .json or .mat"), std::string::npos) << last_stderr();
+}
+
+// `riccati compare`: the criteria of each job as riccatid stored them, the
+// best marked, and the likelihood-ratio test of a nested pair: k2 held at a
+// wrong value (the smaller model) against all four free, on the noisy
+// record, where the data reject the wrong k2 beyond doubt.
+TEST_F(CliTest, CompareRanksFitsAndTestsANestedPair) {
+  const std::string data = kData + "/two_tank_noisy.csv --inputs F1,F2 --outputs h1,h2";
+  CliRun r = riccati("identify --method oe --model two_tank --data " + data + " --theta0 11,6,0.09,0.15");
+  ASSERT_EQ(r.exit_code, 0) << last_stderr();
+  const std::string all_free = job_id_in(last_stderr());
+  r = riccati("identify --method oe --model two_tank --data " + data + " --theta0 11,6,0.09,0.15 --fix k2=0.12");
+  ASSERT_EQ(r.exit_code, 0) << last_stderr();
+  const std::string k2_held = job_id_in(last_stderr());
+
+  r = riccati("--json compare " + all_free + " " + k2_held);
+  ASSERT_EQ(r.exit_code, 0) << last_stderr();
+  const auto compared = nlohmann::json::parse(r.out);
+  ASSERT_EQ(compared["jobs"].size(), 2u) << r.out;
+  const auto& large = compared["jobs"][0];
+  const auto& small = compared["jobs"][1];
+  EXPECT_EQ(large["k"].get<int>(), 5);  // four parameters and sigma^2
+  EXPECT_EQ(small["k"].get<int>(), 4);
+  for (const auto* j : {&large, &small}) {
+    const auto& job = *j;
+    const double ll = job["log_likelihood"].get<double>(), k = job["k"].get<double>(), n = job["n"].get<double>();
+    EXPECT_DOUBLE_EQ(job["aic"].get<double>(), 2 * k - 2 * ll);
+    EXPECT_DOUBLE_EQ(job["bic"].get<double>(), k * std::log(n) - 2 * ll);
+  }
+  ASSERT_EQ(compared["likelihood_ratio_tests"].size(), 1u) << r.out;
+  const auto& test = compared["likelihood_ratio_tests"][0];
+  EXPECT_EQ(test["smaller"], k2_held);
+  EXPECT_EQ(test["larger"], all_free);
+  EXPECT_EQ(test["dof"].get<int>(), 1);
+  EXPECT_DOUBLE_EQ(test["statistic"].get<double>(),
+                   2 * (large["log_likelihood"].get<double>() - small["log_likelihood"].get<double>()));
+  EXPECT_LT(test["p"].get<double>(), 1e-6);
+
+  r = riccati("compare " + k2_held + " " + all_free);
+  ASSERT_EQ(r.exit_code, 0) << last_stderr();
+  EXPECT_NE(r.out.find(k2_held + " within " + all_free), std::string::npos) << r.out;
+  EXPECT_NE(r.out.find("the larger model fits significantly better"), std::string::npos) << r.out;
+  // The all-free fit is the best by AIC: its row carries the mark.
+  const std::vector<std::string> row = words_of_line(r.out, all_free + " ");
+  ASSERT_GE(row.size(), 7u) << r.out;
+  EXPECT_EQ(row[6].back(), '*') << r.out;
+
+  // An iterated-filter job has no likelihood; jobs on other outputs do not compare.
+  r = riccati("identify --model two_tank --data " + data + " --r 1e-4 --passes 1");
+  ASSERT_EQ(r.exit_code, 0) << last_stderr();
+  const std::string filter_job = job_id_in(last_stderr());
+  r = riccati("compare " + all_free + " " + filter_job);
+  EXPECT_EQ(r.exit_code, 2);
+  EXPECT_NE(last_stderr().find("job " + filter_job + " is not an output-error or maximum-likelihood identification"),
+            std::string::npos) << last_stderr();
+  r = riccati("identify --method oe --model rotating_arm --data " + kData +
+              "/rotating_arm.csv --inputs i --outputs q,qdot --max-iterations 1");
+  ASSERT_TRUE(r.exit_code == 0 || r.exit_code == 1) << last_stderr();
+  const std::string arm = job_id_in(last_stderr());
+  r = riccati("compare " + all_free + " " + arm);
+  EXPECT_EQ(r.exit_code, 2);
+  EXPECT_NE(last_stderr().find("jobs " + all_free + " and " + arm + " fit different outputs (h1, h2; q, qdot)"),
+            std::string::npos) << last_stderr();
 }
 
 // P0 left out: riccatid's documented default (the protos' p0), here

@@ -74,6 +74,41 @@ Experiment noisy_two_tank(Eigen::Index samples, double sigma, std::mt19937_64& r
   return e;
 }
 
+// ln L against the one-step predictions by hand: with Q = 0 and the initial
+// states known (P0 = 0) the predictor's covariance stays 0, so each
+// innovation is Gaussian with variance R, the estimated one here; k counts
+// the parameters and the two noise levels.
+TEST(MaxLikelihood, LogLikelihoodAndCriteriaAreThoseOfThePredictionsByHand) {
+  const ModelPtr model = registry().get("two_tank").value();
+  std::mt19937_64 rng(20261128);
+  const Experiment e = noisy_two_tank(600, 0.01, rng);
+  MaxLikelihoodSettings s = two_tank_settings(model->theta_default() * 1.1, 2e-4);
+  s.estimate_measurement_noise = true;
+  auto r = max_likelihood(model, {e}, s);
+  ASSERT_TRUE(r.is_ok()) << r.status().to_string();
+  const ExperimentResult& x = r->estimate.experiments[0];
+  const Eigen::VectorXd& noise = r->noise.r;
+  constexpr double kLog2Pi = 1.8378770664093454836;
+  double log_likelihood = 0.0;
+  for (Eigen::Index k = 0; k < e.data.size(); ++k) {
+    for (Eigen::Index i = 0; i < 2; ++i) {
+      const double innovation = x.y_measured(i, k) - x.y_model(i, k);
+      log_likelihood -= 0.5 * (innovation * innovation / noise[i] + std::log(noise[i]) + kLog2Pi);
+    }
+  }
+  const double n = 2.0 * 600, k = 4 + 2;
+  const InformationCriteria& c = r->estimate.criteria;
+  EXPECT_EQ(c.samples, n);
+  EXPECT_EQ(c.estimated_quantities, k);
+  EXPECT_NEAR(c.log_likelihood, log_likelihood, 1e-9 * std::abs(log_likelihood));
+  EXPECT_NEAR(c.aic, 2.0 * k - 2.0 * log_likelihood, 1e-9 * std::abs(log_likelihood));
+  EXPECT_NEAR(c.bic, k * std::log(n) - 2.0 * log_likelihood, 1e-9 * std::abs(log_likelihood));
+  // The estimated R is the innovations' mean square (the likelihood's
+  // stationary point in R with S = R): the noise's variance, within its spread.
+  EXPECT_NEAR(noise[0], 1e-4, 2e-5);
+  EXPECT_NEAR(noise[1], 1e-4, 2e-5);
+}
+
 // Over 100 realisations of measurement noise of a known level (R given as
 // its variance, Q = 0), each parameter's 95 % interval from the likelihood's
 // Hessian holds the truth in 90-99 of them (the binomial 95 % range), and the

@@ -2,6 +2,7 @@
 #include <gtest/gtest.h>
 
 #include <fstream>
+#include <optional>
 #include <random>
 #include <nlohmann/json.hpp>
 
@@ -230,6 +231,104 @@ TEST(OutputError, ConfidenceIntervalsCoverTheTruthAtTheirLevel) {
   EXPECT_GE(white, 83);
   EXPECT_LE(white, 97);
   std::printf("white in %d of %d\n", white, kRuns);
+}
+
+// ln L, AIC, AICc and BIC against the residuals by hand: Gaussian with the
+// outputs' given sigma, and with sigma unknown at its maximum-likelihood
+// estimate RSS / n (one quantity more). k counts the free parameters and the
+// estimated initial state; n the residuals the mask keeps.
+TEST(OutputError, LogLikelihoodAndCriteriaAreThoseOfTheResidualsByHand) {
+  const ModelPtr model = registry().get("two_tank").value();
+  const Eigen::VectorXd truth = model->theta_default();
+  Experiment e = simulated_experiment(model, "two_tank.csv", ColumnMapping{"t", {"F1", "F2"}, {"h1", "h2"}},
+                                      Eigen::Vector2d(0.4, 0.15), truth, SimulationSettings{}, 600);
+  std::mt19937_64 rng(20261128);
+  std::normal_distribution<double> noise(0.0, 0.01);
+  for (Eigen::Index k = 0; k < e.data.size(); ++k) {
+    for (Eigen::Index i = 0; i < 2; ++i) e.data.y(i, k) += noise(rng);
+  }
+  e.estimate_x0 = {true, false};
+  e.mask = Eigen::ArrayXXd::Ones(2, e.data.size());
+  e.mask.block(1, 100, 1, 50) = 0.0;  // h2 left out of 50 samples
+  constexpr double kLog2Pi = 1.8378770664093454836;
+  for (const bool sigma_given : {false, true}) {
+    SCOPED_TRACE(sigma_given ? "sigma given" : "sigma estimated");
+    OutputErrorSettings s;
+    s.parameters = default_parameters(*model, truth.cwiseProduct(Eigen::Vector4d(1.1, 0.9, 1.1, 0.9)));
+    const Eigen::Vector2d sigma(0.01, 0.02);
+    if (sigma_given) s.output_sigma = sigma;
+    auto r = output_error(model, {e}, s);
+    ASSERT_TRUE(r.is_ok()) << r.status().to_string();
+    const ExperimentResult& x = r->experiments[0];
+    double n = 0.0, rss = 0.0, weighted = 0.0, log_sigma = 0.0;
+    for (Eigen::Index k = 0; k < e.data.size(); ++k) {
+      for (Eigen::Index i = 0; i < 2; ++i) {
+        if (e.mask(i, k) == 0.0) continue;
+        const double residual = x.y_measured(i, k) - x.y_model(i, k);
+        n += 1.0;
+        rss += residual * residual;
+        weighted += residual * residual / (sigma[i] * sigma[i]);
+        log_sigma += std::log(sigma[i]);
+      }
+    }
+    const double log_likelihood = sigma_given ? -0.5 * weighted - log_sigma - 0.5 * n * kLog2Pi
+                                              : -0.5 * n * (kLog2Pi + std::log(rss / n) + 1.0);
+    const int k = 4 + 1 + (sigma_given ? 0 : 1);
+    const InformationCriteria& c = r->criteria;
+    EXPECT_EQ(n, 2.0 * 600 - 50);
+    EXPECT_EQ(c.samples, n);
+    EXPECT_EQ(c.estimated_quantities, k);
+    EXPECT_NEAR(c.log_likelihood, log_likelihood, 1e-9 * std::abs(log_likelihood));
+    EXPECT_NEAR(c.aic, 2.0 * k - 2.0 * log_likelihood, 1e-9 * std::abs(log_likelihood));
+    EXPECT_NEAR(c.aicc, 2.0 * k - 2.0 * log_likelihood + 2.0 * k * (k + 1) / (n - k - 1),
+                1e-9 * std::abs(log_likelihood));
+    EXPECT_NEAR(c.bic, k * std::log(n) - 2.0 * log_likelihood, 1e-9 * std::abs(log_likelihood));
+  }
+}
+
+// The likelihood-ratio test compare applies, over 100 realisations: with k2
+// held at its true value (the smaller model true), 2 (ln L_free - ln L_held)
+// stays below chi-square(1)'s 95 % quantile in 90-99 of them (the binomial
+// 95 % range); held 2 % off, it exceeds it in every one.
+TEST(OutputError, TheLikelihoodRatioPicksTheTrueNestedModel) {
+  const ModelPtr model = registry().get("two_tank").value();
+  const Eigen::VectorXd truth = model->theta_default();
+  const Experiment clean = simulated_experiment(model, "two_tank.csv", ColumnMapping{"t", {"F1", "F2"}, {"h1", "h2"}},
+                                                Eigen::Vector2d(0.4, 0.15), truth, SimulationSettings{}, 600);
+#ifdef RICCATI_SANITIZED
+  constexpr int kRuns = 3;
+#else
+  constexpr int kRuns = 100;
+#endif
+  constexpr double kChiSquare1At95 = 3.841458820694124;
+  std::mt19937_64 rng(20261129);
+  std::normal_distribution<double> noise(0.0, 0.01);
+  int smaller_kept = 0, wrong_rejected = 0;
+  for (int run = 0; run < kRuns; ++run) {
+    Experiment e = clean;
+    for (Eigen::Index k = 0; k < e.data.size(); ++k) {
+      for (Eigen::Index i = 0; i < 2; ++i) e.data.y(i, k) += noise(rng);
+    }
+    const auto fit = [&](std::optional<double> k2) {
+      OutputErrorSettings s;
+      Eigen::VectorXd start = truth.cwiseProduct(Eigen::Vector4d(1.05, 0.95, 1.05, 1.0));
+      if (k2) start[3] = *k2;
+      s.parameters = default_parameters(*model, start);
+      if (k2) s.parameters.fixed[3] = true;
+      auto r = output_error(model, {e}, s);
+      EXPECT_TRUE(r.is_ok()) << r.status().to_string();
+      return r.is_ok() ? r->criteria.log_likelihood : std::nan("");
+    };
+    const double free = fit(std::nullopt);
+    smaller_kept += 2.0 * (free - fit(truth[3])) < kChiSquare1At95;
+    wrong_rejected += 2.0 * (free - fit(0.98 * truth[3])) > kChiSquare1At95;
+  }
+  std::printf("the true smaller model kept in %d of %d; the wrong one rejected in %d\n", smaller_kept, kRuns,
+              wrong_rejected);
+  if (kRuns < 100) GTEST_SKIP() << "the rates need 100 runs; under the sanitizers " << kRuns << " ran, the code path only";
+  EXPECT_GE(smaller_kept, 90);
+  EXPECT_LE(smaller_kept, 99);
+  EXPECT_EQ(wrong_rejected, kRuns);
 }
 
 // Hensen's published values for the arm: the simulated arm hardly moves

@@ -251,7 +251,15 @@ def test_an_output_error_result_explains_itself_and_plots(client, daemon, tmp_pa
     np.testing.assert_array_equal(summary["upper"].to_numpy(), list(res.proto.ci_upper))
     np.testing.assert_allclose(summary["rel_std_percent"].to_numpy(),
                                100 * np.asarray(res.proto.theta_std) / np.abs(res.proto.theta), rtol=1e-12)
+    # The likelihood and the criteria, as riccatid computed them: k the four
+    # parameters and sigma^2 (not given), n both outputs' samples.
+    c = res.criteria
+    assert (c["k"], c["n"]) == (5, 2 * 2000) == (res.proto.estimated_quantities, res.proto.samples)
+    assert c["log_likelihood"] == res.proto.log_likelihood
+    assert c["aic"] == pytest.approx(2 * 5 - 2 * c["log_likelihood"], rel=1e-12)
+    assert c["bic"] == pytest.approx(5 * np.log(4000) - 2 * c["log_likelihood"], rel=1e-12)
     printed = str(res)
+    assert f"AIC {c['aic']:.10g}, AICc {c['aicc']:.10g}, BIC {c['bic']:.10g} (k = 5 estimated, n = 4000)" in printed
     assert printed.startswith(f"oe estimate of two_tank, job {job.id}: converged after {res.iterations} iterations")
     assert summary.to_string() in printed and "experiment 1 (ds-" in printed
 

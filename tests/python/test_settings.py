@@ -122,6 +122,26 @@ def test_smooth_takes_params_as_the_cli(client, two_tank_csv):
         client.smooth("two_tank", ds, params=truth, estimate="final", **run)
 
 
+def test_a_smoothing_result_summarises_and_plots(client, two_tank_csv, tmp_path):
+    ds = client.upload(two_tank_csv, **IO)
+    res = client.smooth("two_tank", ds, params=[10, 5, 0.0791, 0.1342], r=1e-3, end_sample=200,
+                        p0=[1e-4, 1e-4, 1, 1, 1e-6, 1e-6])
+    frame, filtered = res.to_frame(), res.filtered()
+    summary = res.summary()
+    assert list(summary.index) == res.names == ["h1", "h2", "A1", "A2", "k1", "k2"]
+    assert summary.loc["A1", "first"] == frame["A1"].iloc[0]
+    assert summary.loc["k2", "std_last"] == frame["std.k2"].iloc[-1]
+    # At the last sample the smoother has nothing later to add: the filter's estimate.
+    np.testing.assert_array_equal(summary["last"].to_numpy(), summary["filtered_last"].to_numpy())
+    # Earlier, it knows more than the filter did then.
+    assert (frame["std.A1"].iloc[0] < filtered["std.A1"].iloc[0])
+    fig = res.plot(tmp_path / "smoothed.png")
+    assert [ax.get_ylabel() for ax in fig.axes] == res.names
+    np.testing.assert_array_equal(fig.axes[2].lines[1].get_ydata(), frame["A1"].to_numpy())
+    np.testing.assert_array_equal(fig.axes[2].lines[0].get_ydata(), filtered["A1"].to_numpy())
+    assert (tmp_path / "smoothed.png").read_bytes().startswith(b"\x89PNG")
+
+
 def test_validate_fits_the_initial_states_it_is_told(client, two_tank_csv):
     ds = client.upload(two_tank_csv, **IO)
     truth = [10, 5, 0.0791, 0.1342]

@@ -203,6 +203,58 @@ TEST(SettingsSchema, ItsDefaultsAreWhatRiccatidTakes) {
   EXPECT_EQ(api::choice_of(filter, "filter.inversion"), "cholesky");
 }
 
+// ML filters the states alone: its --q takes the states' nx intensities (a
+// diagonal or an nx x nx matrix), the parameters' part zero; nz values still
+// work, and another count is refused naming both.
+TEST(IdentificationSettings, MaximumLikelihoodTakesTheStatesProcessNoise) {
+  const ModelPtr model = models().find("two_tank");  // nx 2, ntheta 4
+  v1::IdentificationSpec ml;
+  ml.set_dataset_id("ds-1");
+  ml.set_method(v1::IDENTIFICATION_METHOD_ML);
+  ml.mutable_filter()->mutable_r()->set_scalar(1e-3);
+  ml.mutable_filter()->mutable_q()->mutable_diagonal()->add_values(1e-6);
+  ml.mutable_filter()->mutable_q()->mutable_diagonal()->add_values(2e-6);
+  ml.mutable_estimation()->set_estimate_process_noise(true);
+  Result<IdentificationJob> made = identification_from_proto(ml, *model);
+  ASSERT_TRUE(made.is_ok()) << made.status().message();
+  Eigen::MatrixXd expected = Eigen::MatrixXd::Zero(6, 6);
+  expected(0, 0) = 1e-6;
+  expected(1, 1) = 2e-6;
+  EXPECT_EQ(made->max_likelihood.filter.Q, expected);
+
+  v1::Matrix* full = ml.mutable_filter()->mutable_q()->mutable_full();
+  full->set_rows(2);
+  full->set_cols(2);
+  for (double v : {1e-6, 5e-7, 5e-7, 2e-6}) full->add_values(v);
+  made = identification_from_proto(ml, *model);
+  ASSERT_TRUE(made.is_ok()) << made.status().message();
+  expected(0, 1) = expected(1, 0) = 5e-7;
+  EXPECT_EQ(made->max_likelihood.filter.Q, expected);
+
+  for (double v : {1e-6, 2e-6, 0.0, 0.0, 0.0, 0.0}) ml.mutable_filter()->mutable_q()->mutable_diagonal()->add_values(v);
+  made = identification_from_proto(ml, *model);
+  ASSERT_TRUE(made.is_ok()) << made.status().message();
+  expected(0, 1) = expected(1, 0) = 0.0;
+  EXPECT_EQ(made->max_likelihood.filter.Q, expected);
+
+  ml.mutable_filter()->mutable_q()->mutable_diagonal()->add_values(0.0);
+  made = identification_from_proto(ml, *model);
+  ASSERT_FALSE(made.is_ok());
+  EXPECT_EQ(made.status().message(),
+            "filter.q.diagonal needs 2 values (the states': method ml filters the states alone) or 6, got 7");
+
+  // The iterated filter estimates the parameters too: its Q is nz x nz.
+  v1::IdentificationSpec filter = ml;
+  filter.set_method(v1::IDENTIFICATION_METHOD_FILTER);
+  filter.clear_estimation();
+  filter.mutable_filter()->mutable_q()->mutable_diagonal()->clear_values();
+  filter.mutable_filter()->mutable_q()->mutable_diagonal()->add_values(1e-6);
+  filter.mutable_filter()->mutable_q()->mutable_diagonal()->add_values(1e-6);
+  made = identification_from_proto(filter, *model);
+  ASSERT_FALSE(made.is_ok());
+  EXPECT_EQ(made.status().message(), "filter.q.diagonal needs 6 values, got 2");
+}
+
 // What every surface relies on: a flag means one thing (the same kind of
 // value in every request that has it), names are unique within a request,
 // and what a setting applies to names real methods and filter kinds.

@@ -1,7 +1,7 @@
 // The `riccati` commands: each talks to riccatid through the API and prints
 // a table (or JSON with --json), and returns a process exit code. One file
 // per area: health.cpp, models.cpp, data.cpp, jobs.cpp (jobs and results),
-// identify.cpp, validate.cpp, stream.cpp, simulate.cpp, smooth.cpp.
+// identify.cpp, validate.cpp, stream.cpp, simulate.cpp, smooth.cpp, compare.cpp.
 #pragma once
 
 #include <map>
@@ -50,6 +50,14 @@ int dataset_for(Client& c, const std::string& data, const std::vector<std::strin
                 const std::vector<std::string>& outputs, std::string* id, const std::string& model = "");
 
 int identify(Client& c, const RunSettings& s, bool wait);
+// `riccati compare JOB JOB...`: output-error and likelihood fits side by side
+// (log-likelihood, AIC, AICc, BIC, fit per output; the lowest marked), and a
+// likelihood-ratio test for each pair where one model is nested in the other
+// (the same model, records and method; a parameter free in one and fixed in
+// the other). Jobs of other kinds, or fits of different outputs: exit 2.
+int compare(Client& c, const std::vector<std::string>& ids);
+// P(chi^2 with `dof` degrees of freedom > x): the p-value of compare's test.
+double chi_square_survival(double x, unsigned dof);
 // `riccati settings`: every request's settings from the proto's schema, as
 // `format` says: table, json (GET /api/v1/schema's) or markdown (docs/settings.md).
 int settings_reference(const std::string& format);

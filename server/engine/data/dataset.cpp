@@ -218,6 +218,15 @@ Eigen::Map<const Eigen::MatrixXd> as_matrix(const matvar_t& var) {
 
 }  // namespace
 
+Result<SampleRange> sample_range(Eigen::Index first, Eigen::Index end, const Dataset& data) {
+  const SampleRange range{first, end < 0 ? data.size() : end};
+  if (range.first < 0 || range.end > data.size() || range.size() < 2) {
+    return invalid_argument("sample range [" + std::to_string(range.first) + ", " + std::to_string(range.end) +
+                            ") must hold at least two of the dataset's " + std::to_string(data.size()) + " samples");
+  }
+  return range;
+}
+
 Status validate_dataset(const Dataset& data) {
   const auto fail = [&data](const std::string& message) {
     return invalid_argument(data.name.empty() ? message : data.name + ": " + message);

@@ -28,6 +28,17 @@ struct Dataset {
   Eigen::Index num_outputs() const { return y.rows(); }
 };
 
+// The samples a run uses: [first, end) of a dataset.
+struct SampleRange {
+  Eigen::Index first = 0;
+  Eigen::Index end = 0;
+  Eigen::Index size() const { return end - first; }
+};
+
+// [first, end) of `data` (end < 0: through its last sample), refused unless it
+// lies within the dataset and holds at least two samples.
+Result<SampleRange> sample_range(Eigen::Index first, Eigen::Index end, const Dataset& data);
+
 // Which columns of a file are time, inputs and outputs, by name.
 struct ColumnMapping {
   std::string time = "t";

@@ -21,18 +21,13 @@ std::vector<Eigen::Index> order_by_name(const std::vector<std::string>& wanted, 
   return order;
 }
 
-std::string join(const std::vector<std::string>& names) {
-  std::string out;
-  for (const auto& n : names) out += (out.empty() ? "" : ", ") + n;
-  return out;
-}
 
 Status check_counts(const char* what, const std::vector<std::string>& wanted, const std::vector<std::string>& have,
                     const std::string& model_name) {
   if (have.size() == wanted.size()) return Status::ok();
   return invalid_argument("model " + model_name + " has " + std::to_string(wanted.size()) + " " + what + " (" +
-                          join(wanted) + "), the dataset has " + std::to_string(have.size()) + " (" +
-                          (have.empty() ? std::string("none") : join(have)) + ")");
+                          join_names(wanted) + "), the dataset has " + std::to_string(have.size()) + " (" +
+                          (have.empty() ? std::string("none") : join_names(have)) + ")");
 }
 
 // Reorders the rows of m (one variable per row) as `wanted` says they are

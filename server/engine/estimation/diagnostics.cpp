@@ -32,10 +32,6 @@ using NoThrowPolicy =
                                   boost::math::policies::overflow_error<boost::math::policies::ignore_error>,
                                   boost::math::policies::evaluation_error<boost::math::policies::ignore_error>>;
 
-std::string size_text(const Eigen::MatrixXd& m) { return std::to_string(m.rows()) + " x " + std::to_string(m.cols()); }
-
-std::string number(double value, int significant = 4) { return message_number(value, significant); }
-
 // The first non-finite value, by sample then row, so the message points at
 // the earliest trouble.
 Status check_finite(const Eigen::MatrixXd& values, const char* what) {
@@ -139,7 +135,7 @@ Result<ResidualDiagnostics> diagnose_residuals(const Eigen::MatrixXd& residuals,
     for (Index k = 0; k < n; ++k) {
       const double value = (*nis)(k);
       if (!std::isfinite(value) || value < 0.0) {
-        return invalid_argument("NIS is " + (std::isnan(value) ? std::string("NaN") : number(value)) + " at sample " +
+        return invalid_argument("NIS is " + (std::isnan(value) ? std::string("NaN") : message_number(value, 4)) + " at sample " +
                                 std::to_string(k + 1) + " (a squared norm: finite and not negative)");
       }
     }
@@ -262,15 +258,15 @@ std::string ResidualDiagnostics::summary() const {
   const auto verdict = [](bool pass) { return pass ? std::string("pass") : std::string("fail"); };
   std::string text = "whiteness (Ljung-Box Q over lags 1.." + std::to_string(lags) +
                      ", N = " + std::to_string(samples) + ", 95 % limit chi2(" + std::to_string(lags) +
-                     ") = " + number(ljung_box_limit) + "):";
+                     ") = " + message_number(ljung_box_limit, 4) + "):";
   for (Index i = 0; i < ljung_box.size(); ++i) {
-    text += (i > 0 ? "; output " : " output ") + std::to_string(i + 1) + " Q = " + number(ljung_box(i));
+    text += (i > 0 ? "; output " : " output ") + std::to_string(i + 1) + " Q = " + message_number(ljung_box(i), 4);
     if (constant_residual(i)) {
       text += " (constant residual: no correlation)";
     } else {
       const Index outside = (autocorrelation.row(i).array().abs() > band).count();
-      text += " (p = " + number(ljung_box_p(i), 3) + ", " + std::to_string(outside) + " of " + std::to_string(lags) +
-              " lags outside +-" + number(band) + ")";
+      text += " (p = " + message_number(ljung_box_p(i), 3) + ", " + std::to_string(outside) + " of " + std::to_string(lags) +
+              " lags outside +-" + message_number(band, 4) + ")";
     }
   }
   text += ": " + verdict(white()) + "\n";
@@ -281,12 +277,12 @@ std::string ResidualDiagnostics::summary() const {
   if (nu == 0) text += " no inputs";
   for (Index pair = 0; pair < cross_statistic.size(); ++pair) {
     text += (pair > 0 ? "; output " : " output ") + std::to_string(pair / nu + 1) + "/input " +
-            std::to_string(pair % nu + 1) + " S = " + number(cross_statistic(pair));
+            std::to_string(pair % nu + 1) + " S = " + message_number(cross_statistic(pair), 4);
     if (constant_input(pair % nu)) {
       text += " (constant input: no correlation)";
     } else {
-      text += " (limit " + number(cross_limit(pair)) + ", " + std::to_string(cross_dof(pair)) +
-              " dof, p = " + number(cross_p(pair), 3) + ")";
+      text += " (limit " + message_number(cross_limit(pair), 4) + ", " + std::to_string(cross_dof(pair)) +
+              " dof, p = " + message_number(cross_p(pair), 3) + ")";
     }
   }
   text += ": " + verdict(uncorrelated_with_inputs()) + "\n";
@@ -296,8 +292,8 @@ std::string ResidualDiagnostics::summary() const {
   } else {
     const Index ny = ljung_box.size();
     text += "noise consistency (mean NIS over " + std::to_string(samples) + " samples, 95 % band chi2(" +
-            std::to_string(samples * ny) + ") / N = [" + number(nis_lower) + ", " + number(nis_upper) +
-            "]): " + number(nis_mean) + " (p = " + number(nis_p, 3) + ", two-sided): " + verdict(nis_consistent()) +
+            std::to_string(samples * ny) + ") / N = [" + message_number(nis_lower, 4) + ", " + message_number(nis_upper, 4) +
+            "]): " + message_number(nis_mean, 4) + " (p = " + message_number(nis_p, 3) + ", two-sided): " + verdict(nis_consistent()) +
             "\n";
   }
   return text;

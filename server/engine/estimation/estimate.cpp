@@ -140,6 +140,19 @@ Result<std::vector<OutputFit>> fits_over_mask(const Eigen::MatrixXd& y, const Ei
   return fits;
 }
 
+void set_information_criteria(double log_likelihood, int estimated_quantities, double samples,
+                              EstimationResult* result) {
+  InformationCriteria& c = result->criteria;
+  const double k = estimated_quantities;
+  c.log_likelihood = log_likelihood;
+  c.estimated_quantities = estimated_quantities;
+  c.samples = samples;
+  c.aic = 2.0 * k - 2.0 * log_likelihood;
+  c.aicc = samples - k - 1.0 > 0.0 ? c.aic + 2.0 * k * (k + 1.0) / (samples - k - 1.0)
+                                   : std::numeric_limits<double>::infinity();
+  c.bic = k * std::log(samples) - 2.0 * log_likelihood;
+}
+
 void warn_active_bounds(const ParameterSettings& p, EstimationResult* r) {
   const std::vector<std::string>& names = r->param_names;
   for (Eigen::Index i = 0; i < r->theta.size(); ++i) {

@@ -124,6 +124,15 @@ Result<std::vector<OutputFit>> fits_over_mask(const Eigen::MatrixXd& y, const Ei
 Result<ResidualDiagnostics> diagnose(const ExperimentResult& experiment, const Eigen::MatrixXd& inputs,
                                      const Eigen::VectorXd* nis = nullptr);
 
+struct InformationCriteria {
+  double log_likelihood = 0.0;   // ln L (ML: of the innovations; OE: of Gaussian residuals, docs/identification.md)
+  int estimated_quantities = 0;  // k: free parameters, estimated initial states and noise levels
+  double samples = 0.0;          // n: the scalar residuals (outputs x samples) the fit used
+  double aic = 0.0;
+  double aicc = 0.0;
+  double bic = 0.0;
+};
+
 struct EstimationResult {
   std::vector<std::string> param_names;
   Eigen::VectorXd theta;             // [ntheta] the estimate
@@ -143,7 +152,18 @@ struct EstimationResult {
   std::string termination;           // the optimiser's reason for stopping
   std::string gradient;              // how the gradient was had: exact sensitivities, or central differences
   std::vector<ExperimentResult> experiments;
+  // The likelihood at the estimate and the criteria that weigh it against the
+  // number of quantities estimated, to compare models fitted to the same data
+  // (set_information_criteria).
+  InformationCriteria criteria;
 };
+
+// Sets `result`'s criteria from the log-likelihood ln L at its estimate, the
+// number k of quantities estimated and the number n of scalar residuals:
+// AIC = 2k - 2 ln L, AICc = AIC + 2k(k + 1)/(n - k - 1) (+inf when n <= k + 1),
+// BIC = k ln n - 2 ln L.
+void set_information_criteria(double log_likelihood, int estimated_quantities, double samples,
+                              EstimationResult* result);
 
 // The parameters' part of an uncertainty over the unknowns (uncertainty.hpp):
 // `columns` [ntheta] gives each parameter's index among the unknowns (-1:

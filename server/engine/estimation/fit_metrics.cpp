@@ -10,8 +10,6 @@ namespace {
 
 using Eigen::Index;
 
-std::string size_text(const Eigen::MatrixXd& m) { return std::to_string(m.rows()) + " x " + std::to_string(m.cols()); }
-
 // The first non-finite value, by sample then output, so the message points
 // at the earliest trouble.
 Status check_finite(const Eigen::MatrixXd& values, const char* which, const std::vector<std::string>& names) {

@@ -10,23 +10,6 @@ namespace riccati {
 
 namespace {
 
-
-// The samples a run filters: [first, end) of the bound dataset.
-struct SampleRange {
-  Eigen::Index first = 0;
-  Eigen::Index end = 0;
-  Eigen::Index size() const { return end - first; }
-};
-
-Result<SampleRange> sample_range(const IdentificationSettings& settings, const Dataset& bound) {
-  const SampleRange range{settings.first_sample, settings.end_sample < 0 ? bound.size() : settings.end_sample};
-  if (range.first < 0 || range.end > bound.size() || range.size() < 2) {
-    return invalid_argument("sample range [" + std::to_string(range.first) + ", " + std::to_string(range.end) +
-                            ") must hold at least two of the dataset's " + std::to_string(bound.size()) + " samples");
-  }
-  return range;
-}
-
 // A checkpoint must come from a run of these settings over these samples.
 Status check_checkpoint(const IdentificationCheckpoint& c, int passes, int nz, int ntheta, Eigen::Index N) {
   const int done = static_cast<int>(c.passes.size());
@@ -171,7 +154,7 @@ Result<IdentificationResult> identify(ModelPtr model, const Dataset& data, const
   if (model == nullptr) return invalid_argument("no model given");
   RICCATI_RETURN_IF_ERROR(validate(settings, *model));
   RICCATI_ASSIGN_OR_RETURN(const Dataset bound, bind_dataset(*model, data));
-  RICCATI_ASSIGN_OR_RETURN(const SampleRange range, sample_range(settings, bound));
+  RICCATI_ASSIGN_OR_RETURN(const SampleRange range, sample_range(settings.first_sample, settings.end_sample, bound));
   const Eigen::Index N = range.size();
   const int nx = model->nx(), ny = model->ny(), nz = model->nz();
   RICCATI_ASSIGN_OR_RETURN(OnlineRunner runner, OnlineRunner::create(model, settings.filter, settings.initial));

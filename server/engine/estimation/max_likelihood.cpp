@@ -60,6 +60,7 @@ struct Point {
 struct Sums {
   double logdet = 0.0;     // sum ln det S_k
   double quadratic = 0.0;  // sum e_k' S_k^-1 e_k
+  double measurements = 0.0;  // the scalar innovations: ny a sample measured
   double total() const { return 0.5 * (logdet + quadratic); }
 };
 
@@ -196,6 +197,7 @@ class Likelihood {
       const double logdet = 2.0 * S_llt_.matrixLLT().diagonal().array().log().sum();
       sums->logdet += logdet;
       sums->quadratic += f.nis();
+      sums->measurements += static_cast<double>(ny);
       if (residuals != nullptr) {
         double* row = residuals + k * (ny + 1);
         Eigen::Map<Eigen::VectorXd>(row, ny) = S_llt_.matrixL().solve(f.innovation());
@@ -516,6 +518,10 @@ Result<MaxLikelihoodResult> max_likelihood(ModelPtr model, const std::vector<Exp
   const Uncertainty u = uncertainty_from_information(H_natural, 1.0, unknowns.names, natural);
   set_parameter_uncertainty(p, u, unknowns.theta, &result);
   warn_active_bounds(p, &result);
+  // ln L = -L - n/2 ln 2 pi: L leaves the constant out.
+  constexpr double kLog2Pi = 1.8378770664093454836;
+  set_information_criteria(-result.cost - 0.5 * sums.measurements * kLog2Pi, static_cast<int>(unknowns.size()),
+                           sums.measurements, &result);
   out.noise.q = at.q;
   out.noise.r = at.r;
   out.noise.q_std = Eigen::VectorXd::Zero(nx);

@@ -8,21 +8,16 @@
 namespace riccati {
 namespace {
 
-std::string join(const std::vector<std::string>& names) {
-  std::string out;
-  for (const auto& n : names) out += (out.empty() ? "" : ", ") + n;
-  return out;
-}
 
 // x0 as the mode needs it: nx values, or none with the first measurement.
 Status check_x0(const Model& model, InitialState mode, const Eigen::VectorXd& x0) {
   const int nx = model.nx();
   if (x0.size() != 0 && x0.size() != nx) {
     return invalid_argument("x0 has " + std::to_string(x0.size()) + " entries, model " + model.name() + " has " +
-                            std::to_string(nx) + " states (" + join(model.state_names()) + ")");
+                            std::to_string(nx) + " states (" + join_names(model.state_names()) + ")");
   }
   if (mode == InitialState::kGiven && x0.size() != nx) {
-    return invalid_argument("x0 is required (" + std::to_string(nx) + " values: " + join(model.state_names()) +
+    return invalid_argument("x0 is required (" + std::to_string(nx) + " values: " + join_names(model.state_names()) +
                             ") unless the initial state is the first measurement");
   }
   if (!x0.allFinite()) return invalid_argument("x0 has a NaN or infinite entry");
@@ -36,7 +31,7 @@ Status validate(const InitialEstimate& initial, const Model& model) {
   if (initial.theta0.size() != model.ntheta()) {
     return invalid_argument("theta0 has " + std::to_string(initial.theta0.size()) + " entries, model " +
                             model.name() + " has " + std::to_string(model.ntheta()) + " parameters (" +
-                            join(model.param_names()) + ")");
+                            join_names(model.param_names()) + ")");
   }
   if (!initial.theta0.allFinite()) return invalid_argument("theta0 has a NaN or infinite entry");
   if (initial.P0.rows() != model.nz() || initial.P0.cols() != model.nz()) {
@@ -62,8 +57,8 @@ Result<Eigen::VectorXd> initial_state(const Model& model, InitialState mode, con
     }
     if (matched == 0) {
       return invalid_argument("x0 = first measurement needs outputs named as states; model " + model.name() +
-                              " has states (" + join(model.state_names()) + ") and outputs (" +
-                              join(model.output_names()) + ")");
+                              " has states (" + join_names(model.state_names()) + ") and outputs (" +
+                              join_names(model.output_names()) + ")");
     }
   }
   if (!x.allFinite()) return invalid_argument("x0 has a NaN or infinite entry");

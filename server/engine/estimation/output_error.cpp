@@ -269,6 +269,23 @@ Result<EstimationResult> output_error(ModelPtr model, const std::vector<Experime
     const Eigen::Index c = theta_columns[static_cast<std::size_t>(j)];
     if (c >= 0) values[c] = result.theta[j];
   }
+  // ln L of Gaussian residuals, output i with std sigma_i = 1 / weights[i]:
+  // -cost - sum ln sigma_i - n/2 ln 2 pi over the residuals used; with sigma
+  // unknown (weights 1), at its maximum-likelihood estimate 2 cost / n, one
+  // quantity more estimated.
+  double log_weights = 0.0;
+  for (const ExperimentResult& out : result.experiments) {
+    log_weights += (out.mask.rowwise().sum().matrix().array() * weights.array().log()).sum();
+  }
+  constexpr double kLog2Pi = 1.8378770664093454836;  // ln(2 pi)
+  if (noise_known) {
+    set_information_criteria(-result.cost + log_weights - 0.5 * used_residuals * kLog2Pi,
+                             static_cast<int>(free_count), used_residuals, &result);
+  } else {
+    const double sigma2_ml = 2.0 * result.cost / used_residuals;
+    set_information_criteria(-0.5 * used_residuals * (kLog2Pi + std::log(sigma2_ml) + 1.0),
+                             static_cast<int>(free_count) + 1, used_residuals, &result);
+  }
   const double dof = used_residuals - static_cast<double>(free_count);
   result.sigma2 = noise_known ? 1.0 : (dof > 0.0 ? 2.0 * result.cost / dof : std::numeric_limits<double>::infinity());
   const Uncertainty u = uncertainty_from_information(information, result.sigma2, names, values);

@@ -87,21 +87,6 @@ class SmootherGain {
   Eigen::MatrixXd B_;
 };
 
-// The samples a run smooths: [first, end) of the bound dataset.
-struct SampleRange {
-  Eigen::Index first = 0;
-  Eigen::Index end = 0;
-  Eigen::Index size() const { return end - first; }
-};
-
-Result<SampleRange> sample_range(const SmootherSettings& settings, const Dataset& bound) {
-  const SampleRange range{settings.first_sample, settings.end_sample < 0 ? bound.size() : settings.end_sample};
-  if (range.first < 0 || range.end > bound.size() || range.size() < 2) {
-    return invalid_argument("sample range [" + std::to_string(range.first) + ", " + std::to_string(range.end) +
-                            ") must hold at least two of the dataset's " + std::to_string(bound.size()) + " samples");
-  }
-  return range;
-}
 
 FilterSettings with_smoothing(FilterSettings filter) {
   filter.smoothing = true;
@@ -120,7 +105,7 @@ Result<SmootherResult> smooth(ModelPtr model, const Dataset& data, const Smoothe
   if (model == nullptr) return invalid_argument("no model given");
   RICCATI_RETURN_IF_ERROR(validate(settings, *model));
   RICCATI_ASSIGN_OR_RETURN(const Dataset bound, bind_dataset(*model, data));
-  RICCATI_ASSIGN_OR_RETURN(const SampleRange range, sample_range(settings, bound));
+  RICCATI_ASSIGN_OR_RETURN(const SampleRange range, sample_range(settings.first_sample, settings.end_sample, bound));
   RICCATI_ASSIGN_OR_RETURN(OnlineRunner runner,
                            OnlineRunner::create(model, with_smoothing(settings.filter), settings.initial));
   const Eigen::Index N = range.size();

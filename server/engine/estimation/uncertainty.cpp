@@ -14,7 +14,6 @@ constexpr double kRelativeEigenvalue = 1e-8;  // docs/identification.md
 constexpr double kCorrelation = 0.99;
 constexpr double kZ95 = 1.959963984540054;
 
-std::string number(double v) { return message_number(v, 4); }
 
 }  // namespace
 
@@ -54,7 +53,7 @@ Uncertainty uncertainty_from_information(const Eigen::MatrixXd& information, dou
       }
     }
     out.warnings.push_back("not identifiable from these data: " + who + " (the information in that direction is " +
-                           number(lambda[k] / largest) + " of the largest)");
+                           message_number(lambda[k] / largest, 4) + " of the largest)");
   }
   out.covariance = s2 * (scale.asDiagonal() * inverse * scale.asDiagonal());
   for (Eigen::Index i = 0; i < p; ++i) {
@@ -72,7 +71,7 @@ Uncertainty uncertainty_from_information(const Eigen::MatrixXd& information, dou
     for (Eigen::Index j = i + 1; j < p; ++j) {
       if (std::abs(out.correlation(i, j)) > kCorrelation) {
         out.warnings.push_back(names[static_cast<std::size_t>(i)] + " and " + names[static_cast<std::size_t>(j)] +
-                               " are correlated at " + number(out.correlation(i, j)) +
+                               " are correlated at " + message_number(out.correlation(i, j), 4) +
                                ": the data hardly tell them apart");
       }
     }

@@ -37,7 +37,7 @@ int optimal_equation_count(const Model& model) { return model.ndof() + model.nu(
 Status check_covariance(const Eigen::MatrixXd& M, Eigen::Index n, const std::string& what) {
   if (M.rows() != n || M.cols() != n) {
     return invalid_argument(what + " must be " + std::to_string(n) + " x " + std::to_string(n) + ", got " +
-                            std::to_string(M.rows()) + " x " + std::to_string(M.cols()));
+                            size_text(M));
   }
   if (!M.allFinite()) return invalid_argument(what + " has a NaN or infinite entry");
   // A filter multiplies these by one another (P Phi', C S^-1 C', Q dt
@@ -138,7 +138,7 @@ Status Filter::restore(double t, const Eigen::VectorXd& z, const Eigen::MatrixXd
   const Eigen::Index nz = model_->nz();
   if (z.size() != nz || P.rows() != nz || P.cols() != nz) {
     return invalid_argument("saved filter state has " + std::to_string(z.size()) + " states and a " +
-                            std::to_string(P.rows()) + " x " + std::to_string(P.cols()) + " covariance, model " +
+                            size_text(P) + " covariance, model " +
                             model_->name() + " has nz = " + std::to_string(nz));
   }
   t_ = t;

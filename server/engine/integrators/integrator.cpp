@@ -78,26 +78,16 @@ bool is_interruption(const Status& status) {
          status.code() == StatusCode::kResourceExhausted;
 }
 
-namespace {
-
-std::string format_number(double value) {
-  char buffer[32];
-  std::snprintf(buffer, sizeof buffer, "%.9g", value);
-  return buffer;
-}
-
-}  // namespace
-
 Status check_integration_arguments(double t0, double t1, std::span<const double> y) {
   if (!std::isfinite(t0) || !std::isfinite(t1) || !(t1 > t0)) {
-    return invalid_argument("integration interval must be finite and increasing, got t0 = " + format_number(t0) +
-                            ", t1 = " + format_number(t1));
+    return invalid_argument("integration interval must be finite and increasing, got t0 = " + message_number(t0, 9) +
+                            ", t1 = " + message_number(t1, 9));
   }
   if (y.empty()) return invalid_argument("cannot integrate an empty state vector");
   for (std::size_t i = 0; i < y.size(); ++i) {
     if (!std::isfinite(y[i])) {
-      return failed_precondition("initial state y[" + std::to_string(i) + "] = " + format_number(y[i]) +
-                                 " at t = " + format_number(t0) + " is not finite");
+      return failed_precondition("initial state y[" + std::to_string(i) + "] = " + message_number(y[i], 9) +
+                                 " at t = " + message_number(t0, 9) + " is not finite");
     }
   }
   return Status::ok();
@@ -107,7 +97,7 @@ Status check_integration_result(const char* integrator_name, double t1, std::spa
   for (std::size_t i = 0; i < y.size(); ++i) {
     if (!std::isfinite(y[i])) {
       return failed_precondition(std::string(integrator_name) + " produced a non-finite state y[" +
-                                 std::to_string(i) + "] at t = " + format_number(t1));
+                                 std::to_string(i) + "] at t = " + message_number(t1, 9));
     }
   }
   return Status::ok();

@@ -60,11 +60,6 @@ using NonlinearSolverPtr = std::unique_ptr<std::remove_pointer_t<SUNNonlinearSol
 using CvodeMemoryPtr = std::unique_ptr<void, CvodeMemoryDeleter>;
 using ErkStepMemoryPtr = std::unique_ptr<void, ErkStepMemoryDeleter>;
 
-std::string format_number(double value) {
-  char buffer[32];
-  std::snprintf(buffer, sizeof buffer, "%.9g", value);
-  return buffer;
-}
 
 // What the C callbacks reach through user_data: the model being integrated
 // and what went wrong during the current integrate() call, so that a failure
@@ -101,7 +96,7 @@ int rhs_trampoline(sunrealtype t, N_Vector y, N_Vector ydot, void* user_data) {
     if (status.is_ok()) status = state.rhs->eval(t, N_VGetArrayPointer(y), N_VGetArrayPointer(ydot));
   } catch (...) {
     // An exception must not unwind through SUNDIALS' C frames.
-    status = internal_error("right-hand side threw an exception at t = " + format_number(t));
+    status = internal_error("right-hand side threw an exception at t = " + message_number(t, 9));
   }
   if (status.is_ok()) return 0;
   state.rhs_aborted = status.code() != StatusCode::kFailedPrecondition;
@@ -239,7 +234,7 @@ class SundialsIntegrator : public Integrator {
 
   Status solve_failure(int flag, double t_reached) const {
     const std::string where =
-        std::string(name_) + " failed at t = " + format_number(t_reached) + " (" + flag_name(get_flag_name_, flag) + ")";
+        std::string(name_) + " failed at t = " + message_number(t_reached, 9) + " (" + flag_name(get_flag_name_, flag) + ")";
     // The model's own error explains the failure better than the solver's flag.
     if (!callbacks_.rhs_failure.is_ok()) return callbacks_.rhs_failure.with_context(where);
     if (callbacks_.solver_message.empty()) return failed_precondition(where);

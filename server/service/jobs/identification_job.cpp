@@ -13,11 +13,6 @@
 namespace riccati::service {
 namespace {
 
-std::string join(const std::vector<std::string>& names) {
-  std::string out;
-  for (const auto& n : names) out += (out.empty() ? "" : ", ") + n;
-  return out;
-}
 
 // The index of parameter `name`, or an error naming the field and the choices.
 Result<Eigen::Index> parameter(const Model& model, const std::string& name, const std::string& field) {
@@ -41,7 +36,7 @@ Result<std::vector<bool>> estimated_states(const v1::InitialState& s, const Mode
     const int i = model.state_index(name);
     if (i < 0) {
       return invalid_argument(field + ".estimate: model " + model.name() + " has no state \"" + name +
-                              "\" (its states: " + join(model.state_names()) + ", or all)");
+                              "\" (its states: " + join_names(model.state_names()) + ", or all)");
     }
     out[static_cast<std::size_t>(i)] = true;
   }
@@ -66,7 +61,7 @@ Result<ExperimentSpec> experiment_from_proto(const std::string& dataset_id, cons
   for (const v1::OutputLimit& limit : mask.limits()) {
     if (model.output_index(limit.output()) < 0) {
       return invalid_argument(at("mask") + ": model " + model.name() + " has no output \"" + limit.output() +
-                              "\" (its outputs: " + join(model.output_names()) + ")");
+                              "\" (its outputs: " + join_names(model.output_names()) + ")");
     }
     if ((limit.has_lower() && !std::isfinite(limit.lower())) || (limit.has_upper() && !std::isfinite(limit.upper()))) {
       return invalid_argument(at("mask") + ": the limits of output " + limit.output() + " must be finite");
@@ -149,6 +144,37 @@ Status max_likelihood_from_proto(const v1::EstimationSettings& est, const Optimi
   return Status::ok();
 }
 
+// The likelihood's predictor filters the states alone (the parameters are
+// not augmented), so its filter.q may be the states' nx intensities, a
+// diagonal or an nx x nx matrix: made the nz x nz the filter settings take,
+// the parameters' part zero (also for the iterated filter's passes before).
+Status states_q_to_augmented(const Model& model, v1::FilterSettings* filter) {
+  if (!filter->has_q()) return Status::ok();
+  const int nx = model.nx(), nz = model.nz();
+  v1::Covariance* q = filter->mutable_q();
+  if (q->has_diagonal()) {
+    const int given = q->diagonal().values_size();
+    if (given == nx) {
+      for (int i = nx; i < nz; ++i) q->mutable_diagonal()->add_values(0.0);
+    } else if (given != nz) {
+      return invalid_argument("filter.q.diagonal needs " + std::to_string(nx) +
+                              " values (the states': method ml filters the states alone) or " + std::to_string(nz) +
+                              ", got " + std::to_string(given));
+    }
+  } else if (q->has_full() && q->full().rows() == static_cast<uint32_t>(nx) &&
+             q->full().cols() == static_cast<uint32_t>(nx) && q->full().values_size() == nx * nx) {
+    const v1::Matrix states = q->full();
+    v1::Matrix* full = q->mutable_full();
+    full->set_rows(static_cast<uint32_t>(nz));
+    full->set_cols(static_cast<uint32_t>(nz));
+    full->clear_values();
+    for (int c = 0; c < nz; ++c) {
+      for (int r = 0; r < nz; ++r) full->add_values(r < nx && c < nx ? states.values(c * nx + r) : 0.0);
+    }
+  }
+  return Status::ok();
+}
+
 Status refuse(bool given, const std::string& what, IdentificationMethod method) {
   if (!given) return Status::ok();
   return invalid_argument(what + " does not apply to method " + identification_method_name(method));
@@ -156,7 +182,7 @@ Status refuse(bool given, const std::string& what, IdentificationMethod method) 
 
 }  // namespace
 
-std::string parameter_list(const Model& model) { return join(model.param_names()); }
+std::string parameter_list(const Model& model) { return join_names(model.param_names()); }
 
 Result<IdentificationJob> identification_from_proto(const v1::IdentificationSpec& given, const Model& model) {
   IdentificationJob job;
@@ -177,6 +203,7 @@ Result<IdentificationJob> identification_from_proto(const v1::IdentificationSpec
     // Output error alone runs no filter: its noise settings are not used.
     spec.mutable_filter()->mutable_r()->set_scalar(1.0);
   }
+  if (method.filter_predictor) RICCATI_RETURN_IF_ERROR(states_q_to_augmented(model, spec.mutable_filter()));
   RICCATI_ASSIGN_OR_RETURN(job.filter, from_proto(spec, model));
   RICCATI_ASSIGN_OR_RETURN(job.parameters, parameters_from_proto(spec, job.filter.initial.theta0, model));
   job.filter.initial.theta0 = job.parameters.theta0;  // fixed values included
@@ -266,8 +293,8 @@ Status check_against_datasets(const IdentificationJob& job, const std::vector<Da
       for (const std::string& state : model.state_names()) any |= model.output_index(state) >= 0;
       if (!any) {
         return invalid_argument(which + ": x0 = first measurement needs outputs named as states; model " +
-                                model.name() + " has states (" + join(model.state_names()) + ") and outputs (" +
-                                join(model.output_names()) + ")");
+                                model.name() + " has states (" + join_names(model.state_names()) + ") and outputs (" +
+                                join_names(model.output_names()) + ")");
       }
     }
   }

@@ -44,8 +44,6 @@ v1::SmoothingResult to_proto(const SmootherResult& r, bool full_covariance) {
   return out;
 }
 
-namespace {
-
 v1::Diagnostics to_proto(const ResidualDiagnostics& d) {
   v1::Diagnostics out;
   out.set_samples(static_cast<uint64_t>(d.samples));
@@ -72,6 +70,8 @@ v1::Diagnostics to_proto(const ResidualDiagnostics& d) {
   out.set_nis_p(d.nis_p);
   return out;
 }
+
+namespace {
 
 template <typename Container>
 void copy_flags(const Container& flags, google::protobuf::RepeatedField<bool>* out) {
@@ -103,6 +103,12 @@ v1::EstimationResult to_proto(const EstimationResult& r, IdentificationMethod me
   out.set_converged(r.converged);
   out.set_termination(r.termination);
   out.set_gradient(r.gradient);
+  out.set_log_likelihood(r.criteria.log_likelihood);
+  out.set_estimated_quantities(static_cast<uint32_t>(r.criteria.estimated_quantities));
+  out.set_samples(static_cast<uint64_t>(r.criteria.samples));
+  out.set_aic(r.criteria.aic);
+  out.set_aicc(r.criteria.aicc);
+  out.set_bic(r.criteria.bic);
   for (std::size_t e = 0; e < r.experiments.size(); ++e) {
     const ExperimentResult& x = r.experiments[e];
     v1::ExperimentFit* fit = out.add_experiments();

@@ -22,6 +22,7 @@ v1::IdentificationResult to_proto(const IdentificationResult& r);
 Result<IdentificationResult> from_proto(const v1::IdentificationResult& r);
 v1::ValidationResult to_proto(const ValidationResult& r, const Eigen::VectorXd& theta);
 v1::OutputFit to_proto(const OutputFit& fit);
+v1::Diagnostics to_proto(const ResidualDiagnostics& d);
 
 Result<SmootherSettings> from_proto(const v1::SmoothingSpec& spec, const Model& model);
 v1::SmoothingResult to_proto(const SmootherResult& r, bool full_covariance);

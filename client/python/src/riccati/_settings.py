@@ -33,7 +33,7 @@ import numbers
 import numpy as np
 from google.protobuf.descriptor import FieldDescriptor
 
-from .v1 import common_pb2
+from .v1 import common_pb2, jobs_pb2, models_pb2, sessions_pb2
 
 # --------------------------------------------------------------------------- enums
 
@@ -115,12 +115,50 @@ def _kind(field):
     return "text"
 
 
+def _declaration(descriptor, flag, depth=0):
+    # The first declaration with help of the setting `flag` in `descriptor`.
+    for field in descriptor.fields:
+        options = field.GetOptions()
+        if options.HasExtension(common_pb2.setting):
+            option = options.Extensions[common_pb2.setting]
+            if option.flag == flag and option.help:
+                return option
+        if (field.type == FieldDescriptor.TYPE_MESSAGE and field.label != FieldDescriptor.LABEL_REPEATED
+                and depth < 8):
+            found = _declaration(field.message_type, flag, depth + 1)
+            if found is not None:
+                return found
+    return None
+
+
+def _completed(option):
+    # As completed() in riccati/settings_schema.cpp: a setting written as its
+    # flag alone takes the rest from the flag's declaration (identification's
+    # first); what it states itself stays.
+    if option.help:
+        return option
+    for request in (jobs_pb2.IdentificationSpec, jobs_pb2.SmoothingSpec, jobs_pb2.ValidationSpec,
+                    sessions_pb2.CreateSessionRequest, sessions_pb2.RetuneSessionRequest, models_pb2.SimulateRequest):
+        declared = _declaration(request.DESCRIPTOR, option.flag)
+        if declared is not None:
+            out = common_pb2.Setting()
+            out.CopyFrom(declared)
+            for field, value in option.ListFields():
+                out.ClearField(field.name)
+                if field.label == FieldDescriptor.LABEL_REPEATED:
+                    getattr(out, field.name).extend(value)
+                else:
+                    setattr(out, field.name, value)
+            return out
+    raise ValueError(f"setting {option.flag} has no help and no declaration with help")
+
+
 def _walk(descriptor, chain, out):
     for field in descriptor.fields:
         chain.append(field)
         options = field.GetOptions()
         if options.HasExtension(common_pb2.setting):
-            out.append(Setting(chain, options.Extensions[common_pb2.setting]))
+            out.append(Setting(chain, _completed(options.Extensions[common_pb2.setting])))
         # Into singular messages, which may hold settings; the bound keeps a recursive type finite.
         if (field.type == FieldDescriptor.TYPE_MESSAGE and field.label != FieldDescriptor.LABEL_REPEATED
                 and len(chain) < 8):

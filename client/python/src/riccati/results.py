@@ -302,6 +302,8 @@ class EstimationResult(_Result):
     - covariance, correlation: DataFrames by parameter
     - traces: the criterion after each iteration (a DataFrame indexed by iteration)
     - experiments: an ExperimentFit per record; fits: their fits, by (experiment, output)
+    - criteria: a Series log_likelihood, aic, aicc, bic, k (quantities estimated), n
+      (scalar residuals used), to compare models fitted to the same data (lower is better)
     - to_frame(): by sample, measured and model outputs and residuals (indexed
       by (experiment, t) when there are several records)
     """
@@ -324,6 +326,8 @@ class EstimationResult(_Result):
         self.converged = r.converged
         self.iterations = r.iterations
         self.termination = r.termination
+        self.criteria = pd.Series({"log_likelihood": r.log_likelihood, "aic": r.aic, "aicc": r.aicc, "bic": r.bic,
+                                   "k": r.estimated_quantities, "n": r.samples}, name="criteria", dtype=float)
         self.traces = pd.DataFrame({"cost": list(r.cost_history)},
                                    index=pd.Index(range(1, len(r.cost_history) + 1), name="iteration"))
         self.experiments = [ExperimentFit(job_id, e, model) for e in r.experiments]
@@ -384,8 +388,12 @@ class EstimationResult(_Result):
     def __str__(self):
         lines = [f"{self.method} estimate of {self.model.name}, job {self.job_id}: "
                  f"{'converged' if self.converged else 'not converged'} after {self.iterations} iterations "
-                 f"({self.termination}), cost {self.cost:.6g}",
-                 self.summary().to_string()]
+                 f"({self.termination}), cost {self.cost:.6g}"]
+        c = self.criteria
+        if c["n"] > 0:
+            lines.append(f"log-likelihood {c['log_likelihood']:.10g}; AIC {c['aic']:.10g}, AICc {c['aicc']:.10g}, "
+                         f"BIC {c['bic']:.10g} (k = {int(c['k'])} estimated, n = {int(c['n'])})")
+        lines.append(self.summary().to_string())
         lines += [f"warning: {w}" for w in self.warnings]
         for k, e in enumerate(self.experiments, 1):
             lines += [f"experiment {k} ({e.dataset_id}):", e.fits.to_string()]
@@ -461,6 +469,38 @@ class SmoothingResult(_Result):
 
     def filtered(self):
         return self._pair(self.proto.z_filtered, self.proto.std_filtered)
+
+    def summary(self):
+        """By state and parameter: the smoothed estimate and its std at the
+        first and the last sample, and the filter's at the last (where the
+        two agree: the smoother adds what later samples say about earlier
+        ones)."""
+        smoothed, filtered = self.to_frame(), self.filtered()
+        first, last = smoothed.iloc[0], smoothed.iloc[-1]
+        return pd.DataFrame({"first": [first[n] for n in self.names],
+                             "std_first": [first[column("std", n)] for n in self.names],
+                             "last": [last[n] for n in self.names],
+                             "std_last": [last[column("std", n)] for n in self.names],
+                             "filtered_last": [filtered.iloc[-1][n] for n in self.names]},
+                            index=pd.Index(self.names, name="name"))
+
+    def plot(self, path=None):
+        """Per state and parameter the smoothed estimate with its 95 % band
+        (+-1.96 std) and the forward filter's estimate over time. Returns the
+        matplotlib Figure; saves it to `path` if given (PNG, SVG, ...)."""
+        smoothed, filtered = self.to_frame(), self.filtered()
+        fig, axes = _figure(len(self.names))
+        for ax, name in zip(axes, self.names):
+            half = 1.96 * smoothed[column("std", name)]
+            ax.fill_between(smoothed.index, smoothed[name] - half, smoothed[name] + half, color="C0", alpha=0.2,
+                            lw=0, label="smoothed, 95 %")
+            ax.plot(filtered.index, filtered[name], color="C1", lw=0.9, label="filtered")
+            ax.plot(smoothed.index, smoothed[name], color="C0", lw=1.2, label="smoothed")
+            ax.set_ylabel(name)
+            ax.legend(loc="upper right", fontsize="small")
+        axes[-1].set_xlabel("t [s]")
+        fig.suptitle(f"{self.model.name}: smoothed and filtered estimates, job {self.job_id}")
+        return _save(fig, path)
 
     def _describe(self):
         return f"smoothing of {len(self.names)} states and parameters over {len(self.proto.t)} samples"

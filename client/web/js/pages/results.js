@@ -110,6 +110,7 @@ async function identification(el, job, r, model, signal) {
       ['End of last pass', (i) => fmt(end[i], 5)],
       ...truthColumns(names, truth, mean, std)], model),
     h('p', {class: 'muted'}, 'Estimate: the mean over the last pass (the toolbox\'s); std error: √diag P at its end.'),
+    num(r.samples) > 0 ? h('p', {class: 'muted', id: 'criteria'}, `Log-likelihood ${fmt(r.logLikelihood, 10)}; AIC ${fmt(r.aic, 10)}, AICc ${fmt(r.aicc, 10)}, BIC ${fmt(r.bic, 10)} (k = ${num(r.estimatedQuantities)} estimated, n = ${num(r.samples)}; lower is better among models fitted to the same data).`) : null,
     (r.warnings || []).map((w) => h('p', {class: 'warn'}, w)),
     h('p', {}, h('a', {class: 'button', id: 'validate-link', href: `#/validate?job=${encodeURIComponent(job.id)}&model=${encodeURIComponent(spec.model)}&dataset=${encodeURIComponent(spec.datasetId)}`}, 'Validate this estimate')));
   const nz = num(r.covariance && r.covariance.rows), nth = names.length, nx = nz - nth;
@@ -188,6 +189,8 @@ async function estimation(el, job, r, model, signal) {
   const box = h('div', {class: 'plots', id: 'traces'});
   el.append(h('h2', {}, 'Cost per iteration'), box);
   plot(box, {title: 'cost', x: costs.map((_, i) => i + 1), xLabel: 'iteration', series: [{label: 'cost', values: costs, points: true}]});
+  // ML's model output is its predictor's, one step ahead; OE's the simulation.
+  const oneStep = r.method === 'IDENTIFICATION_METHOD_ML';
   (r.experiments || []).forEach((x, e) => {
     const t = (x.t || []).map(num), outputs = model.outputNames || [];
     const overlay = h('div', {class: 'plots', id: e === 0 ? 'overlay' : null});
@@ -195,7 +198,7 @@ async function estimation(el, job, r, model, signal) {
     outputs.forEach((y, i) => {
       const fit = (x.fits || [])[i];
       plot(overlay, {title: `${y}${fit ? ` · fit ${fmt(fit.fitPercent, 3)} %` : ''}`, x: t, series: [
-        {label: 'measured', values: row(x.yMeasured, i), color: '#9aa4ae', width: 4}, {label: 'model', values: row(x.yModel, i), color: '#d1242f'}]});
+        {label: 'measured', values: row(x.yMeasured, i), color: '#9aa4ae', width: 4}, {label: oneStep ? 'one step ahead' : 'simulated', values: row(x.yModel, i), color: '#d1242f'}]});
     });
     const d = x.diagnostics;
     if (d && d.autocorrelation) {
