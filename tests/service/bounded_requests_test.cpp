@@ -348,17 +348,23 @@ TEST_F(BoundedRequests, UploadsHaveAShareEachAndAnIdleOneEnds) {
     std::unique_ptr<grpc::ClientContext> ctx;
     v1::DatasetInfo info;
     std::unique_ptr<grpc::ClientWriter<v1::UploadDatasetRequest>> writer;
+    bool header_sent = false;
   };
   auto open = [&](const std::string& tenant) {
     Open o{as(tenant), {}, nullptr};
+    // Waiting for the channel to be ready: on a loaded machine the first
+    // calls after the start could otherwise fail before riccatid saw them,
+    // and hold nothing.
+    o.ctx->set_wait_for_ready(true);
     o.writer = datasets_->UploadDataset(o.ctx.get(), &o.info);
-    o.writer->Write(testing::upload_header("slow.csv", {"F1", "F2"}, {"h1", "h2"}));
+    o.header_sent = o.writer->Write(testing::upload_header("slow.csv", {"F1", "F2"}, {"h1", "h2"}));
     return o;
   };
   // Two of alpha's hold its share (they send a header, then nothing).
   std::vector<Open> slow;
   slow.push_back(open("alpha"));
   slow.push_back(open("alpha"));
+  ASSERT_TRUE(slow[0].header_sent && slow[1].header_sent);
   // Alpha's third is refused once they hold their places (each try that
   // comes before is an empty upload, refused as such); beta's goes through.
   std::string last;
