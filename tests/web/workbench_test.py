@@ -28,6 +28,7 @@ import argparse
 import ctypes
 import json
 import os
+import re
 import shutil
 import signal
 import subprocess
@@ -475,7 +476,16 @@ class Workbench(WorkbenchCase):
         self.fill_settings([("--method", "oe"), ("--theta0", "10,5,0.0791,0.1342")])
         self.find("#identify-submit").click()
         job = self.wait_job()
-        d = self.api(f"/jobs/{job}/result")["estimation"]["experiments"][0]["diagnostics"]
+        estimation = self.api(f"/jobs/{job}/result")["estimation"]
+        d = estimation["experiments"][0]["diagnostics"]
+        # The likelihood and the criteria, as the API has them: k the four
+        # parameters and sigma^2, n both outputs' 2000 samples.
+        criteria = self.find("#criteria").text
+        self.assertEqual((estimation["estimatedQuantities"], int(estimation["samples"])), (5, 4000))
+        self.assertIn("(k = 5 estimated, n = 4000;", criteria)
+        shown = {m.group(1): float(m.group(2)) for m in re.finditer(r"\b(Log-likelihood|AIC|AICc|BIC) ([-0-9.e+]+)", criteria)}
+        for label, field in (("Log-likelihood", "logLikelihood"), ("AIC", "aic"), ("AICc", "aicc"), ("BIC", "bic")):
+            self.assertAlmostEqual(shown[label], float(estimation[field]), delta=1e-9 * abs(float(estimation[field])))
         white = self.find("#diag-whiteness")
         rows = white.find_elements(By.CSS_SELECTOR, "tbody tr")
         self.assertEqual([r.get_attribute("data-output") for r in rows], ["h1", "h2"])

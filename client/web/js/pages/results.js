@@ -110,7 +110,6 @@ async function identification(el, job, r, model, signal) {
       ['End of last pass', (i) => fmt(end[i], 5)],
       ...truthColumns(names, truth, mean, std)], model),
     h('p', {class: 'muted'}, 'Estimate: the mean over the last pass (the toolbox\'s); std error: √diag P at its end.'),
-    num(r.samples) > 0 ? h('p', {class: 'muted', id: 'criteria'}, `Log-likelihood ${fmt(r.logLikelihood, 10)}; AIC ${fmt(r.aic, 10)}, AICc ${fmt(r.aicc, 10)}, BIC ${fmt(r.bic, 10)} (k = ${num(r.estimatedQuantities)} estimated, n = ${num(r.samples)}; lower is better among models fitted to the same data).`) : null,
     (r.warnings || []).map((w) => h('p', {class: 'warn'}, w)),
     h('p', {}, h('a', {class: 'button', id: 'validate-link', href: `#/validate?job=${encodeURIComponent(job.id)}&model=${encodeURIComponent(spec.model)}&dataset=${encodeURIComponent(spec.datasetId)}`}, 'Validate this estimate')));
   const nz = num(r.covariance && r.covariance.rows), nth = names.length, nx = nz - nth;
@@ -182,6 +181,7 @@ async function estimation(el, job, r, model, signal) {
       ['95 % interval', (i) => fmtInterval((r.ciLower || [])[i], (r.ciUpper || [])[i])],
       ...truthColumns(names, truth, theta, std)], model),
     h('p', {class: 'muted'}, `${r.converged ? 'Converged' : 'Did not converge'} after ${num(r.iterations)} iterations (${r.termination || ''}); cost ${fmt(r.cost)}; gradient: ${r.gradient || ''}.`),
+    num(r.samples) > 0 ? h('p', {class: 'muted', id: 'criteria'}, `Log-likelihood ${fmt(r.logLikelihood, 10)}; AIC ${fmt(r.aic, 10)}, AICc ${fmt(r.aicc, 10)}, BIC ${fmt(r.bic, 10)} (k = ${num(r.estimatedQuantities)} estimated, n = ${num(r.samples)}; lower is better among models fitted to the same data).`) : null,
     (r.warnings || []).map((w) => h('p', {class: 'warn'}, w)),
     h('p', {}, h('a', {class: 'button', id: 'validate-link', href: `#/validate?job=${encodeURIComponent(job.id)}&model=${encodeURIComponent(spec.model)}&dataset=${encodeURIComponent(spec.datasetId)}`}, 'Validate this estimate')));
   if (r.correlation) el.append(h('h2', {}, 'Correlation of the estimates'), correlationTable(names, (i, j) => num(r.correlation.values[i + j * num(r.correlation.rows)])));
