@@ -31,11 +31,6 @@ std::vector<std::string> output_names(const v1::ExperimentFit& e, const ModelNam
 
 const char* verdict(bool pass) { return pass ? "pass" : "FAIL"; }
 
-std::string method_name(v1::IdentificationMethod method) {
-  const auto* value = v1::IdentificationMethod_descriptor()->FindValueByNumber(method);
-  return value != nullptr ? api::enum_value_name(*value) : "?";
-}
-
 // Lines of a noise level estimated (or given): "h1 2.5e-05 (std 1.1e-06)".
 std::string noise_line(const char* what, const google::protobuf::RepeatedField<double>& values,
                        const google::protobuf::RepeatedField<double>& stds, const std::vector<std::string>& names,
@@ -50,6 +45,11 @@ std::string noise_line(const char* what, const google::protobuf::RepeatedField<d
 }
 
 }  // namespace
+
+std::string method_name(v1::IdentificationMethod method) {
+  const auto* value = v1::IdentificationMethod_descriptor()->FindValueByNumber(method);
+  return value != nullptr ? api::enum_value_name(*value) : "?";
+}
 
 std::string column(const std::string& quantity, const std::string& name) {
   return quantity.empty() ? name : quantity + "." + name;

@@ -19,6 +19,8 @@ struct ModelNames {
   std::vector<std::string> states, inputs, outputs;
 };
 ModelNames model_names(const v1::ModelInfo& model);
+// The method's short name ("filter", "oe", "ml").
+std::string method_name(v1::IdentificationMethod method);
 
 // The one naming of exported columns and rows (CSV here, the MAT file's
 // name lists, Python's to_frame(); docs/results.md): a state or parameter

@@ -8,7 +8,10 @@
 #include <numbers>
 #include <set>
 
+#include <nlohmann/json.hpp>
+
 #include "commands/commands.hpp"
+#include "estimation_output.hpp"
 #include "output.hpp"
 
 namespace riccati::cli {
@@ -56,10 +59,6 @@ struct Fitted {
   std::vector<std::string> outputs;   // the names its fits are by
   std::set<std::string> free;         // the parameters it estimated
 };
-
-std::string method_of(const v1::EstimationResult& r) {
-  return r.method() == v1::IDENTIFICATION_METHOD_ML ? "ml" : "oe";
-}
 
 // The model with the parameters `b` estimates fixed in `a`: b is a's
 // special case when both fit the same model to the same records by the same
@@ -128,35 +127,35 @@ int compare(Client& c, const std::vector<std::string>& ids) {
       return kExitUsage;
     }
   }
+  // Each nested pair's likelihood-ratio test, computed once for both forms.
+  struct RatioTest {
+    const Fitted* small;
+    const Fitted* large;
+    double statistic, p;
+    unsigned dof;
+  };
+  std::vector<RatioTest> tests;
+  for (const Fitted& small : fits) {
+    for (const Fitted& large : fits) {
+      if (!nested_in(small, large)) continue;
+      const double lr = 2.0 * (large.result.log_likelihood() - small.result.log_likelihood());
+      const unsigned dof = large.result.estimated_quantities() - small.result.estimated_quantities();
+      tests.push_back({&small, &large, lr, chi_square_survival(lr, dof), dof});
+    }
+  }
   if (c.json) {
-    std::string out = "{\"jobs\": [";
-    for (std::size_t j = 0; j < fits.size(); ++j) {
-      const v1::EstimationResult& r = fits[j].result;
-      char line[512];
-      std::snprintf(line, sizeof line,
-                    "%s{\"job\": \"%s\", \"model\": \"%s\", \"method\": \"%s\", \"k\": %u, \"n\": %llu, "
-                    "\"log_likelihood\": %.17g, \"aic\": %.17g, \"aicc\": %.17g, \"bic\": %.17g}",
-                    j > 0 ? ", " : "", fits[j].id.c_str(), fits[j].job.identification().model().c_str(),
-                    method_of(r).c_str(), r.estimated_quantities(), static_cast<unsigned long long>(r.samples()),
-                    r.log_likelihood(), r.aic(), r.aicc(), r.bic());
-      out += line;
+    nlohmann::json out = {{"jobs", nlohmann::json::array()}, {"likelihood_ratio_tests", nlohmann::json::array()}};
+    for (const Fitted& f : fits) {
+      const v1::EstimationResult& r = f.result;
+      out["jobs"].push_back({{"job", f.id}, {"model", f.job.identification().model()}, {"method", method_name(r.method())},
+                             {"k", r.estimated_quantities()}, {"n", r.samples()}, {"log_likelihood", r.log_likelihood()},
+                             {"aic", r.aic()}, {"aicc", r.aicc()}, {"bic", r.bic()}});
     }
-    out += "], \"likelihood_ratio_tests\": [";
-    bool first = true;
-    for (const Fitted& small : fits) {
-      for (const Fitted& large : fits) {
-        if (!nested_in(small, large)) continue;
-        const double lr = 2.0 * (large.result.log_likelihood() - small.result.log_likelihood());
-        const unsigned dof = large.result.estimated_quantities() - small.result.estimated_quantities();
-        char line[256];
-        std::snprintf(line, sizeof line,
-                      "%s{\"smaller\": \"%s\", \"larger\": \"%s\", \"statistic\": %.17g, \"dof\": %u, \"p\": %.17g}",
-                      first ? "" : ", ", small.id.c_str(), large.id.c_str(), lr, dof, chi_square_survival(lr, dof));
-        out += line;
-        first = false;
-      }
+    for (const RatioTest& t : tests) {
+      out["likelihood_ratio_tests"].push_back({{"smaller", t.small->id}, {"larger", t.large->id},
+                                               {"statistic", t.statistic}, {"dof", t.dof}, {"p", t.p}});
     }
-    std::printf("%s]}\n", out.c_str());
+    std::printf("%s\n", to_json(out).c_str());
     return kExitOk;
   }
 
@@ -176,7 +175,7 @@ int compare(Client& c, const std::vector<std::string>& ids) {
   for (std::size_t j = 0; j < fits.size(); ++j) {
     const v1::EstimationResult& r = fits[j].result;
     std::printf("%-22s %-16s %-6s %4u %8llu %16.10g %15.10g%s %16.10g %15.10g%s", fits[j].id.c_str(),
-                fits[j].job.identification().model().c_str(), method_of(r).c_str(), r.estimated_quantities(),
+                fits[j].job.identification().model().c_str(), method_name(r.method()).c_str(), r.estimated_quantities(),
                 static_cast<unsigned long long>(r.samples()), r.log_likelihood(), r.aic(), j == best_aic ? "*" : " ",
                 r.aicc(), r.bic(), j == best_bic ? "*" : " ");
     for (int i = 0; i < static_cast<int>(fits[j].outputs.size()); ++i) {
@@ -185,22 +184,16 @@ int compare(Client& c, const std::vector<std::string>& ids) {
     }
     std::printf("\n");
   }
-  std::printf("(* the lowest: the best of these fits by that criterion; fit %%: the first record's, %s)\n",
-              fits[0].result.method() == v1::IDENTIFICATION_METHOD_ML ? "one step ahead" : "simulated");
-  bool any = false;
-  for (const Fitted& small : fits) {
-    for (const Fitted& large : fits) {
-      if (!nested_in(small, large)) continue;
-      if (!any) std::printf("\nlikelihood-ratio tests (the smaller model nested in the larger: same model, records and method)\n");
-      any = true;
-      const double lr = 2.0 * (large.result.log_likelihood() - small.result.log_likelihood());
-      const unsigned dof = large.result.estimated_quantities() - small.result.estimated_quantities();
-      const double p = chi_square_survival(lr, dof);
-      std::printf("  %s within %s: 2 (ln L_large - ln L_small) = %.6g on %u dof, p = %.3g: %s\n", small.id.c_str(),
-                  large.id.c_str(), lr, dof, p,
-                  p < 0.05 ? "the larger model fits significantly better (5 %)"
+  std::printf("(* the lowest: the best of these fits by that criterion; fit %%: the first record's, oe's simulated, "
+              "ml's one step ahead)\n");
+  if (!tests.empty()) {
+    std::printf("\nlikelihood-ratio tests (the smaller model nested in the larger: same model, records and method)\n");
+  }
+  for (const RatioTest& t : tests) {
+    std::printf("  %s within %s: 2 (ln L_large - ln L_small) = %.6g on %u dof, p = %.3g: %s\n", t.small->id.c_str(),
+                t.large->id.c_str(), t.statistic, t.dof, t.p,
+                t.p < 0.05 ? "the larger model fits significantly better (5 %)"
                            : "no significant gain: the smaller model suffices (5 %)");
-    }
   }
   return kExitOk;
 }
