@@ -101,5 +101,11 @@ export function at(m, i, j) { return num(m.values[i + j * num(m.rows)]); }
 
 // "FILTER_KIND_EKF" -> "EKF"
 export function enumName(v, prefix) { return String(v || '').replace(prefix, ''); }
+// An enum value as people read it, the default riccatid takes (`fallback`)
+// where the request left it unspecified: "OE", or "FILTER" for
+// IDENTIFICATION_METHOD_UNSPECIFIED.
+export function enumOrDefault(v, prefix, fallback) {
+  return !v || v === `${prefix}UNSPECIFIED` ? fallback : enumName(v, prefix);
+}
 
 export function errorBox(e) { return h('p', {class: 'error'}, String(e && e.message ? e.message : e)); }

@@ -2,7 +2,7 @@
 // page (#/jobs/<id>): live progress and parameter estimates by server-sent
 // events, then its result (results.js).
 import {api, events} from '../api.js';
-import {clear, enumName, errorBox, fmt, h, num, when} from '../dom.js';
+import {clear, enumName, enumOrDefault, errorBox, fmt, h, num, when} from '../dom.js';
 import {plot, setData} from '../plot.js';
 import {showResult} from './results.js';
 
@@ -79,12 +79,16 @@ async function showJob(main, id, signal) {
   const cancel = h('button', {class: 'danger', id: 'job-cancel', onclick: async () => {
     try { await api('POST', `/jobs/${encodeURIComponent(id)}/cancel`); } catch (err) { main.append(errorBox(err)); }
   }}, 'Cancel');
+  // The method and, where it runs one, the filter kind: riccatid's defaults
+  // where the request left them out.
+  const method = enumOrDefault(spec.method, 'IDENTIFICATION_METHOD_', 'FILTER');
+  const runsFilter = !job.identification || method !== 'OE' || num(spec.initPasses) > 0;
   const live = h('div', {class: 'plots', id: 'live'});
   const result = h('div', {id: 'result'});
   clear(main, h('h1', {}, `${kindOf(job)} job `, h('span', {id: 'job-id'}, id)),
     h('p', {}, `${spec.model || ''} on dataset `, h('a', {href: '#/datasets/' + encodeURIComponent(spec.datasetId || '')}, spec.datasetId || ''),
-      spec.method ? ` · ${enumName(spec.method, 'IDENTIFICATION_METHOD_')}` : '',
-      spec.filter && spec.filter.kind ? ` · ${enumName(spec.filter.kind, 'FILTER_KIND_')}` : ''),
+      job.identification ? ` · ${method}` : '',
+      spec.filter && runsFilter ? ` · ${enumOrDefault(spec.filter.kind, 'FILTER_KIND_', 'EKF')}` : ''),
     h('div', {class: 'panel row'}, 'State: ', stateEl, h('div', {class: 'progress'}, bar), progressText, cancel),
     live, result);
 

@@ -3,11 +3,11 @@
 // measured, per output, with fit % as MATLAB's compare; the comparison
 // opens on the job's page.
 import {api} from '../api.js';
-import {clear, enumName, errorBox, h, num, when} from '../dom.js';
+import {clear, enumOrDefault, errorBox, h, num, when} from '../dom.js';
 import {select} from './identify.js';
 
 // "FILTER", "OE", "ML"; unspecified is the iterated filter (jobs.proto).
-const methodName = (m) => (!m || m === 'IDENTIFICATION_METHOD_UNSPECIFIED' ? 'FILTER' : enumName(m, 'IDENTIFICATION_METHOD_'));
+const methodName = (m) => enumOrDefault(m, 'IDENTIFICATION_METHOD_', 'FILTER');
 
 export async function show(main, r, signal) {
   const [models, datasets, jobs] = await Promise.all([api('GET', '/models', undefined, {signal}),
