@@ -76,12 +76,16 @@ class DatasetServiceImpl::UploadReactor final : public grpc::ServerReadReactor<v
         return;
       }
       service_.uploads_.insert(this);
+      // Under the registry's lock: shutdown cannot end the call before its
+      // first read is asked for.
+      StartRead(&part_);
     }
     service_.uploads_changed_.notify_all();
-    StartRead(&part_);
   }
 
   void OnReadDone(bool ok) override {
+    std::lock_guard lock(mu_);
+    if (ended_) return;  // by the idle watch or shutdown: the read failed with it
     if (!ok) return end();
     touched();
     if (!ticket_) {
@@ -134,46 +138,48 @@ class DatasetServiceImpl::UploadReactor final : public grpc::ServerReadReactor<v
   }
 
   // Called by the idle watch with its registry locked: ends an upload whose
-  // client has sent nothing for `idle_ms` (its pending read then fails, and
-  // end() says why).
-  void cancel_if_idle(std::int64_t now_ms, std::int64_t idle_ms) {
-    if (now_ms - last_read_ms_.load() < idle_ms || idle_.exchange(true)) return;
-    context_->TryCancel();
+  // client has sent nothing for `idle_ms`. Finished, not cancelled, so that
+  // the client hears why; its pending read then fails.
+  void end_if_idle(std::int64_t now_ms, std::int64_t idle_ms) {
+    std::lock_guard lock(mu_);
+    if (!reading_ || now_ms - last_read_ms_.load() < idle_ms) return;
+    const std::int64_t idle_s = service_.datasets_.limits().upload_idle_seconds;
+    end_with({grpc::StatusCode::DEADLINE_EXCEEDED,
+              "the upload of " + upload_name() + " sent nothing for " + std::to_string(idle_s) +
+                  " s (upload_idle_seconds, --upload-idle-seconds): nothing stored"});
   }
-  // Shutdown (the registry locked).
-  void cancel_for_drain() {
-    if (!draining_.exchange(true)) context_->TryCancel();
+  // Shutdown (the registry locked). An upload being stored ends by itself.
+  void end_for_drain() {
+    std::lock_guard lock(mu_);
+    if (!reading_) return;
+    end_with({grpc::StatusCode::UNAVAILABLE,
+              "riccatid is shutting down: the upload of " + upload_name() + " was stopped, nothing stored"});
   }
 
  private:
-  // Gives back the upload's room and place before the client hears the
+  // Ends the call once, with mu_ held (or from the constructor), whoever
+  // ends it: a reaction, the storing thread, the idle watch or shutdown.
+  // The upload's room and place are given back before the client hears the
   // status, so that a client that goes on at once finds them free.
   void end_with(const grpc::Status& status) {
-    leave_watch();
+    if (ended_) return;
+    ended_ = true;
+    reading_ = false;
     ticket_.reset();
     slot_ = StreamSlot();
     Finish(status);
   }
 
+  std::string upload_name() const { return ticket_ ? upload_.name : std::string("a dataset (no header yet)"); }
   void touched() { last_read_ms_ = steady_ms(); }
   void leave_watch() {
     std::lock_guard lock(service_.uploads_mu_);
     service_.uploads_.erase(this);
   }
 
-  // The client is done sending, or gone.
+  // The client is done sending, or gone (mu_ held).
   void end() {
-    leave_watch();
-    if (draining_) {
-      return end_with({grpc::StatusCode::UNAVAILABLE,
-                       "riccatid is shutting down: the upload of " + upload_.name + " was stopped, nothing stored"});
-    }
-    if (idle_) {
-      const std::int64_t idle_s = service_.datasets_.limits().upload_idle_seconds;
-      return end_with({grpc::StatusCode::DEADLINE_EXCEEDED,
-                       "the upload of " + upload_.name + " sent nothing for " + std::to_string(idle_s) +
-                           " s (upload_idle_seconds, --upload-idle-seconds): nothing stored"});
-    }
+    reading_ = false;
     if (!ticket_) return end_with(to_grpc(invalid_argument("the first message of an upload must be its header")));
     // A read also ends when the client cancels or its deadline passes: what
     // arrived may be cut at a line boundary and parse, so store nothing.
@@ -185,8 +191,10 @@ class DatasetServiceImpl::UploadReactor final : public grpc::ServerReadReactor<v
                                              std::to_string(upload_.bytes.size()) + " of the " +
                                              std::to_string(declared_) + " bytes its header declared: nothing stored")));
     }
+    // No longer reading: neither the idle watch nor shutdown touches it.
     storing_ = std::thread([this] {
       const Result<DatasetRecord> stored = service_.datasets_.upload(*ticket_, upload_);
+      std::lock_guard lock(mu_);
       if (!stored.is_ok()) return end_with(to_grpc(stored.status()));
       *response_ = to_proto(stored.value());
       end_with(grpc::Status::OK);
@@ -204,17 +212,20 @@ class DatasetServiceImpl::UploadReactor final : public grpc::ServerReadReactor<v
   std::int64_t declared_ = 0;  // the header's size_bytes: reserved at once
   std::thread storing_;
   std::atomic<std::int64_t> last_read_ms_{0};  // steady clock: the last message's arrival
-  std::atomic<bool> idle_{false};              // ended by the idle watch
-  std::atomic<bool> draining_{false};          // ended by shutdown
+  // The reactions, the storing thread, the idle watch and shutdown each end
+  // the call; mu_ orders them (taken after the registry's mutex).
+  std::mutex mu_;
+  bool reading_ = true;  // until the client is done sending or the call ends
+  bool ended_ = false;   // Finish called
 };
 
 void DatasetServiceImpl::drain() {
   std::lock_guard lock(uploads_mu_);
   draining_ = true;
-  // A copy: a cancelled upload may leave the set inside TryCancel.
+  // A copy: an upload ended here may leave the set before the loop ends.
   const std::vector<UploadReactor*> reading(uploads_.begin(), uploads_.end());
   for (UploadReactor* upload : reading) {
-    if (uploads_.count(upload) != 0) upload->cancel_for_drain();
+    if (uploads_.count(upload) != 0) upload->end_for_drain();
   }
 }
 
@@ -239,11 +250,11 @@ void DatasetServiceImpl::watch_idle_uploads() {
       continue;
     }
     uploads_changed_.wait_for(lock, std::chrono::seconds(1));
-    // A copy: a cancelled upload may leave the set inside TryCancel.
+    // A copy: an upload ended here may leave the set before the loop ends.
     const std::vector<UploadReactor*> reading(uploads_.begin(), uploads_.end());
     const std::int64_t now = UploadReactor::steady_ms();
     for (UploadReactor* upload : reading) {
-      if (uploads_.count(upload) != 0) upload->cancel_if_idle(now, idle_ms);
+      if (uploads_.count(upload) != 0) upload->end_if_idle(now, idle_ms);
     }
   }
 }

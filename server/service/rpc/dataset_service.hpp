@@ -37,8 +37,8 @@ class DatasetServiceImpl final : public v1::DatasetService::WithCallbackMethod_U
   class UploadReactor;
   // Ends the uploads that sent nothing for upload_idle_seconds: a thread
   // that looks every second. The registry's mutex is recursive because gRPC
-  // may run a cancelled upload's callbacks, which leave the registry, inside
-  // TryCancel.
+  // may run an upload's reactions (OnDone leaves the registry) inside the
+  // call that ends it.
   void watch_idle_uploads();
   const Authenticator& auth_;
   DatasetManager& datasets_;
