@@ -216,6 +216,7 @@ Status Daemon::start() {
                                  "that keeps it private");
     }
     metrics_.set_sessions_open([this] { return sessions_->size(); });
+    metrics_.set_uploads_in_flight([this] { return datasets_->uploads_in_flight(); });
     metrics_.set_store(store_.get());
     RICCATI_ASSIGN_OR_RETURN(metrics_port_, metrics_.serve(config_.metrics_listen));
     spdlog::info("metrics listening address={} port={} path=/metrics", config_.metrics_listen, metrics_port_);

@@ -76,8 +76,9 @@ class RpcInterceptorFactory final : public grpc::experimental::ServerInterceptor
 
 }  // namespace
 
-// The gauges read at scrape time: open sessions, and the jobs the store
-// has queued and running (every instance's, when the store is shared).
+// The gauges read at scrape time: open sessions, uploads in flight, and the
+// jobs the store has queued and running (every instance's, when the store
+// is shared).
 class Metrics::Scraped final : public prometheus::Collectable {
  public:
   std::vector<prometheus::MetricFamily> Collect() const override {
@@ -90,6 +91,15 @@ class Metrics::Scraped final : public prometheus::Collectable {
       m.gauge.value = static_cast<double>(sessions_open_());
       sessions.metric.push_back(m);
       out.push_back(std::move(sessions));
+    }
+    if (uploads_in_flight_) {
+      prometheus::MetricFamily uploads{"riccati_uploads_in_flight",
+                                       "Dataset uploads holding a place on this instance (of max_uploads)",
+                                       prometheus::MetricType::Gauge, {}};
+      prometheus::ClientMetric m;
+      m.gauge.value = static_cast<double>(uploads_in_flight_());
+      uploads.metric.push_back(m);
+      out.push_back(std::move(uploads));
     }
     if (store_ != nullptr) {
       auto unfinished = store_->count_unfinished_jobs("");
@@ -126,6 +136,7 @@ class Metrics::Scraped final : public prometheus::Collectable {
 
   mutable std::mutex mu_;
   std::function<std::size_t()> sessions_open_;
+  std::function<std::int64_t()> uploads_in_flight_;
   Store* store_ = nullptr;
 };
 
@@ -172,6 +183,11 @@ Metrics::~Metrics() { stop_serving(); }
 void Metrics::set_sessions_open(std::function<std::size_t()> count) {
   std::lock_guard lock(scraped_->mu_);
   scraped_->sessions_open_ = std::move(count);
+}
+
+void Metrics::set_uploads_in_flight(std::function<std::int64_t()> count) {
+  std::lock_guard lock(scraped_->mu_);
+  scraped_->uploads_in_flight_ = std::move(count);
 }
 
 void Metrics::set_store(Store* store) {

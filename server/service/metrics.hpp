@@ -6,6 +6,7 @@
 //   riccati_measurements_total{outcome}      estimated / refused (sessions)
 //   riccati_measurement_seconds              filter step per measurement (histogram)
 //   riccati_sessions_open                    at scrape time
+//   riccati_uploads_in_flight                at scrape time (of max_uploads)
 //   riccati_session_snapshots_total{outcome} stored / failed (sessions' snapshots in the store)
 //   riccati_sessions_resumed_total           sessions this instance resumed from a snapshot
 //   riccati_jobs{state}                      queued / running in the store, at scrape time
@@ -49,6 +50,7 @@ class Metrics {
 
   // Values read when scraped.
   void set_sessions_open(std::function<std::size_t()> count);
+  void set_uploads_in_flight(std::function<std::int64_t()> count);
   void set_store(Store* store);
 
   // Serves /metrics on `address` (host:port; port 0: any free port);

@@ -24,6 +24,7 @@
 #include "riccati/v1/models.grpc.pb.h"
 #include "riccati/v1/sessions.grpc.pb.h"
 #include "service/daemon_fixture.hpp"
+#include "support/metrics.hpp"
 #include "support/requests.hpp"
 #include "support/wait.hpp"
 
@@ -341,11 +342,11 @@ TEST_F(BoundedRequests, ResidualDiagnosticsCountInTheResultSize) {
 // Item 10: one tenant's uploads cannot hold every place, and an upload that
 // sends nothing is ended, its place given back.
 TEST_F(BoundedRequests, UploadsHaveAShareEachAndAnIdleOneEnds) {
-  // Idle uploads end after 15 s: room for the third try to find both held.
-  // Under the sanitizers registering them took more than 2 s, and on CI's
-  // loaded 2 cores more than 5 s.
-  constexpr int kIdleSeconds = 15;
-  start({"--max-uploads", "4", "--max-tenant-uploads", "2", "--upload-idle-seconds", std::to_string(kIdleSeconds)});
+  constexpr int kIdleSeconds = 10;
+  const int metrics_port = testing::free_port();
+  ASSERT_GT(metrics_port, 0);
+  start({"--max-uploads", "4", "--max-tenant-uploads", "2", "--upload-idle-seconds", std::to_string(kIdleSeconds),
+         "--metrics-listen", "127.0.0.1:" + std::to_string(metrics_port)});
   // Held by pointer: the writer keeps the addresses of the context and of
   // the response it fills at Finish, so neither may move.
   struct Open {
@@ -357,33 +358,33 @@ TEST_F(BoundedRequests, UploadsHaveAShareEachAndAnIdleOneEnds) {
   auto open = [&](const std::string& tenant) {
     auto o = std::make_unique<Open>();
     o->ctx = as(tenant);
-    // Waiting for the channel to be ready: on a loaded machine the first
-    // calls after the start could otherwise fail before riccatid saw them,
-    // and hold nothing.
-    o->ctx->set_wait_for_ready(true);
+    o->ctx->set_wait_for_ready(true);  // not failed by a channel still connecting
     o->writer = datasets_->UploadDataset(o->ctx.get(), &o->info);
     o->header_sent = o->writer->Write(testing::upload_header("slow.csv", {"F1", "F2"}, {"h1", "h2"}));
     return o;
   };
-  // Two of alpha's hold its share (they send a header, then nothing).
+  // Two of alpha's hold its share (they send a header, then nothing) once
+  // riccatid counts them: a Write returns when the header is on its way, and
+  // on CI's loaded cores riccatid took seconds to read it. A third tried
+  // before then would take a place itself.
   std::vector<std::unique_ptr<Open>> slow;
   slow.push_back(open("alpha"));
   slow.push_back(open("alpha"));
   ASSERT_TRUE(slow[0]->header_sent && slow[1]->header_sent);
-  // Alpha's third is refused once they hold their places (each try that
-  // comes before is an empty upload, refused as such); beta's goes through.
-  std::string last;
-  EXPECT_TRUE(testing::wait_until(
+  ASSERT_TRUE(testing::wait_until(
       [&] {
-        const std::unique_ptr<Open> third = open("alpha");
-        third->writer->WritesDone();
-        const grpc::Status s = third->writer->Finish();
-        last = s.error_message();
-        return s.error_code() == grpc::StatusCode::RESOURCE_EXHAUSTED &&
-               last.find("limit max_tenant_uploads = 2 reached") != std::string::npos;
+        return testing::sample_value(testing::http_get(metrics_port, "/metrics"), "riccati_uploads_in_flight") == 2;
       },
-      std::chrono::seconds(kIdleSeconds - 3), "alpha's third upload is refused by its share"))
-      << last;
+      testing::kWait, "riccatid holds both slow uploads (riccati_uploads_in_flight)"));
+  // Alpha's third is refused by its share; beta's goes through.
+  {
+    const std::unique_ptr<Open> third = open("alpha");
+    third->writer->WritesDone();
+    const grpc::Status s = third->writer->Finish();
+    EXPECT_EQ(s.error_code(), grpc::StatusCode::RESOURCE_EXHAUSTED) << s.error_message();
+    EXPECT_EQ(s.error_message(),
+              "limit max_tenant_uploads = 2 reached: this tenant has as many uploads in flight; wait for one to end");
+  }
   EXPECT_FALSE(upload("beta", "two_tank.csv").empty());
   // The slow ones end by themselves once idle ...
   // (finished by riccatid, not cancelled: the client hears why)
@@ -393,6 +394,7 @@ TEST_F(BoundedRequests, UploadsHaveAShareEachAndAnIdleOneEnds) {
     EXPECT_EQ(s.error_message(), "the upload of slow.csv sent nothing for " + std::to_string(kIdleSeconds) +
                                      " s (upload_idle_seconds, --upload-idle-seconds): nothing stored");
   }
+  slow.clear();  // the calls go, as a client's would (held, they hold riccatid's stop to its grace)
   // ... and alpha's share is free again.
   EXPECT_FALSE(upload("alpha", "two_tank.csv").empty());
   stop();
@@ -402,7 +404,9 @@ TEST_F(BoundedRequests, UploadsHaveAShareEachAndAnIdleOneEnds) {
 // Shutdown ends an upload still sending at once, and its client hears why
 // (nothing of it is stored).
 TEST_F(BoundedRequests, AnUploadStoppedByShutdownHearsWhy) {
-  start({"--max-tenant-uploads", "1"});
+  const int metrics_port = testing::free_port();
+  ASSERT_GT(metrics_port, 0);
+  start({"--metrics-listen", "127.0.0.1:" + std::to_string(metrics_port)});
   auto ctx = as("alpha");
   v1::DatasetInfo info;
   auto writer = datasets_->UploadDataset(ctx.get(), &info);
@@ -410,15 +414,11 @@ TEST_F(BoundedRequests, AnUploadStoppedByShutdownHearsWhy) {
   v1::UploadDatasetRequest chunk;
   chunk.set_chunk("t,F1,F2,h1,h2\n");
   ASSERT_TRUE(writer->Write(chunk));
-  // Held by riccatid once another of alpha's is refused by the share of 1.
   ASSERT_TRUE(testing::wait_until(
       [&] {
-        v1::DatasetInfo other;
-        const grpc::Status s = testing::upload_dataset(*datasets_, as("alpha").get(), "other.csv", "t,h1\n0,1\n", {},
-                                                       {"h1"}, &other);
-        return s.error_code() == grpc::StatusCode::RESOURCE_EXHAUSTED;
+        return testing::sample_value(testing::http_get(metrics_port, "/metrics"), "riccati_uploads_in_flight") == 1;
       },
-      testing::kWait, "the slow upload holds alpha's share"));
+      testing::kWait, "riccatid holds the upload (riccati_uploads_in_flight)"));
   // The client hears the status as soon as riccatid ends the upload, and
   // lets the call go (a client holding a finished call holds riccatid's
   // connection open to its grace: gRPC's, not the upload's).

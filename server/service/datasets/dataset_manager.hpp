@@ -71,6 +71,11 @@ class DatasetManager {
   Result<std::vector<DatasetRecord>> list(const std::string& tenant);
   Status remove(const std::string& tenant, const std::string& id);
   const Limits& limits() const { return limits_; }
+  // Uploads holding a place now (of max_uploads), all tenants.
+  std::int64_t uploads_in_flight() const {
+    std::lock_guard lock(mu_);
+    return uploads_;
+  }
 
  private:
   friend class UploadTicket;
@@ -81,7 +86,7 @@ class DatasetManager {
   Store& store_;
   const Limits limits_;  // max_dataset_bytes, max_dataset_samples, max_tenant_dataset_bytes, max_uploads, max_tenant_uploads
   std::mutex stored_mu_;  // reading what a tenant has stored, and storing an upload and giving back its room
-  std::mutex mu_;
+  mutable std::mutex mu_;
   std::int64_t uploads_ = 0;                             // in flight, all tenants
   std::map<std::string, std::int64_t> tenant_uploads_;  // in flight, per tenant
   std::map<std::string, std::int64_t> in_flight_bytes_;  // per tenant
