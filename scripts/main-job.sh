@@ -61,22 +61,23 @@ riccati result "$oe" --truth "$truth" >"$out/oe.txt"
 sed -n '1,/^$/p' "$out/oe.txt"
 sed -n '/^parameter/,/^$/p' "$out/oe.txt" | sed '/^$/d'
 echo
-echo "Side by side: Hensen's estimate +- its filter's std, output error's +- its standard error"
-# The rows of the two tables: Hensen's "NAME initial estimate std final true
-# error%", output error's "NAME initial estimate stderr [lo, hi] rel.std true error%".
+echo "Side by side: each estimate, its standard error and 95 % interval"
+# The rows of the two tables: Hensen's "NAME initial estimate stderr [lo, hi]
+# filterstd final true error%", output error's "NAME initial estimate stderr
+# [lo, hi] rel.std true error%".
 awk -v method="$filter" '
   FNR == 1 { file++ }
   /^parameter/ { table = 1; next }
   table && (NF == 0 || /^\(/ || /^innovation/) { table = 0 }
-  table && file == 1 { names[++n] = $1; h[$1] = $3; hs[$1] = $4; t[$1] = $6 }
+  table && file == 1 { names[++n] = $1; h[$1] = $3; hs[$1] = $4; hci[$1] = $5 " " $6; t[$1] = $9 }
   table && file == 2 { o[$1] = $3; os[$1] = $4; ci[$1] = $5 " " $6 }
   END {
-    printf "%-10s %10s   %-26s   %s\n", "", "", "Hensen'"'"'s iterated " method, "output error"
-    printf "%-10s %10s   %12s %11s   %12s %11s %28s\n", "parameter", "true", "estimate", "std", "estimate",
-           "std. error", "95 % interval"
+    printf "%-9s %7s   %-49s   %s\n", "", "", "Hensen'"'"'s iterated " method, "output error"
+    printf "%-9s %7s   %11s %9s %27s   %11s %9s %27s\n", "parameter", "true", "estimate", "std. err.", "95 % interval",
+           "estimate", "std. err.", "95 % interval"
     for (i = 1; i <= n; i++) {
       p = names[i]
-      printf "%-10s %10s   %12s %11s   %12s %11s %28s\n", p, t[p], h[p], hs[p], o[p], os[p], ci[p]
+      printf "%-9s %7s   %11s %9s %27s   %11s %9s %27s\n", p, t[p], h[p], hs[p], hci[p], o[p], os[p], ci[p]
     }
   }' "$out/hensen.txt" "$out/oe.txt"
 echo

@@ -187,6 +187,7 @@ std::string estimation_table(const v1::EstimationResult& r, const std::vector<do
                   static_cast<unsigned long long>(r.samples()));
     out += line;
   }
+  if (!r.covariance_method().empty()) out += "covariance: " + r.covariance_method() + "\n";
   if (r.has_init_passes() && r.init_passes().passes_size() > 0) {
     out += "start: the mean over the last of " +
            counted(static_cast<unsigned>(r.init_passes().passes_size()), "pass", "passes") + " of the iterated filter " + values_list(r.init_passes().theta_mean()) + "\n";

@@ -88,6 +88,12 @@ void identification(MatWriter& mat, const v1::IdentificationResult& id, const Mo
   mat.column("Theta", id.theta_mean());
   mat.column("ThetaFinal", id.theta());
   mat.column("ThetaStd", id.theta_std());
+  if (id.ci_lower_size() > 0) {
+    mat.column("ThetaLower", id.ci_lower());
+    mat.column("ThetaUpper", id.ci_upper());
+    mat.column("FilterThetaStd", id.filter_theta_std());
+    mat.matrix("Covariance", id.theta_covariance());
+  }
   if (id.passes_size() > 0) mat.matrix("Trace", id.passes(id.passes_size() - 1).theta_trace());
   mat.matrix("X", id.x_trace());
   mat.matrix("Ymod", id.y_model());

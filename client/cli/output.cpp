@@ -137,9 +137,12 @@ std::string parameter_table(const v1::IdentificationResult& r, const std::vector
   const int n = r.param_names_size();
   const bool with_truth = static_cast<int>(truth.size()) == n;
   const bool with_initial = static_cast<int>(initial.size()) == n;
+  // Results stored before the intervals have none: theta_std was sqrt(diag P).
+  const bool with_intervals = r.ci_lower_size() == n && r.ci_upper_size() == n;
   std::string out;
-  char line[256];
-  std::snprintf(line, sizeof line, "%-10s %12s %14s %12s %12s", "parameter", "initial", "estimate", "std", "final");
+  char line[320];
+  std::snprintf(line, sizeof line, "%-10s %12s %14s %11s %29s %12s %12s", "parameter", "initial", "estimate",
+                "std. error", "95 % interval", "filter std", "final");
   out += line;
   if (with_truth) {
     std::snprintf(line, sizeof line, " %12s %9s", "true", "error %");
@@ -147,17 +150,27 @@ std::string parameter_table(const v1::IdentificationResult& r, const std::vector
   }
   out += "\n";
   for (int i = 0; i < n; ++i) {
-    std::snprintf(line, sizeof line, "%-10s %12s %14.8g %12.4g %12.6g", r.param_names(i).c_str(),
+    const std::string interval =
+        with_intervals ? "[" + format("%.8g", r.ci_lower(i)) + ", " + format("%.8g", r.ci_upper(i)) + "]" : "-";
+    const std::string filter_std = i < r.filter_theta_std_size() ? format("%.4g", r.filter_theta_std(i)) : "-";
+    std::snprintf(line, sizeof line, "%-10s %12s %14.8g %11.4g %29s %12s %12.6g", r.param_names(i).c_str(),
                   with_initial ? format("%.6g", initial[i]).c_str() : "-", r.theta_mean(i), r.theta_std(i),
-                  r.theta(i));
+                  interval.c_str(), filter_std.c_str(), r.theta(i));
     out += line;
     if (with_truth) {
       std::snprintf(line, sizeof line, " %12.6g %9.3f", truth[i], 100.0 * (r.theta_mean(i) - truth[i]) / truth[i]);
       out += line;
+      if (with_intervals && (truth[i] < r.ci_lower(i) || truth[i] > r.ci_upper(i))) out += "  (outside the interval)";
     }
     out += "\n";
   }
-  out += "(estimate: mean over the last pass, as the 1999 toolbox reports; std: at the end)\n";
+  out += "(estimate: the mean over the last pass, as the 1999 toolbox reports; final: at its end; filter std: "
+         "sqrt(diag P) at the end, the toolbox's, which counts the record once per pass)\n";
+  if (!r.covariance_method().empty()) out += "std. error and interval: " + r.covariance_method() + "\n";
+  if (r.warnings_size() > 0) {
+    out += "warnings:\n";
+    for (const auto& w : r.warnings()) out += "  " + w + "\n";
+  }
   return out;
 }
 
@@ -180,6 +193,8 @@ std::string fit_table(const v1::ValidationResult& r) {
   // Where the parameters and initial states came from (a job's estimate, fitted x0), when riccatid says.
   if (!r.parameters_from().empty()) out += "parameters: " + r.parameters_from() + " " + values_list(r.theta()) + "\n";
   if (!r.x0_from().empty()) out += "x0: " + r.x0_from() + " " + values_list(r.x0()) + "\n";
+  out += r.horizon() > 0 ? "fit of the " + std::to_string(r.horizon()) + "-step-ahead predictions: " + r.predictor() + "\n"
+                         : "fit of the simulation:\n";
   return out + fit_table(r.fits());
 }
 

@@ -442,6 +442,20 @@ uint32_t saturated(std::uint64_t count) {
   return static_cast<uint32_t>(std::min<std::uint64_t>(count, std::numeric_limits<uint32_t>::max()));
 }
 
+// A value below the setting's declared minimum (--horizon 0, --passes 0) is
+// refused here, as the workbench's form refuses it, rather than sent as the
+// field's "unset" 0.
+bool at_least_minimum(const SettingField& s, double value, std::string* error) {
+  if (s.setting == nullptr || !s.setting->has_minimum() || value >= s.setting->minimum()) return true;
+  const auto text = [](double v) {
+    std::ostringstream out;
+    out << v;
+    return out.str();
+  };
+  *error = text(value) + " is below the least value, " + text(s.setting->minimum());
+  return false;
+}
+
 // Reads `node` into the setting's field of `request`; false with what is wrong.
 bool write_setting(const SettingField& s, const YAML::Node& node, Message* request, std::string* error) {
   Message* holder = api::mutable_holder(request, s);
@@ -450,13 +464,13 @@ bool write_setting(const SettingField& s, const YAML::Node& node, Message* reque
   switch (s.kind) {
     case ValueKind::kNumber: {
       double v = 0.0;
-      if (!read(node, &v, error)) return false;
+      if (!read(node, &v, error) || !at_least_minimum(s, v, error)) return false;
       r->SetDouble(holder, f, v);
       return true;
     }
     case ValueKind::kCount: {
       std::uint64_t v = 0;
-      if (!read(node, &v, error)) return false;
+      if (!read(node, &v, error) || !at_least_minimum(s, static_cast<double>(v), error)) return false;
       if (f->cpp_type() == FieldDescriptor::CPPTYPE_UINT32) {
         r->SetUInt32(holder, f, saturated(v));
       } else {

@@ -94,7 +94,7 @@ inline constexpr LimitSpec kLimitSpecs[] = {
     {"upload_idle_seconds", &Limits::upload_idle_seconds,
      "An upload that sends no bytes for this long (s) is ended with DEADLINE_EXCEEDED, its room given back"},
     {"max_result_read_bytes", &Limits::max_result_read_bytes,
-     "Stored results being read at once (GetResult, gRPC and HTTP), all tenants (bytes as stored; each takes 3 to 5 "
+     "Stored results being read at once (GetResult and CompareJobs, gRPC and HTTP), all tenants (bytes as stored; each takes 3 to 5 "
      "times that while converted): a read waits for room, then is refused"},
     {"max_model_check_operations", &Limits::max_model_check_operations,
      "Most operations (about nanoseconds) of a text model's Jacobian check, estimated from its size before it "

@@ -488,7 +488,7 @@ TEST(EstimationFlags, ErrorsNameTheFlagAndWhatIsWrong) {
   EXPECT_FALSE(load_job_file(write("riccati-job-est.yaml", "estimation:\n  max_iters: 3\n"), &file, &error));
   EXPECT_NE(error.find("unknown key \"estimation.max_iters\" (line 2) (expected output_sigma, "
                        "estimate_process_noise, estimate_measurement_noise, max_iterations, function_tolerance, "
-                       "gradient_tolerance, parameter_tolerance)"),
+                       "gradient_tolerance, parameter_tolerance, covariance)"),
             std::string::npos)
       << error;
 }
@@ -869,8 +869,15 @@ TEST(ResultTables, EachKindOfResultHasItsTableAndJobsTheirProgress) {
   const std::string fits = fit_table(validation);
   EXPECT_EQ(fits.substr(0, fits.find("output  ")),
             "parameters: job job-1: its oe estimate [10, 5]\nx0: fitted by output error on the first 100 samples "
-            "[0.4, 0.15]\n");
+            "[0.4, 0.15]\nfit of the simulation:\n");
   EXPECT_NE(line_of(fits, "h1 ").find("99.500"), std::string::npos) << fits;
+  // A prediction says how many samples ahead, and by what.
+  auto predicted = validation;
+  predicted.set_horizon(3);
+  predicted.set_predictor("ekf of job job-1 (Q as the job ran, R as the job ran, the states' P0), 3 samples ahead");
+  const std::string ahead = fit_table(predicted);
+  EXPECT_NE(ahead.find("\nfit of the 3-step-ahead predictions: ekf of job job-1 (Q as the job ran"), std::string::npos)
+      << ahead;
 }
 
 TEST(Lists, ParseNumbersStrictly) {
@@ -941,6 +948,28 @@ TEST(Tables, ParameterTableShowsTruthAndError) {
   const std::string table = parameter_table(r, {20.0}, {10.0});
   EXPECT_NE(table.find("A1"), std::string::npos);
   EXPECT_NE(table.find("-1.000"), std::string::npos) << table;  // (9.9 - 10) / 10 = -1 %
+}
+
+// The interval riccatid reports (not estimate -+ 1.96 std), the filter's own
+// std beside it, which covariance it is, and a truth outside it marked.
+TEST(Tables, ParameterTableShowsTheIntervalsAndTheFiltersStd) {
+  v1::IdentificationResult r;
+  r.add_param_names("A1");
+  r.add_theta_mean(9.9);
+  r.add_theta_std(0.01);
+  r.add_theta(9.95);
+  r.add_ci_lower(9.85);
+  r.add_ci_upper(9.93);
+  r.add_filter_theta_std(0.003);
+  r.set_covariance_method("output error at the estimate: white residuals: s2 (J'J)^-1");
+  r.add_warnings("the estimate has not settled after 10 passes");
+  const std::string table = parameter_table(r, {20.0}, {10.0});
+  EXPECT_NE(table.find("[9.85, 9.93]"), std::string::npos) << table;
+  EXPECT_NE(table.find("0.003"), std::string::npos) << table;
+  EXPECT_NE(table.find("(outside the interval)"), std::string::npos) << table;
+  EXPECT_NE(table.find("std. error and interval: output error at the estimate: white residuals"), std::string::npos)
+      << table;
+  EXPECT_NE(table.find("  the estimate has not settled after 10 passes\n"), std::string::npos) << table;
 }
 
 }  // namespace
@@ -1133,19 +1162,6 @@ TEST(SchemaFlags, MessagesNameTheFlagBesideTheField) {
   EXPECT_EQ(with_flags("the job asks for 12 passes, more than max_passes"),
             "the job asks for 12 passes, more than max_passes");
   EXPECT_EQ(with_flags("dataset ds-1 has 2 outputs; the fixed point"), "dataset ds-1 has 2 outputs; the fixed point");
-}
-
-// The chi-square upper tail compare's likelihood-ratio test reads its p-value
-// from, against the 95 % quantiles of the tables and a value by hand
-// (P(chi2_1 > 1) = P(|Z| > 1)).
-TEST(Compare, ChiSquareSurvivalAtTheTablesQuantiles) {
-  const std::vector<std::pair<unsigned, double>> quantile95 = {
-      {1, 3.841458820694124}, {2, 5.991464547107979}, {3, 7.814727903251178}, {5, 11.070497693516351},
-      {10, 18.307038053275146}};
-  for (const auto& [dof, x] : quantile95) EXPECT_NEAR(chi_square_survival(x, dof), 0.05, 1e-12) << dof;
-  EXPECT_NEAR(chi_square_survival(1.0, 1), 0.31731050786291410, 1e-14);
-  EXPECT_EQ(chi_square_survival(0.0, 3), 1.0);
-  EXPECT_EQ(chi_square_survival(std::numeric_limits<double>::infinity(), 2), 0.0);
 }
 
 }  // namespace

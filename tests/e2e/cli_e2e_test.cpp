@@ -527,8 +527,9 @@ TEST_F(CliTest, CompareRanksFitsAndTestsANestedPair) {
   r = riccati("identify --model two_tank --data " + data + " --r 1e-4 --passes 1");
   ASSERT_EQ(r.exit_code, 0) << last_stderr();
   const std::string filter_job = job_id_in(last_stderr());
+  // (riccatid refuses them, INVALID_ARGUMENT: exit 1.)
   r = riccati("compare " + all_free + " " + filter_job);
-  EXPECT_EQ(r.exit_code, 2);
+  EXPECT_EQ(r.exit_code, 1);
   EXPECT_NE(last_stderr().find("job " + filter_job + " is not an output-error or maximum-likelihood identification"),
             std::string::npos) << last_stderr();
   r = riccati("identify --method oe --model rotating_arm --data " + kData +
@@ -536,7 +537,7 @@ TEST_F(CliTest, CompareRanksFitsAndTestsANestedPair) {
   ASSERT_TRUE(r.exit_code == 0 || r.exit_code == 1) << last_stderr();
   const std::string arm = job_id_in(last_stderr());
   r = riccati("compare " + all_free + " " + arm);
-  EXPECT_EQ(r.exit_code, 2);
+  EXPECT_EQ(r.exit_code, 1);
   EXPECT_NE(last_stderr().find("jobs " + all_free + " and " + arm + " fit different outputs (h1, h2; q, qdot)"),
             std::string::npos) << last_stderr();
 }
@@ -634,6 +635,26 @@ TEST_F(CliTest, IdentifyByOutputErrorFindsTheTwoTankTruth) {
   ASSERT_EQ(v.exit_code, 0) << last_stderr();
   EXPECT_NE(v.out.find("parameters: job " + job), std::string::npos) << v.out;
   EXPECT_GT(std::stod(words_of_line(v.out, "h1 ").at(2)), 99.999) << v.out;
+  EXPECT_NE(v.out.find("fit of the simulation:"), std::string::npos) << v.out;
+  // K steps ahead with the job's filter and noise model (output error's Q is
+  // 0: the predictions are the simulation's own).
+  CliRun ahead = riccati("--json validate --model two_tank --data " + dataset + " --params " + job + " --horizon 3");
+  ASSERT_EQ(ahead.exit_code, 0) << last_stderr();
+  const auto predicted = nlohmann::json::parse(ahead.out)["validation"];
+  EXPECT_EQ(predicted["horizon"], 3);
+  EXPECT_EQ(predicted["predictor"], "ekf of job " + job + " (Q as the job ran, R as the job ran, the states' P0), 3 samples ahead");
+  ahead = riccati("validate --model two_tank --data " + dataset + " --params " + job + " --horizon 1");
+  ASSERT_EQ(ahead.exit_code, 0) << last_stderr();
+  EXPECT_NE(ahead.out.find("fit of the 1-step-ahead predictions: ekf of job " + job), std::string::npos) << ahead.out;
+  EXPECT_EQ(words_of_line(ahead.out, "h1 ").at(2), words_of_line(v.out, "h1 ").at(2)) << ahead.out << v.out;
+  ahead = riccati("validate --model two_tank --data " + dataset + " --params " + job + " --horizon 0");
+  EXPECT_EQ(ahead.exit_code, 2);
+  EXPECT_NE(last_stderr().find("--horizon: 0 is below the least value, 1"), std::string::npos) << last_stderr();
+  ahead = riccati("validate --model two_tank --data " + dataset + " --params 10,5,0.0791,0.1342 --horizon 3");
+  EXPECT_EQ(ahead.exit_code, 1);
+  EXPECT_NE(last_stderr().find("horizon 3 needs an identification job's estimate (identification_job_id, --params JOB)"),
+            std::string::npos)
+      << last_stderr();
   v = riccati("validate --model two_tank --data " + dataset + " --params " + job + " --estimate final");
   EXPECT_EQ(v.exit_code, 1);
   EXPECT_NE(last_stderr().find("submitting the validation: estimate: job " + job + " is an output-error"),

@@ -133,7 +133,9 @@ TEST(NoAllocation, PerSmoothedSample) {
 // A whole identification (the iterated filter of the 1999 toolbox, two
 // passes) sizes what it keeps for the record once: filtering 400 samples
 // allocates as often as filtering 200 (nothing per sample), for every
-// filter kind that identification runs.
+// filter kind that identification runs; but for a few: the uncertainty at
+// the end words its covariance and warnings from what the data say (which
+// covariance, which outputs are not white), so its strings differ.
 TEST(NoAllocation, PerIdentifiedSample) {
   static const ModelRegistry registry = ModelRegistry::load_directory(RICCATI_TEST_PLUGIN_DIR).value();
   for (const Case& c : cases()) {
@@ -153,7 +155,8 @@ TEST(NoAllocation, PerIdentifiedSample) {
       EXPECT_TRUE(r.is_ok()) << c.name << ": " << r.status().to_string();
       return count;
     };
-    EXPECT_EQ(allocations_to_identify(400), allocations_to_identify(200)) << c.name;
+    const auto longer = static_cast<double>(allocations_to_identify(400));
+    EXPECT_NEAR(longer, static_cast<double>(allocations_to_identify(200)), 8.0) << c.name;
   }
 }
 

@@ -4,9 +4,11 @@
 #include <atomic>
 #include <fstream>
 #include <nlohmann/json.hpp>
+#include <random>
 #include <stop_token>
 
 #include "engine/estimation/identification.hpp"
+#include "engine/estimation/validation.hpp"
 #include "engine/filters/filter_kinds.hpp"
 #include "engine/models/plugin_loader.hpp"
 
@@ -121,6 +123,73 @@ TEST_P(TwoTankHensen, LastPassMeanWithinOnePointFivePercentOfTruth) {
 
 INSTANTIATE_TEST_SUITE_P(Filters, TwoTankHensen, ::testing::Values(FilterKind::kEkf, FilterKind::kUkf),
                          [](const auto& test_info) { return std::string(filter_kind_name(test_info.param)); });
+
+// The iterated filter's intervals over 100 noisy copies of a two-tank record
+// (the model's own simulation from the truth, sigma = 0.01, R matching it;
+// Hensen's start and 10 passes, P0 = diag(0 0 10 10 1 1), the states from
+// their first noisy measurement): each parameter's 95 % interval holds the
+// truth in 90-99 of them (the binomial 95 % range). The filter's own
+// sqrt(diag P), which shrinks with every pass over the same data, holds it
+// far less often; so it is not the interval. (Every run ends: 1200 such runs
+// gave no loss of the covariance's definiteness.)
+TEST(Identification, IntervalsOfTheIteratedFilterCoverTheTruthAtTheirLevel) {
+  const ModelPtr model = builtin("two_tank");
+  const Eigen::VectorXd truth = model->theta_default();
+  Dataset clean = load("two_tank.csv", {"F1", "F2"}, {"h1", "h2"});
+  SimulationSettings sim;
+  sim.integrator.kind = IntegratorKind::kRk4;
+  sim.integrator.substeps = 10;
+  const Eigen::Vector2d x0(0.4, 0.15);
+  clean.y = simulate(*model, clean.t, clean.u, x0, truth, sim).value();
+#ifdef RICCATI_SANITIZED
+  constexpr int kRuns = 3;
+#else
+  constexpr int kRuns = 100;
+#endif
+  constexpr double kSigma = 0.01;
+  IdentificationSettings s;
+  s.filter.integrator = sim.integrator;
+  s.filter.Q = Eigen::MatrixXd::Zero(6, 6);
+  s.filter.R = Eigen::Vector2d(kSigma * kSigma, kSigma * kSigma).asDiagonal();
+  s.initial.mode = InitialState::kFirstMeasurement;  // as riccati identify starts: x0 a noisy measurement
+  s.initial.theta0 = Eigen::Vector4d(20, 20, 1, 1);
+  Eigen::VectorXd p0(6);
+  p0 << 0, 0, 10, 10, 1, 1;
+  s.initial.P0 = p0.asDiagonal();
+  s.passes = 10;
+  std::mt19937_64 rng(20261128);
+  std::normal_distribution<double> noise(0.0, kSigma);
+  Eigen::VectorXi covered = Eigen::VectorXi::Zero(4), filter_covered = Eigen::VectorXi::Zero(4);
+  for (int run = 0; run < kRuns; ++run) {
+    Dataset d = clean;
+    for (Eigen::Index k = 0; k < d.size(); ++k) {
+      for (Eigen::Index i = 0; i < 2; ++i) d.y(i, k) += noise(rng);
+    }
+    auto r = identify(model, d, s);
+    ASSERT_TRUE(r.is_ok()) << "run " << run << ": " << r.status().to_string();
+    if (run == 0) {
+      EXPECT_EQ(r->covariance_method.rfind("output error at the estimate: ", 0), 0u) << r->covariance_method;
+      EXPECT_EQ(r->theta_covariance.rows(), 4);
+      EXPECT_LT((r->theta_covariance.diagonal().cwiseSqrt() - r->theta_std).cwiseAbs().maxCoeff(),
+                1e-12 * r->theta_std.maxCoeff());
+    }
+    for (Eigen::Index i = 0; i < 4; ++i) {
+      covered[i] += truth[i] >= r->ci_lower[i] && truth[i] <= r->ci_upper[i];
+      filter_covered[i] += std::abs(r->theta_mean[i] - truth[i]) <= 1.959964 * r->filter_theta_std[i];
+    }
+  }
+  std::printf("covered %d %d %d %d (the filter's own std: %d %d %d %d) of %d\n", covered[0], covered[1], covered[2],
+              covered[3], filter_covered[0], filter_covered[1], filter_covered[2], filter_covered[3], kRuns);
+  if (kRuns < 100) {
+    GTEST_SKIP() << "the coverage needs 100 runs; under the sanitizers " << kRuns
+                 << " ran, for the code path only, and nothing is asserted of them";
+  }
+  for (Eigen::Index i = 0; i < 4; ++i) {
+    EXPECT_GE(covered[i], 90) << model->param_names()[static_cast<std::size_t>(i)];
+    EXPECT_LE(covered[i], 99) << model->param_names()[static_cast<std::size_t>(i)];
+  }
+  EXPECT_LT(filter_covered.minCoeff(), 80) << "the filter's own std was an honest interval after all";
+}
 
 TEST(RotaryPendulum, UkfRecoversParametersFromThirtyPercentOff) {
   const auto meta = read_json("rotary_pendulum.json");

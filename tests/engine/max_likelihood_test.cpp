@@ -45,6 +45,51 @@ MaxLikelihoodSettings two_tank_settings(const Eigen::VectorXd& theta0, double r)
   return s;
 }
 
+// k-step-ahead prediction (validation.hpp) with K = 1 is the ML predictor's
+// one-step prediction, sample by sample, on a noisy record with process
+// noise in the predictor (so that it corrects the states); with K at least
+// the record's length it is the simulation, bit for bit.
+TEST(MaxLikelihood, OneStepAheadPredictionIsThePredictorsAndTheLongestIsTheSimulation) {
+  const ModelPtr model = registry().get("two_tank").value();
+  Experiment e = two_tank_record(600);
+  std::mt19937_64 rng(20261128);
+  std::normal_distribution<double> noise(0.0, 0.01);
+  for (Eigen::Index k = 0; k < e.data.size(); ++k) {
+    for (Eigen::Index i = 0; i < 2; ++i) e.data.y(i, k) += noise(rng);
+  }
+  MaxLikelihoodSettings s = two_tank_settings(model->theta_default() * 1.1, 1e-4);
+  s.filter.Q.topLeftCorner(2, 2) = Eigen::Matrix2d::Identity() * 1e-6;
+  s.P0x = Eigen::Matrix2d::Identity() * 1e-4;
+  s.optimizer.max_iterations = 2;
+  const auto ml = max_likelihood(model, {e}, s);
+  ASSERT_TRUE(ml.is_ok()) << ml.status().to_string();
+  const ExperimentResult& fit = ml->estimate.experiments[0];
+
+  ValidationSettings v;
+  v.simulation = {s.filter.hold, s.filter.integrator};
+  v.initial_state = InitialState::kGiven;
+  v.x0 = fit.x0;
+  v.theta = ml->estimate.theta;
+  PredictionSettings one{1, s.filter, s.P0x};
+  const auto predicted = predict_model(model, e.data, v, one);
+  ASSERT_TRUE(predicted.is_ok()) << predicted.status().to_string();
+  EXPECT_EQ(predicted->horizon, 1);
+  const double scale = fit.y_model.cwiseAbs().maxCoeff();
+  EXPECT_LT((predicted->y_simulated - fit.y_model).cwiseAbs().maxCoeff(), 1e-12 * scale);
+  // The one-step predictions follow the noisy record more closely than the simulation does.
+  const auto simulated = validate_model(*model, e.data, v);
+  ASSERT_TRUE(simulated.is_ok()) << simulated.status().to_string();
+  EXPECT_GT((simulated->y_simulated - predicted->y_simulated).cwiseAbs().maxCoeff(), 1e-4);
+  PredictionSettings longest{static_cast<int>(e.data.size()), s.filter, s.P0x};
+  const auto whole = predict_model(model, e.data, v, longest);
+  ASSERT_TRUE(whole.is_ok()) << whole.status().to_string();
+  EXPECT_EQ(whole->y_simulated, simulated->y_simulated);
+  PredictionSettings none{0, s.filter, s.P0x};
+  const auto refused = predict_model(model, e.data, v, none);
+  ASSERT_FALSE(refused.is_ok());
+  EXPECT_EQ(refused.status().message(), "the prediction horizon must be at least 1 sample, got 0");
+}
+
 // With Q = 0 and P0 = 0 the predictor is the simulation: the likelihood's
 // minimum on noise-free data is the truth.
 TEST(MaxLikelihood, TwoTankFromHensensStartRecoversTheTruth) {

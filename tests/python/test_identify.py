@@ -54,20 +54,29 @@ def test_result_is_what_riccatid_sent(hensen):
     np.testing.assert_array_equal(res.theta.to_numpy(), list(r.theta_mean))
     np.testing.assert_array_equal(res.theta_final.to_numpy(), list(r.theta))
     np.testing.assert_array_equal(res.std.to_numpy(), list(r.theta_std))
-    # The parameters' covariance is the lower right block of P (nz x nz, column-major), by index.
-    nz = r.covariance.rows
-    assert nz == 6
+    np.testing.assert_array_equal(res.filter_std.to_numpy(), list(r.filter_theta_std))
+    assert res.covariance_method.startswith("output error at the estimate: ")
+    # The std errors' covariance (ntheta x ntheta, column-major), by index; the
+    # filter's P's parameter block beside it (nz x nz).
+    assert r.theta_covariance.rows == 4
     for i in range(4):
         for j in range(4):
-            assert res.covariance.iloc[i, j] == r.covariance.values[(2 + i) + (2 + j) * nz]
+            assert res.covariance.iloc[i, j] == r.theta_covariance.values[i + j * 4]
+            assert res.filter_covariance.iloc[i, j] == r.covariance.values[(2 + i) + (2 + j) * r.covariance.rows]
+    np.testing.assert_allclose(np.sqrt(np.diag(res.covariance)), res.std, rtol=1e-12)
     np.testing.assert_allclose(np.diag(res.correlation), 1.0, rtol=1e-12)
     c01 = res.covariance.iloc[0, 1] / np.sqrt(res.covariance.iloc[0, 0] * res.covariance.iloc[1, 1])
     assert res.correlation.loc["A1", "A2"] == pytest.approx(c01, rel=1e-12)
-    # The normal 95 % interval about the reported estimate.
-    assert (res.ci["lower"] < res.theta).all() and (res.theta < res.ci["upper"]).all()
-    np.testing.assert_allclose(res.ci["upper"] - res.ci["lower"], 2 * 1.959963984540054 * res.std, rtol=1e-12)
+    # The 95 % interval holds the reported estimate and the optimum's interval,
+    # one Gauss-Newton step (theta_step) away.
+    np.testing.assert_array_equal(res.ci["lower"].to_numpy(), list(r.ci_lower))
+    np.testing.assert_array_equal(res.ci["upper"].to_numpy(), list(r.ci_upper))
+    assert (res.ci["lower"] <= res.theta).all() and (res.theta <= res.ci["upper"]).all()
+    optimum = res.theta + res.theta_step
+    assert (res.ci["lower"] <= optimum - 1.959963984540054 * res.std * (1 - 1e-12)).all()
+    assert (optimum + 1.959963984540054 * res.std * (1 - 1e-12) <= res.ci["upper"]).all()
     summary = res.summary()
-    assert list(summary.columns) == ["estimate", "std", "lower", "upper", "rel_std_percent", "final"]
+    assert list(summary.columns) == ["estimate", "std", "lower", "upper", "rel_std_percent", "filter_std", "final"]
     np.testing.assert_array_equal(summary["estimate"].to_numpy(), list(r.theta_mean))
     np.testing.assert_array_equal(summary["final"].to_numpy(), list(r.theta))
     assert repr(res).startswith(f"<IdentificationResult of job {res.job_id}, model two_tank: iterated filter, 10 passes")
@@ -106,6 +115,24 @@ def test_the_cli_reads_the_same_result(hensen, daemon):
     assert cli["theta_std"] == res.std.tolist()
 
 
+def test_validate_predicts_k_steps_ahead_with_the_jobs_filter(hensen):
+    c, ds, job, _, _ = hensen
+    simulated = c.validate("two_tank", ds, job)
+    ahead = c.validate("two_tank", ds, job, horizon=5)
+    assert simulated.horizon == 0 and ahead.horizon == 5
+    assert ahead.predictor == (f"ekf of job {job.id} (Q as the job ran, R as the job ran, the states' P0), "
+                               "5 samples ahead")
+    # Hensen's filter has Q = 0 and the states' P0 = 0: it never corrects them, so
+    # its predictions are the simulation's own (to rounding: each restarts from the
+    # filter's state, which it integrated with its covariance).
+    np.testing.assert_allclose(ahead.to_frame().to_numpy(), simulated.to_frame().to_numpy(), rtol=1e-12, atol=1e-15)
+    with pytest.raises(riccati.InvalidArgument, match="horizon 2 needs an identification job's estimate"):
+        c.validate("two_tank", ds, [10, 5, 0.0791, 0.1342], horizon=2)
+    # Below the schema's minimum: refused before anything is sent, as the CLI refuses --horizon 0.
+    with pytest.raises(ValueError, match="horizon: 0 is below the least value, 1"):
+        c.validate("two_tank", ds, job, horizon=0)
+
+
 def test_validate_fits_agree_with_the_simulated_outputs(hensen):
     c, ds, job, res, _ = hensen
     fit = c.validate("two_tank", ds, job)
@@ -128,6 +155,34 @@ def test_validate_fits_agree_with_the_simulated_outputs(hensen):
     np.testing.assert_array_equal(again.to_frame().to_numpy(), frame.to_numpy())
 
 
+def test_compare_ranks_fits_and_tests_a_nested_pair_as_the_cli_does(client, daemon):
+    ds = client.upload(os.path.join(DATA, "two_tank_noisy.csv"), **IO)
+    free = client.submit_identification("two_tank", ds, method="oe", theta0=[11, 6, 0.09, 0.15])
+    held = client.submit_identification("two_tank", ds, method="oe", theta0=[11, 6, 0.09, 0.15], fix=["k2=0.12"])
+    free.result(), held.result()
+    c = client.compare(free, held.id)
+    assert isinstance(c, riccati.Comparison)
+    assert list(c.table.index) == [free.id, held.id]
+    assert list(c.table["k"]) == [5, 4]
+    ll, k, n = c.table["log_likelihood"], c.table["k"], c.table["n"]
+    np.testing.assert_allclose(c.table["aic"], 2 * k - 2 * ll, rtol=1e-12)
+    assert c.table.loc[free.id, "lowest_aic"] and not c.table.loc[held.id, "lowest_aic"]
+    assert c.table.loc[free.id, "fit_percent.h1"] > 90
+    assert len(c.tests) == 1
+    test = c.tests.iloc[0]
+    assert (test["smaller"], test["larger"], test["dof"]) == (held.id, free.id, 1)
+    assert test["statistic"] == pytest.approx(2 * (ll[free.id] - ll[held.id]), rel=1e-12)
+    assert test["p"] < 1e-6 and test["significant"]
+    # The CLI prints the same answer: riccatid's.
+    out = subprocess.run([CLI, "--server", daemon.address, "--json", "compare", free.id, held.id], check=True,
+                         capture_output=True, text=True).stdout
+    cli = json.loads(out)
+    assert [j["aic"] for j in cli["jobs"]] == list(c.table["aic"])
+    assert cli["likelihood_ratio_tests"][0]["p"] == test["p"]
+    with pytest.raises(riccati.InvalidArgument, match="compare takes at most 20 jobs"):
+        client.compare(*([free.id] * 21))
+
+
 def test_output_error_with_intervals(client, truth):
     noisy = os.path.join(DATA, "two_tank_noisy.csv")
     res = client.identify("two_tank", noisy, method="oe", theta0=[20, 20, 1, 1], output_sigma=[0.005, 0.005],
@@ -137,6 +192,7 @@ def test_output_error_with_intervals(client, truth):
     # The truth lies within a few standard errors (the noise is that of the record).
     assert (((res.theta - truth) / res.std).abs() < 4).all()
     assert (res.ci["lower"] < res.theta).all() and (res.theta < res.ci["upper"]).all()
+    assert res.covariance_method  # white, or robust where the residuals are not
     assert res.correlation.loc["A1", "A1"] == pytest.approx(1.0)
     assert res.correlation.shape == (4, 4)
     assert len(res.traces) == res.iterations or len(res.traces) == res.iterations + 1

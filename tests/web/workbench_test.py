@@ -408,12 +408,21 @@ class Workbench(WorkbenchCase):
             sigmas = row.find_element(By.CSS_SELECTOR, 'td[data-col="Error (σ)"]')
             self.assertAlmostEqual(float(sigmas.get_attribute("data-value")),
                                    (result["thetaMean"][i] - TRUTH[name]) / result["thetaStd"][i], places=9)
-            # The interval with the digits that tell its ends apart, about the estimate.
+            # riccatid's interval (output error's at the estimate, widened to hold
+            # it), with the digits that tell its ends apart; the filter's own std beside.
             interval = row.find_element(By.CSS_SELECTOR, 'td[data-col="95 % interval"]').text
             lo, hi = (float(v) for v in interval.split(" … "))
             self.assertLess(lo, hi, interval)
-            width = 2 * 1.96 * result["thetaStd"][i]
+            width = result["ciUpper"][i] - result["ciLower"][i]
             self.assertAlmostEqual((hi - lo) / width, 1.0, delta=0.1, msg=interval)
+            self.assertAlmostEqual((lo - result["ciLower"][i]) / width, 0.0, delta=0.05, msg=interval)
+            filter_std = row.find_element(By.CSS_SELECTOR, 'td[data-col="Filter std"]')
+            self.assertEqual(float(filter_std.get_attribute("data-value")), result["filterThetaStd"][i])
+        self.assertIn("output error at the estimate", self.find("#covariance-method").text)
+        # Its warnings (not settled, residuals not white), each a paragraph of its own words.
+        shown = [p.text for p in self.driver.find_elements(By.CSS_SELECTOR, "#main p.warn")]
+        self.assertEqual(shown, result["warnings"])
+        self.assertNotIn("[object", self.find("#main").text)
         # Hensen's estimates near the truth (two_tank.json: 10, 5, 0.0791, 0.1342).
         self.assertAlmostEqual(result["thetaMean"][0], 10, delta=1)
         self.find("#correlation")
@@ -568,6 +577,34 @@ class Workbench(WorkbenchCase):
         # Units as the plugin declares them.
         unit = self.find('section[data-model="two_tank"] tr[data-param="k1"] td.unit')
         self.assertEqual(unit.text, "m^2.5/s")
+
+    def test_6c_compare_fits(self):
+        self.sign_in()
+        # Two output-error fits of the noisy record, k2 free and held: ticked in the
+        # list, compared as riccatid compares them (POST /api/v1/jobs/compare).
+        dataset = self.upload_raw(os.path.join(ARGS.source_dir, "tests/data/two_tank_noisy.csv"), "compare.csv",
+                                  ["F1", "F2"], ["h1", "h2"])
+        spec = {"model": "two_tank", "datasetId": dataset, "method": "IDENTIFICATION_METHOD_OE",
+                "theta0": [11, 6, 0.09, 0.15]}
+        free = self.api("/jobs/identification", spec)["id"]
+        held = self.api("/jobs/identification", dict(spec, fixed=[{"name": "k2", "value": 0.12}]))["id"]
+        for job in (free, held):
+            self.wait_api_job(job)
+        self.go("jobs")
+        for job in (free, held):
+            self.find(f'#jobs tr[data-id="{job}"] input.pick').click()
+        self.find("#compare-jobs").click()
+        table = self.find("#comparison")
+        expected = self.api("/jobs/compare", {"jobIds": [free, held]})
+        rows = table.find_elements(By.CSS_SELECTOR, "tbody tr")
+        self.assertEqual([r.get_attribute("data-id") for r in rows], [free, held])
+        self.assertEqual([j["jobId"] for j in expected["jobs"]], [free, held])
+        best = table.find_element(By.CSS_SELECTOR, "td.aic.best")
+        self.assertIn(free, best.find_element(By.XPATH, "..").get_attribute("data-id"))
+        test = self.find(f'#ratio-tests li[data-smaller="{held}"][data-larger="{free}"]')
+        self.assertIn("the larger model fits significantly better", test.text)
+        self.assertTrue(expected["tests"][0]["significant"])
+        self.shot("compare")
 
     def test_6b_write_a_model(self):
         self.sign_in()

@@ -54,10 +54,9 @@ int identify(Client& c, const RunSettings& s, bool wait);
 // (log-likelihood, AIC, AICc, BIC, fit per output; the lowest marked), and a
 // likelihood-ratio test for each pair where one model is nested in the other
 // (the same model, records and method; a parameter free in one and fixed in
-// the other). Jobs of other kinds, or fits of different outputs: exit 2.
+// the other), as riccatid's CompareJobs answers. Jobs of other kinds, or fits
+// of different outputs: riccatid refuses them (INVALID_ARGUMENT, exit 1).
 int compare(Client& c, const std::vector<std::string>& ids);
-// P(chi^2 with `dof` degrees of freedom > x): the p-value of compare's test.
-double chi_square_survival(double x, unsigned dof);
 // `riccati settings`: every request's settings from the proto's schema, as
 // `format` says: table, json (GET /api/v1/schema's) or markdown (docs/settings.md).
 int settings_reference(const std::string& format);

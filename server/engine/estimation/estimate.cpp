@@ -2,8 +2,10 @@
 
 #include "engine/estimation/uncertainty.hpp"
 
+#include <algorithm>
 #include <cmath>
 #include <limits>
+#include <numbers>
 
 namespace riccati {
 namespace {
@@ -151,6 +153,32 @@ void set_information_criteria(double log_likelihood, int estimated_quantities, d
   c.aicc = samples - k - 1.0 > 0.0 ? c.aic + 2.0 * k * (k + 1.0) / (samples - k - 1.0)
                                    : std::numeric_limits<double>::infinity();
   c.bic = k * std::log(samples) - 2.0 * log_likelihood;
+}
+
+double chi_square_survival(double x, unsigned dof) {
+  if (dof == 0) return std::numeric_limits<double>::quiet_NaN();
+  if (!(x > 0.0)) return 1.0;
+  if (std::isinf(x)) return 0.0;
+  // Abramowitz and Stegun 26.4.4 and 26.4.5: for even dof, e^{-x/2} sum_{r <
+  // dof/2} (x/2)^r / r!; for odd, the normal's two tails at sqrt(x) and 2
+  // phi(sqrt x) sum_{r=1}^{(dof-1)/2} x^{r - 1/2} / (1 3 5 ... (2r - 1)).
+  const double half = 0.5 * x;
+  double sum = 0.0, term = 0.0;
+  if (dof % 2 == 0) {
+    term = std::exp(-half);
+    for (unsigned r = 0; r < dof / 2; ++r) {
+      sum += term;
+      term *= half / static_cast<double>(r + 1);
+    }
+    return std::min(1.0, sum);
+  }
+  const double root = std::sqrt(x);
+  term = std::sqrt(2.0 / std::numbers::pi) * std::exp(-half) * root;  // r = 1
+  for (unsigned r = 1; r <= (dof - 1) / 2; ++r) {
+    sum += term;
+    term *= x / static_cast<double>(2 * r + 1);
+  }
+  return std::min(1.0, std::erfc(root / std::sqrt(2.0)) + sum);
 }
 
 void warn_active_bounds(const ParameterSettings& p, EstimationResult* r) {

@@ -144,6 +144,7 @@ struct EstimationResult {
   std::vector<std::string> warnings;  // parameters that are not identifiable, bounds that are active
   double cost = 0.0;                 // the criterion at the estimate
   double sigma2 = 1.0;               // the residual variance the covariance is scaled by (1: noise known)
+  std::string covariance_method;     // which covariance theta_std comes from, in words
   std::vector<double> cost_history;  // the criterion after each iteration
   int iterations = 0;
   int evaluations = 0;               // simulations (OE) or filter runs (ML) of the whole record set
@@ -164,6 +165,10 @@ struct EstimationResult {
 // BIC = k ln n - 2 ln L.
 void set_information_criteria(double log_likelihood, int estimated_quantities, double samples,
                               EstimationResult* result);
+
+// P(chi-square(dof) >= x), in closed form for whole degrees of freedom: the
+// p-value of a likelihood-ratio test. NaN for dof = 0.
+double chi_square_survival(double x, unsigned dof);
 
 // The parameters' part of an uncertainty over the unknowns (uncertainty.hpp):
 // `columns` [ntheta] gives each parameter's index among the unknowns (-1:

@@ -1,9 +1,12 @@
 #include "engine/estimation/identification.hpp"
 
 #include "engine/estimation/estimate.hpp"
+#include "engine/estimation/point_uncertainty.hpp"
 
 #include <algorithm>
+#include <cmath>
 #include <cstdio>
+#include <limits>
 #include <string>
 
 namespace riccati {
@@ -129,6 +132,89 @@ class Pass {
   const IdentificationHooks& hooks_;
 };
 
+// The uncertainty of the estimate the result reports (the mean over the
+// last pass): output error's at that estimate, over the samples filtered,
+// each output weighted by the filter's 1/sqrt(R_ii), the states with a
+// prior variance counted as estimated. After a few passes the estimate has
+// not settled (each pass moves it less, its P having counted the record
+// once more): the interval is the simulation error optimum's, one
+// Gauss-Newton step away, widened to hold the estimate. A model the
+// simulation fails on (unstable without the filter's corrections) gets the
+// filter's P times the passes: each pass has counted the record's
+// information once.
+void set_estimate_uncertainty(const ModelPtr& model, const Dataset& bound, SampleRange range,
+                              const IdentificationSettings& settings, IdentificationResult* result) {
+  const int nx = model->nx(), ntheta = model->ntheta(), ny = model->ny();
+  const Eigen::MatrixXd& P0 = settings.initial.P0;
+  const Eigen::MatrixXd& Q = settings.filter.Q;
+  std::vector<bool> theta_free(static_cast<std::size_t>(ntheta)), x0_free(static_cast<std::size_t>(nx));
+  for (int i = 0; i < ntheta; ++i) {
+    const Eigen::Index z = nx + i;
+    theta_free[static_cast<std::size_t>(i)] = P0(z, z) > 0.0 || (Q.rows() > z && Q(z, z) > 0.0);
+  }
+  Dataset data;
+  data.t = bound.t.segment(range.first, range.size());
+  data.u = bound.u.middleCols(range.first, range.size());
+  data.y = bound.y.middleCols(range.first, range.size());
+  // The states the filter started from; one taken from a (noisy) first
+  // measurement is estimated too, as one with a prior variance is.
+  const Result<Eigen::VectorXd> x0 = initial_state(*model, settings.initial.mode, settings.initial.x0,
+                                                   {data.y.col(0).data(), static_cast<std::size_t>(ny)});
+  for (int i = 0; i < nx; ++i) {
+    const bool measured = settings.initial.mode == InitialState::kFirstMeasurement &&
+                          model->output_index(model->state_names()[static_cast<std::size_t>(i)]) >= 0;
+    x0_free[static_cast<std::size_t>(i)] = P0(i, i) > 0.0 || measured;
+  }
+  const Eigen::ArrayXXd mask =
+      settings.mask.size() != 0 ? Eigen::ArrayXXd(settings.mask.middleCols(range.first, range.size())) : Eigen::ArrayXXd();
+  Eigen::VectorXd weights(ny);
+  // (The optimal filter has no R: its outputs weighted alike.)
+  const Eigen::MatrixXd& R = settings.filter.R;
+  for (int i = 0; i < ny; ++i) weights[i] = R.rows() > i && R(i, i) > 0.0 ? 1.0 / std::sqrt(R(i, i)) : 1.0;
+  const Eigen::VectorXd& estimate = result->theta_mean;
+  const Result<PointUncertainty> at =
+      x0.is_ok() ? uncertainty_at(model, data, mask, x0.value(), x0_free, estimate, theta_free, weights,
+                                  {settings.filter.hold, settings.filter.integrator}, settings.covariance)
+                 : Result<PointUncertainty>(x0.status());
+  if (at.is_ok()) {
+    result->theta_std = at->theta_std;
+    result->theta_covariance = at->covariance;
+    result->theta_step = at->theta_step;
+    result->covariance_method = "output error at the estimate: " + at->method;
+    result->warnings.insert(result->warnings.end(), at->warnings.begin(), at->warnings.end());
+  } else {
+    const auto passes = static_cast<double>(result->passes.size());
+    result->theta_covariance = passes * result->covariance.bottomRightCorner(ntheta, ntheta);
+    result->theta_std = std::sqrt(passes) * result->filter_theta_std;
+    result->theta_step = Eigen::VectorXd::Zero(ntheta);
+    result->covariance_method = "the filter's P times the " + std::to_string(result->passes.size()) +
+                                " passes (output error's covariance needs a simulation at the estimate: " +
+                                at.status().message() + ")";
+    result->warnings.push_back("the intervals are the filter's covariance times the passes, a rough correction: " +
+                               at.status().message());
+  }
+  constexpr double kZ95 = 1.959963984540054;
+  result->ci_lower.resize(ntheta);
+  result->ci_upper.resize(ntheta);
+  std::string unsettled;
+  for (int i = 0; i < ntheta; ++i) {
+    const double optimum = estimate[i] + result->theta_step[i], half = kZ95 * result->theta_std[i];
+    result->ci_lower[i] = std::isfinite(half) ? std::min(estimate[i], optimum - half) : -std::numeric_limits<double>::infinity();
+    result->ci_upper[i] = std::isfinite(half) ? std::max(estimate[i], optimum + half) : std::numeric_limits<double>::infinity();
+    if (std::abs(result->theta_step[i]) > result->theta_std[i] && result->theta_std[i] > 0.0) {
+      unsettled += (unsettled.empty() ? "" : ", ") + result->param_names[static_cast<std::size_t>(i)] + " by " +
+                   message_number(std::abs(result->theta_step[i]) / result->theta_std[i], 2);
+    }
+  }
+  if (!unsettled.empty()) {
+    result->warnings.push_back(
+        "the estimate has not settled after " + std::to_string(result->passes.size()) +
+        " passes: it is more than a standard error from the simulation error's optimum (" + unsettled +
+        " standard errors, one Gauss-Newton step away); the intervals hold both. More passes, or output error "
+        "started from this estimate (--method oe --init-passes), settle it");
+  }
+}
+
 }  // namespace
 
 Status validate(const IdentificationSettings& s, const Model& model) {
@@ -208,8 +294,9 @@ Result<IdentificationResult> identify(ModelPtr model, const Dataset& data, const
   const PassResult& last = result.passes.back();
   result.theta = last.theta_final;
   result.theta_mean = last.theta_mean;
-  result.theta_std = last.theta_std;
+  result.filter_theta_std = last.theta_std;
   result.covariance = runner.filter().covariance();
+  set_estimate_uncertainty(model, bound, range, settings, &result);
   return result;
 }
 

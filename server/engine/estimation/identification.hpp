@@ -18,6 +18,7 @@
 #include "engine/data/dataset.hpp"
 #include "engine/estimation/binding.hpp"
 #include "engine/estimation/online_runner.hpp"
+#include "engine/estimation/uncertainty.hpp"
 #include "engine/filters/filter.hpp"
 #include "engine/models/model.hpp"
 #include "engine/status.hpp"
@@ -39,6 +40,8 @@ struct IdentificationSettings {
   // (a sample with an output left out is a prediction without an update);
   // empty: every sample used.
   Eigen::ArrayXXd mask;
+  // Which covariance the estimate's intervals come from (theta_std).
+  CovarianceChoice covariance = CovarianceChoice::kAuto;
 };
 
 struct PassResult {
@@ -55,13 +58,27 @@ struct IdentificationResult {
   std::vector<PassResult> passes;
   Eigen::VectorXd theta;        // final estimate (end of the last pass)
   Eigen::VectorXd theta_mean;   // mean over the last pass (what the toolbox reports)
-  Eigen::VectorXd theta_std;    // standard deviations at the end
-  Eigen::MatrixXd covariance;   // [nz x nz] at the end
+  // The standard errors of theta_mean, and their covariance [ntheta x
+  // ntheta]: output error's at that estimate (point_uncertainty.hpp), or,
+  // where the model cannot be simulated there, the filter's P times the
+  // passes. covariance_method says which.
+  Eigen::VectorXd theta_std;
+  Eigen::MatrixXd theta_covariance;
+  std::string covariance_method;
+  // [ntheta] one Gauss-Newton step of output error from theta_mean: how far
+  // the passes still are from the simulation error's optimum (0 where the
+  // filter's P is used).
+  Eigen::VectorXd theta_step;
+  // [ntheta] 95 % intervals: the optimum's (theta_mean + theta_step -+ 1.96
+  // theta_std), widened to hold theta_mean where it lies outside.
+  Eigen::VectorXd ci_lower, ci_upper;
+  Eigen::VectorXd filter_theta_std;  // sqrt(diag P) of the parameters at the end (the toolbox's std)
+  Eigen::MatrixXd covariance;   // [nz x nz] the filter's P at the end
   Eigen::VectorXd t;            // [N] sample times filtered
   Eigen::MatrixXd x_trace;      // [nx x N] state estimates of the last pass
   Eigen::MatrixXd y_model;      // [ny x N] model outputs g(x, theta) along the last pass (the toolbox's Ymod)
   Eigen::MatrixXd innovations;  // [ny x N] innovations of the last pass
-  std::vector<std::string> warnings;  // parameters held at a bound in the last pass
+  std::vector<std::string> warnings;  // parameters held at a bound in the last pass; of the uncertainty
 };
 
 struct IdentificationProgress {

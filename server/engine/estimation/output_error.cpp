@@ -11,6 +11,7 @@
 #include <string>
 
 #include "engine/estimation/least_squares.hpp"
+#include "engine/estimation/point_uncertainty.hpp"
 #include "engine/estimation/sensitivity.hpp"
 #include "engine/estimation/uncertainty.hpp"
 
@@ -227,9 +228,10 @@ Result<EstimationResult> output_error(ModelPtr model, const std::vector<Experime
   }
   const Eigen::Index free_count = static_cast<Eigen::Index>(names.size());
   values.resize(free_count);
-  Eigen::MatrixXd information = Eigen::MatrixXd::Zero(free_count, free_count);
+  LeastSquaresCovariance information(free_count);
   double used_residuals = 0.0;
   Eigen::MatrixXd J;
+  Eigen::VectorXd residuals;
   for (std::size_t e = 0; e < experiments.size(); ++e) {
     const Experiment& ex = experiments[e];
     RICCATI_ASSIGN_OR_RETURN(const SimulatedRecord* r, costs[e]->analyse(result.theta, unknowns.x0[e]));
@@ -244,10 +246,12 @@ Result<EstimationResult> output_error(ModelPtr model, const std::vector<Experime
     out.mask = ex.mask.size() != 0 ? ex.mask : Eigen::ArrayXXd::Ones(ny, N);
     used_residuals += out.mask.sum();
     J.setZero(N * ny, free_count);
+    residuals.resize(N * ny);
     for (Eigen::Index k = 0; k < N; ++k) {
       for (Eigen::Index i = 0; i < ny; ++i) {
         const Eigen::Index row = k * ny + i;
         const double w = weights[i] * out.mask(i, k);
+        residuals[row] = w * (r->y(i, k) - ex.data.y(i, k));
         for (int j = 0; j < ntheta; ++j) {
           const Eigen::Index c = theta_columns[static_cast<std::size_t>(j)];
           if (c >= 0) J(row, c) = w * r->dy_dtheta(row, j);
@@ -258,7 +262,7 @@ Result<EstimationResult> output_error(ModelPtr model, const std::vector<Experime
         }
       }
     }
-    information.noalias() += J.transpose() * J;
+    information.add(J, residuals, ny);
     for (int j = 0; j < nx; ++j) {
       const Eigen::Index c = x0_columns[e][static_cast<std::size_t>(j)];
       if (c >= 0) values[c] = out.x0[j];
@@ -288,23 +292,39 @@ Result<EstimationResult> output_error(ModelPtr model, const std::vector<Experime
   }
   const double dof = used_residuals - static_cast<double>(free_count);
   result.sigma2 = noise_known ? 1.0 : (dof > 0.0 ? 2.0 * result.cost / dof : std::numeric_limits<double>::infinity());
-  const Uncertainty u = uncertainty_from_information(information, result.sigma2, names, values);
-  set_parameter_uncertainty(p, u, theta_columns, &result);
-  warn_active_bounds(p, &result);
   // An exact fit (noise-free data, cost 0) has no residual scale: its
   // residuals are 0 either way.
   const double sigma_scale = result.sigma2 > 0.0 && std::isfinite(result.sigma2) ? std::sqrt(result.sigma2) : 1.0;
+  std::vector<bool> coloured(static_cast<std::size_t>(ny), false);  // an output whose residuals failed the whiteness test
+  double signal = 0.0;
+  for (std::size_t e = 0; e < experiments.size(); ++e) {
+    const ExperimentResult& out = result.experiments[e];
+    signal += ((out.y_measured.array().colwise() * weights.array()).square() * out.mask).sum();
+  }
+  const bool exact = rounding_residuals(2.0 * result.cost, signal);
+  for (std::size_t e = 0; e < experiments.size(); ++e) {
+    ExperimentResult& out = result.experiments[e];
+    // (y - y_model) / sigma: the given sigma, or sqrt(s2) when unknown.
+    out.residuals = ((out.y_measured - out.y_model).array().colwise() * weights.array()).matrix() / sigma_scale;
+    out.residuals = (out.residuals.array() * out.mask).matrix();
+    RICCATI_ASSIGN_OR_RETURN(out.fits, fits_over_mask(out.y_measured, out.y_model, out.mask, model->output_names()));
+    RICCATI_ASSIGN_OR_RETURN(out.diagnostics, diagnose(out, experiments[e].data.u));
+    if (exact) continue;
+    for (const Eigen::Index i : out.diagnostics.non_white_outputs()) coloured[static_cast<std::size_t>(i)] = true;
+  }
+  const bool white = std::none_of(coloured.begin(), coloured.end(), [](bool c) { return c; });
+  const Uncertainty u = information.uncertainty(settings.covariance, white, result.sigma2,
+                                                dof > 0.0 ? used_residuals / dof : 1.0, names, values,
+                                                &result.covariance_method);
+  set_parameter_uncertainty(p, u, theta_columns, &result);
+  if (!white) result.warnings.push_back(coloured_residuals_warning(*model, coloured, settings.covariance));
+  warn_active_bounds(p, &result);
   for (std::size_t e = 0; e < experiments.size(); ++e) {
     ExperimentResult& out = result.experiments[e];
     for (int j = 0; j < nx; ++j) {
       const Eigen::Index c = x0_columns[e][static_cast<std::size_t>(j)];
       if (c >= 0) out.x0_std[j] = u.std[c];
     }
-    // (y - y_model) / sigma: the given sigma, or sqrt(s2) when unknown.
-    out.residuals = ((out.y_measured - out.y_model).array().colwise() * weights.array()).matrix() / sigma_scale;
-    out.residuals = (out.residuals.array() * out.mask).matrix();
-    RICCATI_ASSIGN_OR_RETURN(out.fits, fits_over_mask(out.y_measured, out.y_model, out.mask, model->output_names()));
-    RICCATI_ASSIGN_OR_RETURN(out.diagnostics, diagnose(out, experiments[e].data.u));
   }
   return result;
 }

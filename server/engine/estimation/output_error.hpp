@@ -18,6 +18,7 @@
 #pragma once
 
 #include "engine/estimation/estimate.hpp"
+#include "engine/estimation/uncertainty.hpp"
 #include "engine/estimation/validation.hpp"
 
 namespace riccati {
@@ -30,6 +31,7 @@ struct OutputErrorSettings {
   // every output weighted 1 and the covariance scaled by the residual variance.
   Eigen::VectorXd output_sigma;
   OptimizerSettings optimizer;
+  CovarianceChoice covariance = CovarianceChoice::kAuto;
 };
 
 // The experiments' data must be bound to the model (bind_dataset). Residuals

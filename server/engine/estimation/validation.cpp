@@ -73,4 +73,70 @@ Result<ValidationResult> validate_model(const Model& model, const Dataset& data,
   return result;
 }
 
+Result<ValidationResult> predict_model(ModelPtr model, const Dataset& data, const ValidationSettings& settings,
+                                       const PredictionSettings& prediction) {
+  if (model == nullptr) return invalid_argument("no model given");
+  const int K = prediction.horizon;
+  if (K < 1) return invalid_argument("the prediction horizon must be at least 1 sample, got " + std::to_string(K));
+  // The simulation: what the first K samples are predicted as.
+  RICCATI_ASSIGN_OR_RETURN(ValidationResult result, validate_model(*model, data, settings));
+  result.horizon = K;
+  RICCATI_ASSIGN_OR_RETURN(const Dataset bound, bind_dataset(*model, data));
+  const int nx = model->nx(), nz = model->nz(), ny = model->ny();
+  const Eigen::Index N = bound.size();
+  if (K >= N) return result;
+
+  // The filter over the states: the parameters without variance or process noise.
+  FilterSettings filter = prediction.filter;
+  filter.hold = settings.simulation.hold;
+  filter.integrator = settings.simulation.integrator;
+  filter.Q = Eigen::MatrixXd::Zero(nz, nz);
+  const Eigen::MatrixXd& Q = prediction.filter.Q;
+  if (Q.rows() == nx && Q.cols() == nx) {
+    filter.Q.topLeftCorner(nx, nx) = Q;
+  } else if (Q.rows() == nz && Q.cols() == nz) {
+    filter.Q.topLeftCorner(nx, nx) = Q.topLeftCorner(nx, nx);
+  } else if (Q.size() != 0) {
+    return invalid_argument("the predictor's Q must be " + std::to_string(nx) + " x " + std::to_string(nx) +
+                            " (the states') or " + std::to_string(nz) + " x " + std::to_string(nz));
+  }
+  InitialEstimate initial;
+  initial.mode = InitialState::kGiven;
+  initial.x0 = result.x0;
+  initial.theta0 = settings.theta;
+  initial.P0 = Eigen::MatrixXd::Zero(nz, nz);
+  if (prediction.P0x.size() != 0) {
+    if (prediction.P0x.rows() != nx || prediction.P0x.cols() != nx) {
+      return invalid_argument("the predictor's P0 must be " + std::to_string(nx) + " x " + std::to_string(nx));
+    }
+    initial.P0.topLeftCorner(nx, nx) = prediction.P0x;
+  }
+  RICCATI_ASSIGN_OR_RETURN(OnlineRunner runner, OnlineRunner::create(model, filter, initial));
+  // Its estimate after each of the samples that start a prediction.
+  Eigen::MatrixXd corrected(nx, N - K);
+  for (Eigen::Index k = 0; k < N - K; ++k) {
+    RICCATI_RETURN_IF_ERROR(runner
+                                .advance(bound.t[k], {bound.u.col(k).data(), static_cast<std::size_t>(model->nu())},
+                                         {bound.y.col(k).data(), static_cast<std::size_t>(ny)})
+                                .with_context("the predictor's filter, sample " + std::to_string(k + 1)));
+    corrected.col(k) = runner.filter().state().head(nx);
+  }
+  // From each, K samples on.
+  RICCATI_ASSIGN_OR_RETURN(std::unique_ptr<Integrator> integrator, make_integrator(settings.simulation.integrator));
+  SimulationRhs rhs(*model, settings.theta, settings.simulation.hold);
+  Eigen::VectorXd x(nx);
+  for (Eigen::Index k = K; k < N; ++k) {
+    x = corrected.col(k - K);
+    for (Eigen::Index j = k - K + 1; j <= k; ++j) {
+      rhs.set_interval(bound.t[j - 1], bound.t[j], bound.u.col(j - 1).data(), bound.u.col(j).data());
+      RICCATI_RETURN_IF_ERROR(integrator->integrate(rhs, bound.t[j - 1], bound.t[j], std::span<double>(x.data(), std::size_t(nx)))
+                                  .with_context("prediction of sample " + std::to_string(k + 1)));
+    }
+    RICCATI_RETURN_IF_ERROR(model->g(bound.t[k], bound.u.col(k).data(), 1, 1, x.data(), settings.theta.data(),
+                                     result.y_simulated.col(k).data()));
+  }
+  RICCATI_ASSIGN_OR_RETURN(result.fits, compare_outputs(bound.y, result.y_simulated, bound.output_names));
+  return result;
+}
+
 }  // namespace riccati

@@ -17,6 +17,7 @@
 #include "service/convert.hpp"
 #include "service/http/hardened_server.hpp"
 #include "service/http/web_assets.hpp"
+#include "service/jobs/job_compare.hpp"
 #include "service/jobs/job_convert.hpp"
 #include "service/metrics.hpp"
 #include "service/rpc/dataset_service.hpp"
@@ -272,6 +273,12 @@ class HttpApi::Routes {
     server.Post("/api/v1/jobs/smoothing", with_body<v1::SmoothingSpec>(
         [this](const std::string& tenant, const v1::SmoothingSpec& spec, Response& res) {
           reply_job(res, api_.jobs_.submit_smoothing(tenant, spec));
+        }));
+    server.Post("/api/v1/jobs/compare", with_body<v1::CompareJobsRequest>(
+        [this](const std::string& tenant, const v1::CompareJobsRequest& request, Response& res) {
+          const auto compared = compare_jobs(api_.jobs_, tenant, request);
+          if (!compared.is_ok()) return fail(res, compared.status());
+          reply(res, compared.value());
         }));
     server.Get(R"(/api/v1/jobs/([^/]+))", authed([this](const std::string& tenant, const Request& req, Response& res) {
       reply_job(res, api_.jobs_.get(tenant, req.matches[1].str()));

@@ -122,7 +122,8 @@ Status output_error_from_proto(const v1::EstimationSettings& est, const Optimize
     }
   }
   job->output_error.optimizer = optimizer;
-  return Status::ok();
+  return enum_from_proto(est.covariance(), *v1::ParameterCovariance_descriptor(), &parse_covariance_choice,
+                         "estimation.covariance", &job->output_error.covariance);
 }
 
 // Maximum likelihood: the filter is the predictor.
@@ -229,7 +230,11 @@ Result<IdentificationJob> identification_from_proto(const v1::IdentificationSpec
     RICCATI_RETURN_IF_ERROR(refuse(spec.experiments_size() > 0, "more than one experiment", job.method));
     RICCATI_RETURN_IF_ERROR(refuse(any_x0_estimated, "initial_state.estimate (the filter estimates the states with their P0)",
                                    job.method));
-    RICCATI_RETURN_IF_ERROR(refuse(spec.has_estimation(), "estimation", job.method));
+    // (Of the estimation settings only the covariance applies; the schema's
+    // check refused the others.)
+    RICCATI_RETURN_IF_ERROR(enum_from_proto(spec.estimation().covariance(), *v1::ParameterCovariance_descriptor(),
+                                            &parse_covariance_choice, "estimation.covariance",
+                                            &job.filter.covariance));
     // The 1999 toolbox's filter as it is, unless bounds are asked for: then
     // the estimate is held within them (the model's, narrowed by the spec's).
     if (spec.bounds_size() > 0) {

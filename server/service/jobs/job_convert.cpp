@@ -96,6 +96,7 @@ v1::EstimationResult to_proto(const EstimationResult& r, IdentificationMethod me
   for (const auto& w : r.warnings) out.add_warnings(w);
   out.set_cost(r.cost);
   out.set_sigma2(r.sigma2);
+  out.set_covariance_method(r.covariance_method);
   for (double c : r.cost_history) out.add_cost_history(c);
   out.set_iterations(static_cast<uint32_t>(r.iterations));
   out.set_evaluations(static_cast<uint32_t>(r.evaluations));
@@ -166,6 +167,12 @@ v1::IdentificationResult to_proto(const IdentificationResult& r) {
   *out.mutable_y_model() = to_matrix(r.y_model);
   *out.mutable_innovations() = to_matrix(r.innovations);
   for (const auto& w : r.warnings) out.add_warnings(w);
+  copy_values(r.filter_theta_std, out.mutable_filter_theta_std());
+  copy_values(r.ci_lower, out.mutable_ci_lower());
+  copy_values(r.ci_upper, out.mutable_ci_upper());
+  *out.mutable_theta_covariance() = to_matrix(r.theta_covariance);
+  out.set_covariance_method(r.covariance_method);
+  copy_values(r.theta_step, out.mutable_theta_step());
   return out;
 }
 
@@ -194,6 +201,19 @@ Result<IdentificationResult> from_proto(const v1::IdentificationResult& r) {
   RICCATI_ASSIGN_OR_RETURN(out.x_trace, from_matrix(r.x_trace(), "x_trace"));
   RICCATI_ASSIGN_OR_RETURN(out.y_model, from_matrix(r.y_model(), "y_model"));
   RICCATI_ASSIGN_OR_RETURN(out.innovations, from_matrix(r.innovations(), "innovations"));
+  out.warnings.assign(r.warnings().begin(), r.warnings().end());
+  // The uncertainty's fields, absent from results stored before them.
+  const auto optional_values = [&](const auto& values, Eigen::VectorXd* to, const char* field) -> Status {
+    if (values.empty()) return Status::ok();
+    RICCATI_ASSIGN_OR_RETURN(*to, from_values(values, n, field));
+    return Status::ok();
+  };
+  RICCATI_RETURN_IF_ERROR(optional_values(r.filter_theta_std(), &out.filter_theta_std, "filter_theta_std"));
+  RICCATI_RETURN_IF_ERROR(optional_values(r.ci_lower(), &out.ci_lower, "ci_lower"));
+  RICCATI_RETURN_IF_ERROR(optional_values(r.ci_upper(), &out.ci_upper, "ci_upper"));
+  RICCATI_RETURN_IF_ERROR(optional_values(r.theta_step(), &out.theta_step, "theta_step"));
+  RICCATI_ASSIGN_OR_RETURN(out.theta_covariance, from_matrix(r.theta_covariance(), "theta_covariance"));
+  out.covariance_method = r.covariance_method();
   return out;
 }
 
@@ -205,6 +225,7 @@ v1::ValidationResult to_proto(const ValidationResult& r, const Eigen::VectorXd& 
   *out.mutable_y_measured() = to_matrix(r.y_measured);
   *out.mutable_y_simulated() = to_matrix(r.y_simulated);
   for (const OutputFit& f : r.fits) *out.add_fits() = to_proto(f);
+  out.set_horizon(static_cast<uint32_t>(r.horizon));
   return out;
 }
 

@@ -12,6 +12,7 @@
 #include "engine/estimation/identification.hpp"
 #include "engine/estimation/smoother.hpp"
 #include "engine/estimation/validation.hpp"
+#include "engine/filters/filter_kinds.hpp"
 #include "engine/models/jacobian_check.hpp"
 #include "riccati/enum_names.hpp"
 #include "service/convert.hpp"
@@ -312,6 +313,50 @@ Result<Eigen::VectorXd> validation_parameters(const JobRecord& job, const JobExe
   return from_values(source.identification().theta_mean(), model.ntheta(), "theta");
 }
 
+// A k-step prediction's filter: the identification job's own (its kind, Q,
+// R and the states' P0, as it ran), with ML's estimated noise where it
+// estimated them.
+Result<PredictionSettings> prediction_settings(const JobRecord& job, const JobExecution& run,
+                                               const v1::ValidationSpec& spec, const ModelPtr& model,
+                                               std::string* predictor) {
+  const std::string& source_id = spec.identification_job_id();
+  RICCATI_ASSIGN_OR_RETURN(const JobRecord source, run.store.get_job(job.tenant, source_id));
+  v1::IdentificationSpec source_spec;
+  if (!source_spec.ParseFromString(source.spec)) return internal_error("job " + source_id + ": stored spec is unreadable");
+  RICCATI_ASSIGN_OR_RETURN(const IdentificationJob identification, identification_from_proto(source_spec, *model));
+  const int nx = model->nx();
+  PredictionSettings p;
+  p.horizon = static_cast<int>(std::min<uint32_t>(spec.horizon(), 1u << 30));
+  p.filter = identification.method == IdentificationMethod::kMaxLikelihood ? identification.max_likelihood.filter
+                                                                           : identification.filter.filter;
+  if (p.filter.kind != FilterKind::kEkf && p.filter.kind != FilterKind::kUkf) p.filter.kind = FilterKind::kEkf;
+  p.P0x = identification.filter.initial.P0.topLeftCorner(nx, nx);
+  const char* q_from = "as the job ran";
+  const char* r_from = "as the job ran";
+  if (identification.method == IdentificationMethod::kMaxLikelihood) {
+    RICCATI_ASSIGN_OR_RETURN(const std::string encoded, run.store.get_result(job.tenant, source_id));
+    v1::JobResult estimated;
+    if (estimated.ParseFromString(encoded) && estimated.has_estimation()) {
+      const v1::EstimationResult& e = estimated.estimation();
+      if (e.process_noise_size() == nx) {
+        Eigen::MatrixXd Q = p.filter.Q.rows() >= nx ? Eigen::MatrixXd(p.filter.Q.topLeftCorner(nx, nx))
+                                                    : Eigen::MatrixXd::Zero(nx, nx);
+        for (int i = 0; i < nx; ++i) Q(i, i) = e.process_noise(i);
+        p.filter.Q = Q;
+        q_from = "estimated";
+      }
+      if (e.measurement_noise_size() == model->ny()) {
+        for (int i = 0; i < model->ny(); ++i) p.filter.R(i, i) = e.measurement_noise(i);
+        r_from = "estimated";
+      }
+    }
+  }
+  *predictor = std::string(filter_kind_name(p.filter.kind)) + " of job " + source_id + " (Q " + q_from + ", R " +
+               r_from + ", the states' P0), " + std::to_string(p.horizon) + (p.horizon == 1 ? " sample" : " samples") +
+               " ahead";
+  return p;
+}
+
 Result<std::string> execute_validation(const JobRecord& job, const JobExecution& run) {
   v1::ValidationSpec spec;
   if (!spec.ParseFromString(job.spec)) return internal_error("job " + job.id + ": stored spec is unreadable");
@@ -330,13 +375,20 @@ Result<std::string> execute_validation(const JobRecord& job, const JobExecution&
     settings.x0 = fitted.x0;
     x0_from = fitted.description;
   }
-  RICCATI_ASSIGN_OR_RETURN(const ValidationResult r, validate_model(*model, data, settings));
+  std::string predictor;
+  Result<ValidationResult> r = spec.horizon() == 0 ? validate_model(*model, data, settings) : [&]() -> Result<ValidationResult> {
+    RICCATI_ASSIGN_OR_RETURN(const PredictionSettings prediction,
+                             prediction_settings(job, run, spec, model, &predictor));
+    return predict_model(model, data, settings, prediction);
+  }();
+  if (!r.is_ok()) return r.status();
   v1::JobResult result;
   result.set_job_id(job.id);
   v1::ValidationResult* out = result.mutable_validation();
-  *out = to_proto(r, settings.theta);
+  *out = to_proto(r.value(), settings.theta);
   out->set_parameters_from(parameters_from);
   out->set_x0_from(x0_from);
+  out->set_predictor(predictor);
   return result.SerializeAsString();
 }
 

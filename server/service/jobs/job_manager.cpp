@@ -189,6 +189,11 @@ Result<JobRecord> JobManager::submit_validation(const std::string& tenant, const
   const ModelPtr& model = resolved.model;
   RICCATI_ASSIGN_OR_RETURN(const ValidationSettings settings, from_proto(spec));
   RICCATI_ASSIGN_OR_RETURN(const DatasetRecord dataset, store_.get_dataset(tenant, spec.dataset_id()));
+  if (spec.horizon() > 0 && !spec.has_identification_job_id()) {
+    return invalid_argument("horizon " + std::to_string(spec.horizon()) +
+                            " needs an identification job's estimate (identification_job_id, --params JOB): a prediction corrects the "
+                            "states with that job's filter and noise model (its Q, R and P0)");
+  }
   if (spec.has_theta()) {
     RICCATI_RETURN_IF_ERROR(from_values(spec.theta().values(), model->ntheta(), "theta").status());
   } else if (spec.has_identification_job_id()) {

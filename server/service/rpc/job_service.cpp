@@ -9,6 +9,7 @@
 #include <vector>
 
 #include "service/convert.hpp"
+#include "service/jobs/job_compare.hpp"
 #include "service/jobs/job_convert.hpp"
 
 namespace riccati::service {
@@ -306,6 +307,14 @@ grpc::Status JobServiceImpl::GetResult(grpc::ServerContext* context, const v1::G
   if (!read.is_ok()) return to_grpc(read.status());
   // Swapped, not copied: the message is the result's largest copy.
   response->Swap(&read.value().result);
+  return grpc::Status::OK;
+}
+
+grpc::Status JobServiceImpl::CompareJobs(grpc::ServerContext* context, const v1::CompareJobsRequest* request,
+                                         v1::CompareJobsResponse* response) {
+  Result<v1::CompareJobsResponse> compared = compare_jobs(jobs_, auth_.tenant(*context), *request);
+  if (!compared.is_ok()) return to_grpc(compared.status());
+  response->Swap(&compared.value());
   return grpc::Status::OK;
 }
 

@@ -35,6 +35,7 @@ class JobServiceImpl final : public v1::JobService::WithCallbackMethod_WatchJob<
   grpc::Status CancelJob(grpc::ServerContext*, const v1::CancelJobRequest*, v1::Job*) override;
   grpc::Status GetResult(grpc::ServerContext*, const v1::GetResultRequest*, v1::JobResult*) override;
   grpc::Status DeleteJob(grpc::ServerContext*, const v1::DeleteJobRequest*, v1::DeleteJobResponse*) override;
+  grpc::Status CompareJobs(grpc::ServerContext*, const v1::CompareJobsRequest*, v1::CompareJobsResponse*) override;
 
   // Ends every open watch with UNAVAILABLE and refuses new ones; returns
   // once all have ended or `deadline` has passed.

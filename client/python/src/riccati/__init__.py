@@ -16,13 +16,13 @@ from .client import Client, Dataset
 from .errors import (AlreadyExists, Cancelled, DeadlineExceeded, FailedPrecondition, InvalidArgument, JobFailed,
                      NotFound, PermissionDenied, ResourceExhausted, RiccatiError, Unauthenticated, Unavailable)
 from .jobs import Job, Progress
-from .results import (Diagnostics, EstimationResult, ExperimentFit, IdentificationResult, SmoothingResult,
-                      ValidationResult)
+from .results import (Comparison, Diagnostics, EstimationResult, ExperimentFit, IdentificationResult,
+                      SmoothingResult, ValidationResult)
 from .sessions import Estimate, MeasurementRefused, Session
 
 __all__ = [
     "Client", "Dataset", "TLS", "ConfigError", "Job", "Progress", "Session", "Estimate", "MeasurementRefused",
-    "IdentificationResult", "EstimationResult", "ExperimentFit", "Diagnostics", "ValidationResult", "SmoothingResult",
+    "IdentificationResult", "EstimationResult", "ExperimentFit", "Diagnostics", "ValidationResult", "SmoothingResult", "Comparison",
     "RiccatiError", "InvalidArgument", "NotFound", "AlreadyExists", "FailedPrecondition", "ResourceExhausted",
     "Unauthenticated", "PermissionDenied", "Unavailable", "DeadlineExceeded", "Cancelled", "JobFailed",
 ]

@@ -314,6 +314,14 @@ def _fixed(value, keyword, repeated):
             item.value = float(at)
 
 
+def _at_least_minimum(s, value):
+    """A value below the setting's declared minimum (horizon=0, passes=0) is refused, as
+    the CLI and the workbench refuse it, rather than sent as the field's "unset" 0."""
+    if s.option.HasField("minimum") and value < s.option.minimum:
+        raise ValueError(f"{s.keyword}: {value:g} is below the least value, {s.option.minimum:g}")
+    return value
+
+
 def set_setting(request, s, value):
     """Writes `value` (as the keyword takes it) into the request at the setting's path."""
     holder = request
@@ -321,9 +329,9 @@ def set_setting(request, s, value):
         holder = getattr(holder, f.name)
     name, keyword = s.field.name, s.keyword
     if s.kind == "number":
-        setattr(holder, name, float(value))
+        setattr(holder, name, _at_least_minimum(s, float(value)))
     elif s.kind == "count":
-        setattr(holder, name, _uint(value, keyword))
+        setattr(holder, name, _at_least_minimum(s, _uint(value, keyword)))
     elif s.kind == "switch":
         if not isinstance(value, bool):
             raise TypeError(f"{keyword}: expected True or False, not {value!r}")

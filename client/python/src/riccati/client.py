@@ -261,6 +261,16 @@ class Client:
                              jobs_pb2.GetResultRequest(job_id=job_id))
         return results.from_proto(message, self.model(model))
 
+    def compare(self, *jobs):
+        """Output-error and likelihood fits side by side, as `riccati compare` (riccatid
+        compares: CompareJobs). jobs: Jobs, results or job ids. A Comparison: .table by job
+        (model, method, k, n, log_likelihood, aic, aicc, bic, lowest_aic, lowest_bic and
+        fit_percent.<output>), .tests the likelihood-ratio test of each nested pair
+        (smaller, larger, statistic, dof, p, significant)."""
+        ids = [j.id if isinstance(j, Job) else j.job_id if isinstance(j, results._Result) else j for j in jobs]
+        message = self._call("comparing the jobs", self._jobs.CompareJobs, jobs_pb2.CompareJobsRequest(job_ids=ids))
+        return results.Comparison(message)
+
     def submit_identification(self, model, ds, inputs=None, outputs=None, request_id=None, **settings):
         """Submits an identification; returns its Job (watch(), cancel(), result()).
 

@@ -100,10 +100,14 @@ class IdentificationResult(_Result):
 
     - theta: the mean over the last pass (what the toolbox reports), a Series by parameter
     - theta_final: the estimate at the end of the last pass
-    - std: sqrt(diag P) of the parameters at the end
-    - ci: theta -/+ 1.96 std (columns lower, upper), the normal 95 % interval
+    - std: the standard errors of theta: output error's at that estimate, not the
+      filter's P (which counts the record once per pass); covariance_method says which
+    - ci: the 95 % intervals (columns lower, upper): the simulation error optimum's,
+      one Gauss-Newton step (theta_step) from theta, widened to hold theta
+    - filter_std: sqrt(diag P) of the parameters at the end (the toolbox's std)
     - summary(): those in one table, as `riccati result` prints it
-    - covariance, correlation: of the parameters at the end (DataFrames)
+    - covariance, correlation: of the parameters (DataFrames), std's; filter_covariance:
+      the parameters' block of the filter's P at the end
     - traces: the estimate after every sample of every pass, a DataFrame
       indexed by (pass, t), a column per parameter (the toolbox's Trace)
     - passes: per pass, its final and mean estimate (final.A1, mean.A1), NIS
@@ -120,11 +124,21 @@ class IdentificationResult(_Result):
         self.theta = _series(r.theta_mean, names, "theta")
         self.theta_final = _series(r.theta, names, "theta_final")
         self.std = _series(r.theta_std, names, "std")
-        self.ci = pd.DataFrame({"lower": self.theta - Z95 * self.std, "upper": self.theta + Z95 * self.std})
-        p = matrix(r.covariance)
+        self.covariance_method = r.covariance_method
         n = len(names)
-        block = p[-n:, -n:] if p.shape[0] >= n and n > 0 else np.zeros((n, n))
         index = pd.Index(names, name="parameter")
+        if len(r.ci_lower) == n and len(r.ci_upper) == n:
+            self.ci = pd.DataFrame({"lower": list(r.ci_lower), "upper": list(r.ci_upper)}, index=index)
+        else:  # stored before the intervals: std was sqrt(diag P)
+            self.ci = pd.DataFrame({"lower": self.theta - Z95 * self.std, "upper": self.theta + Z95 * self.std})
+        self.filter_std = _series(r.filter_theta_std, names, "filter_std") if len(r.filter_theta_std) == n else self.std
+        self.theta_step = _series(r.theta_step, names, "theta_step") if len(r.theta_step) == n else None
+        p = matrix(r.covariance)
+        filter_block = p[-n:, -n:] if p.shape[0] >= n and n > 0 else np.zeros((n, n))
+        self.filter_covariance = pd.DataFrame(filter_block, index=index, columns=names)
+        block = matrix(r.theta_covariance)
+        if block.shape != (n, n):
+            block = filter_block
         self.covariance = pd.DataFrame(block, index=index, columns=names)
         self.correlation = pd.DataFrame(_correlation(block), index=index, columns=names)
         self.warnings = list(r.warnings)
@@ -146,12 +160,14 @@ class IdentificationResult(_Result):
 
     def summary(self):
         """The parameter table, as `riccati result` prints it: the estimate (the
-        mean over the last pass), its std, the normal 95 % interval, the std
-        relative to the estimate (%) and the estimate at the end of the last pass."""
+        mean over the last pass), its standard error, the 95 % interval, the std
+        relative to the estimate (%), the filter's own std (sqrt(diag P)) and the
+        estimate at the end of the last pass."""
         with np.errstate(divide="ignore", invalid="ignore"):
             relative = 100.0 * self.std / self.theta.abs()
         return pd.DataFrame({"estimate": self.theta, "std": self.std, "lower": self.ci["lower"],
-                             "upper": self.ci["upper"], "rel_std_percent": relative, "final": self.theta_final})
+                             "upper": self.ci["upper"], "rel_std_percent": relative, "filter_std": self.filter_std,
+                             "final": self.theta_final})
 
     def plot_traces(self, path=None):
         """The parameters' traces (the toolbox's Trace), a subplot per parameter, the
@@ -299,6 +315,8 @@ class EstimationResult(_Result):
 
     - theta, std: Series by parameter (std 0 for a fixed one, inf for one the data do not determine)
     - ci: the 95 % intervals (columns lower, upper); fixed: a boolean Series
+    - covariance_method: which covariance std comes from (white residuals, or robust
+      to autocorrelated ones), in words
     - covariance, correlation: DataFrames by parameter
     - traces: the criterion after each iteration (a DataFrame indexed by iteration)
     - experiments: an ExperimentFit per record; fits: their fits, by (experiment, output)
@@ -316,6 +334,7 @@ class EstimationResult(_Result):
         self.param_names = names
         self.theta = _series(r.theta, names, "theta")
         self.std = _series(r.theta_std, names, "std")
+        self.covariance_method = r.covariance_method
         index = pd.Index(names, name="parameter")
         self.ci = pd.DataFrame({"lower": list(r.ci_lower), "upper": list(r.ci_upper)}, index=index)
         self.fixed = pd.Series(list(r.fixed), index=index, name="fixed", dtype=bool)
@@ -405,8 +424,10 @@ class ValidationResult(_Result):
 
     - theta: the parameters simulated with; x0: the initial states
     - fits: a DataFrame by output: rmse, fit_percent (MATLAB's compare), vaf_percent, rrse
-    - to_frame(): by sample, per output o: y.o measured, y_model.o simulated and
-      residual.o = y - y_model (the output's unit)
+    - horizon: 0 for the simulation; K for K-step-ahead predictions (validate(...,
+      horizon=K)), by predictor (the job's filter and noise model, in words)
+    - to_frame(): by sample, per output o: y.o measured, y_model.o simulated (or
+      predicted) and residual.o = y - y_model (the output's unit)
     """
 
     def __init__(self, job_id, message, model):
@@ -418,6 +439,8 @@ class ValidationResult(_Result):
         self.fits = _fits(r.fits)
         self.parameters_from = r.parameters_from
         self.x0_from = r.x0_from
+        self.horizon = r.horizon
+        self.predictor = r.predictor
 
     def plot(self, path=None):
         """Measured and simulated outputs over time, a subplot per output with its fit %.
@@ -513,3 +536,36 @@ def from_proto(job_result, model):
     if wrap is None:
         raise ValueError(f"job {job_result.job_id}: a result this client does not know ({kind})")
     return wrap(job_result.job_id, getattr(job_result, kind), model)
+
+
+class Comparison:
+    """Fits side by side, as riccatid compared them (Client.compare).
+
+    - table: a DataFrame by job: model, method, k, n, log_likelihood, aic, aicc, bic,
+      lowest_aic, lowest_bic (the best of these fits by that criterion; lower is
+      better among fits to the same data) and fit_percent.<output> (the first
+      record's: oe's simulated, ml's one step ahead)
+    - tests: a DataFrame, a row per nested pair (the smaller model the larger with
+      some parameters held): smaller, larger, statistic = 2 (ln L_larger -
+      ln L_smaller), dof, p, significant (p < 0.05: the larger fits significantly better)
+    """
+
+    def __init__(self, message):
+        self.proto = message
+        rows = []
+        for j in message.jobs:
+            row = {"job": j.job_id, "model": j.model, "method": enum_name(jobs_pb2.IdentificationMethod.DESCRIPTOR,
+                                                                          j.method),
+                   "k": j.estimated_quantities, "n": j.samples, "log_likelihood": j.log_likelihood, "aic": j.aic,
+                   "aicc": j.aicc, "bic": j.bic, "lowest_aic": j.lowest_aic, "lowest_bic": j.lowest_bic}
+            for f in j.fits:
+                row[column("fit_percent", f.name)] = f.fit_percent
+            rows.append(row)
+        self.table = pd.DataFrame(rows).set_index("job") if rows else pd.DataFrame()
+        self.tests = pd.DataFrame([{"smaller": t.smaller, "larger": t.larger, "statistic": t.statistic, "dof": t.dof,
+                                    "p": t.p, "significant": t.significant} for t in message.tests],
+                                  columns=["smaller", "larger", "statistic", "dof", "p", "significant"])
+
+    def __repr__(self):
+        return f"<Comparison of {len(self.table)} jobs, {len(self.tests)} likelihood-ratio tests>"
+

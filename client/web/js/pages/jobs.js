@@ -1,6 +1,8 @@
-// Jobs: the list (state, times, model, dataset; cancel; open), and a job's
-// page (#/jobs/<id>): live progress and parameter estimates by server-sent
-// events, then its result (results.js).
+// Jobs: the list (state, times, model, dataset; cancel; open; a box to pick
+// output-error and likelihood fits to compare), a job's page (#/jobs/<id>):
+// live progress and parameter estimates by server-sent events, then its
+// result (results.js), and the comparison of fits (#/jobs?compare=a,b):
+// riccatid's CompareJobs answer.
 import {api, events} from '../api.js';
 import {clear, enumName, enumOrDefault, errorBox, fmt, h, num, when} from '../dom.js';
 import {plot, setData} from '../plot.js';
@@ -37,18 +39,32 @@ function progressText(job) {
   return num(p.passes) ? `pass ${num(p.passNumber)}/${num(p.passes)}` : '';
 }
 
+// Identifications by output error or likelihood: what compare takes.
+const comparable = (job) => stateOf(job) === 'SUCCEEDED' &&
+  ['IDENTIFICATION_METHOD_OE', 'IDENTIFICATION_METHOD_ML'].includes((job.identification || {}).method);
+
 export async function show(main, r, signal) {
   if (r.id) return showJob(main, r.id, signal);
+  if (r.query.get('compare')) return showComparison(main, r.query.get('compare').split(','), signal);
+  const picked = new Set();  // kept across the list's redraws
+  const compareButton = h('button', {id: 'compare-jobs', disabled: true,
+    onclick: () => { location.hash = '#/jobs?compare=' + [...picked].map(encodeURIComponent).join(','); }}, 'Compare fits');
+  const pick = (job) => (comparable(job) ? h('input', {type: 'checkbox', class: 'pick', checked: picked.has(job.id),
+    title: 'compare this fit', onchange: (e) => {
+      if (e.target.checked) picked.add(job.id); else picked.delete(job.id);
+      compareButton.disabled = picked.size < 2;
+    }}) : null);
   const draw = async () => {
     const [list, datasets] = await Promise.all([api('GET', '/jobs', undefined, {signal}), api('GET', '/datasets', undefined, {signal})]);
     const names = Object.fromEntries((datasets.datasets || []).map((d) => [d.id, d.name]));
     const jobs = (list.jobs || []).slice().sort((a, b) => String(b.created).localeCompare(String(a.created)));
     clear(main, h('h1', {}, 'Jobs'), jobs.length === 0 ? h('p', {class: 'muted'}, 'No jobs yet: ', h('a', {href: '#/identify'}, 'identify'), ' a model.') :
       h('table', {class: 'wide', id: 'jobs'},
-        h('thead', {}, h('tr', {}, ['Job', 'Kind', 'State', 'Model', 'Dataset', 'Progress', 'Created', 'Started', 'Finished', ''].map((c) => h('th', {}, c)))),
+        h('thead', {}, h('tr', {}, ['', 'Job', 'Kind', 'State', 'Model', 'Dataset', 'Progress', 'Created', 'Started', 'Finished', ''].map((c) => h('th', {}, c)))),
         h('tbody', {}, jobs.map((job) => {
           const spec = specOf(job), state = stateOf(job), p = job.progress || {};
           return h('tr', {'data-id': job.id},
+            h('td', {}, pick(job)),
             h('td', {}, h('a', {href: '#/jobs/' + encodeURIComponent(job.id)}, job.id)),
             h('td', {}, kindOf(job)),
             h('td', {class: 'state ' + state}, state),
@@ -63,8 +79,10 @@ export async function show(main, r, signal) {
         }))));
   };
   await draw();
-  // While the page is open, the list follows the jobs.
-  const timer = setInterval(() => draw().catch(() => {}), 3000);
+  main.append(h('p', {}, compareButton, h('span', {class: 'muted'}, ' the output-error and likelihood fits ticked: likelihood, AIC, BIC, fit, and a likelihood-ratio test of each nested pair')));
+  // While the page is open, the list follows the jobs (the button stays below it).
+  const redraw = async () => { await draw(); main.append(compareButton.parentElement); };
+  const timer = setInterval(() => redraw().catch(() => {}), 3000);
   signal.addEventListener('abort', () => clearInterval(timer));
 }
 
@@ -137,5 +155,38 @@ async function showJob(main, id, signal) {
     clear(live);  // the result's traces replace the live ones
     const res = await api('GET', `/jobs/${encodeURIComponent(id)}/result`, undefined, {signal});
     await showResult(result, last, res, model, signal);
+  }
+}
+
+// riccatid's comparison of the fits (CompareJobs): the criteria, the lowest
+// marked, each output's fit, and the likelihood-ratio tests.
+async function showComparison(main, ids, signal) {
+  clear(main, h('h1', {}, 'Fits compared'));
+  let r;
+  try {
+    r = await api('POST', '/jobs/compare', {jobIds: ids}, {signal});
+  } catch (err) {
+    return main.append(errorBox(err), h('p', {}, h('a', {href: '#/jobs'}, 'Jobs')));
+  }
+  const outputs = r.outputs || [];
+  const mark = (v, lowest) => `${fmt(v, 10)}${lowest ? ' *' : ''}`;
+  main.append(h('table', {class: 'wide', id: 'comparison'},
+    h('thead', {}, h('tr', {}, ['Job', 'Model', 'Method', 'k', 'n', 'Log-likelihood', 'AIC', 'AICc', 'BIC', ...outputs.map((o) => `Fit % ${o}`)]
+      .map((c, i) => h('th', {class: i >= 3 ? 'num' : ''}, c)))),
+    h('tbody', {}, (r.jobs || []).map((j) => h('tr', {'data-id': j.jobId},
+      h('td', {}, h('a', {href: '#/jobs/' + encodeURIComponent(j.jobId)}, j.jobId)), h('td', {}, j.model),
+      h('td', {}, enumName(j.method, 'IDENTIFICATION_METHOD_').toLowerCase()),
+      h('td', {class: 'num'}, String(num(j.estimatedQuantities))), h('td', {class: 'num'}, String(num(j.samples))),
+      h('td', {class: 'num'}, fmt(j.logLikelihood, 10)),
+      h('td', {class: 'num aic' + (j.lowestAic ? ' best' : '')}, mark(j.aic, j.lowestAic)),
+      h('td', {class: 'num'}, fmt(j.aicc, 10)),
+      h('td', {class: 'num bic' + (j.lowestBic ? ' best' : '')}, mark(j.bic, j.lowestBic)),
+      ...(j.fits || []).map((f) => h('td', {class: 'num'}, fmt(f.fitPercent, 4))))))),
+  h('p', {class: 'muted'}, '* the lowest: the best of these fits by that criterion (lower is better among fits to the same data); fit %: the first record\'s, output error\'s simulated, likelihood\'s one step ahead.'));
+  const tests = r.tests || [];
+  if (tests.length) {
+    main.append(h('h2', {}, 'Likelihood-ratio tests'), h('ul', {id: 'ratio-tests'}, tests.map((t) => h('li', {'data-smaller': t.smaller, 'data-larger': t.larger},
+      `${t.smaller} within ${t.larger}: 2 (ln L_large − ln L_small) = ${fmt(t.statistic, 6)} on ${num(t.dof)} dof, p = ${fmt(t.p, 3)}: `,
+      h('strong', {}, t.significant ? 'the larger model fits significantly better (5 %)' : 'no significant gain: the smaller model suffices (5 %)')))));
   }
 }

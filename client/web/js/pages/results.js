@@ -100,20 +100,29 @@ function acfPlots(el, names, rowsOf, band, lags) {
 async function identification(el, job, r, model, signal) {
   const names = r.paramNames || [];
   const mean = (r.thetaMean || []).map(num), std = (r.thetaStd || []).map(num), end = (r.theta || []).map(num);
+  const filterStd = (r.filterThetaStd || []).map(num);
+  // Results stored before the intervals have none (their std was √diag P).
+  const intervals = (r.ciLower || []).length === names.length;
+  const lower = (i) => (intervals ? num(r.ciLower[i]) : mean[i] - 1.96 * std[i]);
+  const upper = (i) => (intervals ? num(r.ciUpper[i]) : mean[i] + 1.96 * std[i]);
   const spec = job.identification || {};
   const truth = await declaredTruth(spec.datasetId, signal);
   el.append(h('h2', {}, 'Estimates'),
     resultTable(names, [
       ['Estimate', (i) => fmt(mean[i], 5), (i) => mean[i]],
       ['Std error', (i) => fmt(std[i], 3), (i) => std[i]],
-      ['95 % interval', (i) => fmtInterval(mean[i] - 1.96 * std[i], mean[i] + 1.96 * std[i])],
+      ['95 % interval', (i) => fmtInterval(lower(i), upper(i))],
+      ...(filterStd.length ? [['Filter std', (i) => fmt(filterStd[i], 3), (i) => filterStd[i]]] : []),
       ['End of last pass', (i) => fmt(end[i], 5)],
       ...truthColumns(names, truth, mean, std)], model),
-    h('p', {class: 'muted'}, 'Estimate: the mean over the last pass (the toolbox\'s); std error: √diag P at its end.'),
-    (r.warnings || []).map((w) => h('p', {class: 'warn'}, w)),
+    h('p', {class: 'muted', id: 'covariance-method'}, `Estimate: the mean over the last pass (the toolbox's). Std error and interval: ${r.covarianceMethod || '√diag P at its end'}.${filterStd.length ? ' Filter std: √diag P at the end (the toolbox\'s), which counts the record once per pass.' : ''}`),
+    ...(r.warnings || []).map((w) => h('p', {class: 'warn'}, w)),
     h('p', {}, h('a', {class: 'button', id: 'validate-link', href: `#/validate?job=${encodeURIComponent(job.id)}&model=${encodeURIComponent(spec.model)}&dataset=${encodeURIComponent(spec.datasetId)}`}, 'Validate this estimate')));
   const nz = num(r.covariance && r.covariance.rows), nth = names.length, nx = nz - nth;
-  if (nz > 0) {
+  if (num(r.thetaCovariance && r.thetaCovariance.rows) === nth && nth > 0) {
+    const C = (i, j) => num(r.thetaCovariance.values[i + j * nth]);
+    el.append(h('h2', {}, 'Correlation of the estimates'), correlationTable(names, (i, j) => C(i, j) / Math.sqrt(C(i, i) * C(j, j))));
+  } else if (nz > 0) {
     const C = (i, j) => num(r.covariance.values[(nx + i) + (nx + j) * nz]);
     el.append(h('h2', {}, 'Correlation of the estimates'), correlationTable(names, (i, j) => C(i, j) / Math.sqrt(C(i, i) * C(j, j))));
   }
@@ -181,8 +190,9 @@ async function estimation(el, job, r, model, signal) {
       ['95 % interval', (i) => fmtInterval((r.ciLower || [])[i], (r.ciUpper || [])[i])],
       ...truthColumns(names, truth, theta, std)], model),
     h('p', {class: 'muted'}, `${r.converged ? 'Converged' : 'Did not converge'} after ${num(r.iterations)} iterations (${r.termination || ''}); cost ${fmt(r.cost)}; gradient: ${r.gradient || ''}.`),
+    r.covarianceMethod ? h('p', {class: 'muted', id: 'covariance-method'}, `Std error and interval: ${r.covarianceMethod}.`) : null,
     num(r.samples) > 0 ? h('p', {class: 'muted', id: 'criteria'}, `Log-likelihood ${fmt(r.logLikelihood, 10)}; AIC ${fmt(r.aic, 10)}, AICc ${fmt(r.aicc, 10)}, BIC ${fmt(r.bic, 10)} (k = ${num(r.estimatedQuantities)} estimated, n = ${num(r.samples)}; lower is better among models fitted to the same data).`) : null,
-    (r.warnings || []).map((w) => h('p', {class: 'warn'}, w)),
+    ...(r.warnings || []).map((w) => h('p', {class: 'warn'}, w)),
     h('p', {}, h('a', {class: 'button', id: 'validate-link', href: `#/validate?job=${encodeURIComponent(job.id)}&model=${encodeURIComponent(spec.model)}&dataset=${encodeURIComponent(spec.datasetId)}`}, 'Validate this estimate')));
   if (r.correlation) el.append(h('h2', {}, 'Correlation of the estimates'), correlationTable(names, (i, j) => num(r.correlation.values[i + j * num(r.correlation.rows)])));
   const costs = (r.costHistory || []).map(num);
@@ -250,8 +260,10 @@ function diagnosticsTables(d, outputs, inputs, first) {  // first: the ids, once
 
 function validation(el, r, model) {
   const t = (r.t || []).map(num), outputs = model.outputNames || [];
-  el.append(h('h2', {}, 'Measured and simulated'),
-    h('p', {class: 'muted'}, `Parameters: ${r.parametersFrom || ''}; initial states: ${r.x0From || ''}.`),
+  // A K-step-ahead prediction (validate's horizon) or the simulation.
+  const horizon = num(r.horizon), modelled = horizon > 0 ? `predicted ${horizon} ahead` : 'simulated';
+  el.append(h('h2', {}, horizon > 0 ? `Measured and predicted ${horizon} samples ahead` : 'Measured and simulated'),
+    h('p', {class: 'muted'}, `Parameters: ${r.parametersFrom || ''}; initial states: ${r.x0From || ''}.${horizon > 0 ? ` Predictor: ${r.predictor || ''}.` : ''}`),
     h('table', {id: 'fits'},
       h('thead', {}, h('tr', {}, ['Output', 'Fit %', 'VAF %', 'RMSE'].map((c) => h('th', {class: 'num'}, c)))),
       h('tbody', {}, (r.fits || []).map((f) => h('tr', {'data-output': f.name}, h('th', {}, f.name),
@@ -261,7 +273,7 @@ function validation(el, r, model) {
   outputs.forEach((y, i) => {
     const fit = (r.fits || [])[i];
     plot(overlay, {title: `${y} · fit ${fit ? fmt(fit.fitPercent, 3) : '–'} %`, x: t, series: [
-      {label: 'measured', values: row(r.yMeasured, i), color: '#9aa4ae', width: 4}, {label: 'simulated', values: row(r.ySimulated, i), color: color(0)}]});
+      {label: 'measured', values: row(r.yMeasured, i), color: '#9aa4ae', width: 4}, {label: modelled, values: row(r.ySimulated, i), color: color(0)}]});
   });
 }
 
