@@ -187,13 +187,18 @@ LeastSquaresCovariance::LeastSquaresCovariance(Eigen::Index unknowns)
       gradient_(Eigen::VectorXd::Zero(unknowns)) {}
 
 Eigen::VectorXd LeastSquaresCovariance::gauss_newton_step() const {
+  if (information_.rows() == 0) return Eigen::VectorXd(0);
   return -(information_.completeOrthogonalDecomposition().solve(gradient_));
 }
 
 void LeastSquaresCovariance::add(const Eigen::MatrixXd& J, const Eigen::VectorXd& r, Eigen::Index ny) {
+  const Eigen::Index p = J.cols(), n = ny > 0 ? J.rows() / ny : 0;
+  if (p == 0) {  // every unknown held: nothing to add (and no blocks of an empty J to take)
+    bandwidths_.push_back(0.0);
+    return;
+  }
   information_.noalias() += J.transpose() * J;
   gradient_.noalias() += J.transpose() * r;
-  const Eigen::Index p = J.cols(), n = ny > 0 ? J.rows() / ny : 0;
   Eigen::MatrixXd scores = Eigen::MatrixXd::Zero(p, n);  // column k: sum over outputs of J_k,i' r_k,i
   for (Eigen::Index k = 0; k < n; ++k) {
     scores.col(k).noalias() = J.middleRows(k * ny, ny).transpose() * r.segment(k * ny, ny);
