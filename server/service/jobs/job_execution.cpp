@@ -375,12 +375,15 @@ Result<std::string> execute_validation(const JobRecord& job, const JobExecution&
     settings.x0 = fitted.x0;
     x0_from = fitted.description;
   }
+  // The simulation, or (horizon) the predictions K samples ahead.
   std::string predictor;
-  Result<ValidationResult> r = spec.horizon() == 0 ? validate_model(*model, data, settings) : [&]() -> Result<ValidationResult> {
-    RICCATI_ASSIGN_OR_RETURN(const PredictionSettings prediction,
-                             prediction_settings(job, run, spec, model, &predictor));
-    return predict_model(model, data, settings, prediction);
-  }();
+  Result<ValidationResult> r = invalid_argument("no validation");
+  if (spec.horizon() == 0) {
+    r = validate_model(*model, data, settings);
+  } else {
+    RICCATI_ASSIGN_OR_RETURN(const PredictionSettings prediction, prediction_settings(job, run, spec, model, &predictor));
+    r = predict_model(model, data, settings, prediction);
+  }
   if (!r.is_ok()) return r.status();
   v1::JobResult result;
   result.set_job_id(job.id);
