@@ -192,6 +192,81 @@ TEST_P(ModelJacobianTest, ExactJacobiansMatchCentralDifferences) {
   }
 }
 
+// The second derivatives (second-order dual numbers in the SDK) against
+// central differences of the exact Jacobian, at the same random points; the
+// value and the Jacobian that come with them equal f_jacobian's to the bit
+// or to rounding. A wrong entry is off by O(1) of its row's scale.
+TEST_P(ModelJacobianTest, ExactSecondDerivativesMatchDifferencesOfTheJacobian) {
+  const JacobianCase& c = GetParam();
+  const ModelPtr m = builtin(c.model);
+  ASSERT_NE(m, nullptr);
+  ASSERT_TRUE(m->has_second_derivatives());
+  const int nz = m->nz();
+  std::vector<double> step_scale;
+  for (const Range& r : c.x) step_scale.push_back(r.scale());
+  for (const Range& r : c.theta) step_scale.push_back(r.scale());
+  std::mt19937 rng(20261128);
+  for (int p = 0; p < 10; ++p) {
+    std::vector<double> x;
+    do {
+      x = draw(c.x, rng);
+    } while (!c.differentiable_at(x));
+    std::vector<double> theta = draw(c.theta, rng);
+    const std::vector<double> u = draw(c.u, rng);
+    const double t = 0.1 * p;
+    for (const bool is_f : {true, false}) {
+      const int rows = is_f ? m->nx() : m->ny();
+      std::vector<double> value(rows), jac(static_cast<std::size_t>(rows * nz)), hess(static_cast<std::size_t>(rows * nz * nz));
+      std::vector<double> value1(rows), jac1(static_cast<std::size_t>(rows * nz));
+      const Status sh = is_f ? m->f_hessian(t, u.data(), x.data(), theta.data(), value.data(), jac.data(), hess.data())
+                             : m->g_hessian(t, u.data(), x.data(), theta.data(), value.data(), jac.data(), hess.data());
+      ASSERT_TRUE(sh.is_ok()) << sh.to_string();
+      const Status sj = is_f ? m->f_jacobian(t, u.data(), x.data(), theta.data(), value1.data(), jac1.data())
+                             : m->g_jacobian(t, u.data(), x.data(), theta.data(), value1.data(), jac1.data());
+      ASSERT_TRUE(sj.is_ok()) << sj.to_string();
+      for (int i = 0; i < rows; ++i) EXPECT_EQ(value[static_cast<std::size_t>(i)], value1[static_cast<std::size_t>(i)]);
+      // (Dual2 divides through a reciprocal, Dual directly: rounding apart.)
+      for (std::size_t k = 0; k < jac.size(); ++k) EXPECT_NEAR(jac[k], jac1[k], 1e-12 * (1.0 + std::abs(jac1[k])));
+      // d(J)/dz_b by central differences of the exact Jacobian.
+      const double cbrt_eps = std::cbrt(std::numeric_limits<double>::epsilon());
+      std::vector<double> plus(static_cast<std::size_t>(rows * nz)), minus(plus.size()), scratch(rows);
+      for (int b = 0; b < nz; ++b) {
+        double& zb = b < m->nx() ? x[static_cast<std::size_t>(b)] : theta[static_cast<std::size_t>(b - m->nx())];
+        const double z0 = zb, h = cbrt_eps * step_scale[static_cast<std::size_t>(b)];
+        const auto jacobian_at = [&](double z, std::vector<double>& out) {
+          zb = z;
+          const Status s = is_f ? m->f_jacobian(t, u.data(), x.data(), theta.data(), scratch.data(), out.data())
+                                : m->g_jacobian(t, u.data(), x.data(), theta.data(), scratch.data(), out.data());
+          ASSERT_TRUE(s.is_ok()) << s.to_string();
+        };
+        jacobian_at(z0 + h, plus);
+        jacobian_at(z0 - h, minus);
+        zb = z0;
+        for (int i = 0; i < rows; ++i) {
+          // The scale of row i's second derivatives along z_b: its largest,
+          // or its Jacobian's over the step's scale.
+          double scale = 0.0;
+          for (int a = 0; a < nz; ++a) {
+            scale = std::max(scale, std::abs(hess[static_cast<std::size_t>(i + rows * (a + nz * b))]) * step_scale[static_cast<std::size_t>(a)]);
+            scale = std::max(scale, std::abs(jac1[static_cast<std::size_t>(i + rows * a)]));
+          }
+          for (int a = 0; a < nz; ++a) {
+            const double exact = hess[static_cast<std::size_t>(i + rows * (a + nz * b))];
+            const double symmetric = hess[static_cast<std::size_t>(i + rows * (b + nz * a))];
+            EXPECT_EQ(exact, symmetric) << c.model << ": second derivative not symmetric";
+            const std::size_t k = static_cast<std::size_t>(i + rows * a);
+            const double difference = (plus[k] - minus[k]) / (2.0 * h);
+            EXPECT_NEAR(exact * step_scale[static_cast<std::size_t>(a)] * step_scale[static_cast<std::size_t>(b)],
+                        difference * step_scale[static_cast<std::size_t>(a)] * step_scale[static_cast<std::size_t>(b)],
+                        1e-6 * scale * step_scale[static_cast<std::size_t>(b)] + 1e-300)
+                << c.model << (is_f ? " f" : " g") << " row " << i << ", d2/dz" << a << " dz" << b << " at point " << p;
+          }
+        }
+      }
+    }
+  }
+}
+
 // f and g at n points stored with leading dimension ld, and at each point
 // alone (n = 1, the one-point path of the SDK).
 struct BatchAndSingles {

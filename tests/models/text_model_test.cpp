@@ -117,7 +117,7 @@ TEST_P(ShippedTextModel, DescribesTheSameModelAsThePlugin) {
   EXPECT_TRUE(m.has_g_jacobian());
 }
 
-TEST_P(ShippedTextModel, FGAndJacobiansEqualThePluginsAtAThousandRandomPoints) {
+TEST_P(ShippedTextModel, FGAndTheirDerivativesEqualThePluginsAtAThousandRandomPoints) {
   const Case& c = GetParam();
   const ModelPtr plugin = builtins().get(c.plugin).value();
   auto text = shipped_text_model(c.plugin);
@@ -194,6 +194,31 @@ TEST_P(ShippedTextModel, FGAndJacobiansEqualThePluginsAtAThousandRandomPoints) {
       }
       for (int i = 0; i < rows * cols; ++i) {
         for (int j = 0; j < nz; ++j) EXPECT_TRUE(close(jFt(i, j), jFp(i, j), "dFc/dz", jFp.row(i).cwiseAbs().maxCoeff())) << ++failures;
+      }
+    }
+  }
+  // The second derivatives (symbolic, the Jacobian differentiated again),
+  // for a model written with der:; the mechanical form's text model has none.
+  EXPECT_EQ(m.has_second_derivatives(), !plugin->has_mechanical_form()) << c.plugin;
+  if (m.has_second_derivatives()) {
+    for (int p = 0; p < 200 && failures < 10; ++p) {
+      const Eigen::VectorXd x = X.col(p), theta = Theta.col(p);
+      for (const bool is_f : {true, false}) {
+        const int rows = is_f ? nx : ny;
+        Eigen::VectorXd vt(rows), vp(rows);
+        Eigen::MatrixXd jt(rows, nz), jp(rows, nz), ht(rows * nz, nz), hp(rows * nz, nz);
+        ASSERT_TRUE((is_f ? m.f_hessian(t, u.data(), x.data(), theta.data(), vt.data(), jt.data(), ht.data())
+                          : m.g_hessian(t, u.data(), x.data(), theta.data(), vt.data(), jt.data(), ht.data()))
+                        .is_ok());
+        ASSERT_TRUE((is_f ? plugin->f_hessian(t, u.data(), x.data(), theta.data(), vp.data(), jp.data(), hp.data())
+                          : plugin->g_hessian(t, u.data(), x.data(), theta.data(), vp.data(), jp.data(), hp.data()))
+                        .is_ok());
+        for (Eigen::Index r = 0; r < hp.rows(); ++r) {
+          const double row = std::max(hp.row(r).cwiseAbs().maxCoeff(), jp.cwiseAbs().maxCoeff());
+          for (Eigen::Index b = 0; b < nz; ++b) {
+            EXPECT_TRUE(close(ht(r, b), hp(r, b), is_f ? "d2f/dz2" : "d2g/dz2", row)) << ++failures;
+          }
+        }
       }
     }
   }

@@ -11,6 +11,7 @@
 #include <string>
 
 #include "engine/estimation/least_squares.hpp"
+#include "engine/estimation/likelihood_sensitivity.hpp"
 #include "engine/estimation/online_runner.hpp"
 #include "engine/estimation/uncertainty.hpp"
 
@@ -18,6 +19,7 @@ namespace riccati {
 namespace {
 
 constexpr double kInfinity = std::numeric_limits<double>::infinity();
+constexpr double kLn10 = 2.302585092994045684;
 
 // Where each unknown sits in the optimiser's vector v (solver coordinates:
 // log theta for a log-scaled parameter, log of the noise levels).
@@ -136,6 +138,56 @@ class Likelihood {
     return n;
   }
 
+  // The predictor of experiment e at `at` as the exact sensitivities take it.
+  LikelihoodPoint predictor_point(std::size_t e, const Point& at) const {
+    const int nx = model_->nx();
+    LikelihoodPoint out;
+    out.theta = at.theta;
+    out.x0 = at.x0[e];
+    out.Q = settings_.filter.Q.topLeftCorner(nx, nx);
+    out.Q.diagonal() = at.q;
+    out.R = settings_.filter.R;
+    out.R.diagonal() = at.r;
+    return out;
+  }
+
+  // L at v and, with `with_derivatives`, its exact gradient and Fisher
+  // information in the unknowns' coordinates (likelihood_sensitivity.hpp).
+  Status derivatives(LikelihoodSensitivity& sensitivity, const Eigen::VectorXd& v, bool with_derivatives,
+                     LikelihoodDerivatives* out) {
+    const Point at = point(v);
+    const ParameterSettings& p = settings_.parameters;
+    const Eigen::Index n = unknowns_.size();
+    out->reset(with_derivatives ? n : 0);
+    LikelihoodDirections& directions = directions_;
+    directions.resize(*model_, with_derivatives ? n : 0);
+    if (with_derivatives) {
+      for (std::size_t j = 0; j < unknowns_.theta.size(); ++j) {
+        const Eigen::Index i = unknowns_.theta[j], jj = static_cast<Eigen::Index>(j);
+        if (i >= 0) directions.theta(jj, i) = theta_per_phi(p, jj, at.theta[jj]);
+      }
+      for (std::size_t j = 0; j < unknowns_.q.size(); ++j) {
+        if (unknowns_.q[j] >= 0) directions.q(static_cast<Eigen::Index>(j), unknowns_.q[j]) = at.q[static_cast<Eigen::Index>(j)];
+      }
+      for (std::size_t j = 0; j < unknowns_.r.size(); ++j) {
+        if (unknowns_.r[j] >= 0) directions.r(static_cast<Eigen::Index>(j), unknowns_.r[j]) = at.r[static_cast<Eigen::Index>(j)];
+      }
+    }
+    for (std::size_t e = 0; e < experiments_.size(); ++e) {
+      if (with_derivatives) {
+        directions.x0.setZero();  // this experiment's initial states alone
+        for (std::size_t j = 0; j < unknowns_.x0[e].size(); ++j) {
+          if (unknowns_.x0[e][j] >= 0) directions.x0(static_cast<Eigen::Index>(j), unknowns_.x0[e][j]) = 1.0;
+        }
+      }
+      ++evaluations_;
+      RICCATI_RETURN_IF_ERROR(sensitivity.accumulate(experiments_[e], predictor_point(e, at), directions,
+                                                     with_derivatives, out)
+                                  .with_context("experiment " + std::to_string(e + 1)));
+    }
+    return Status::ok();
+  }
+
   int evaluations() const { return evaluations_; }
 
  private:
@@ -218,6 +270,7 @@ class Likelihood {
   const Unknowns& unknowns_;
   std::vector<std::optional<OnlineRunner>> runners_;
   Eigen::LLT<Eigen::MatrixXd> S_llt_;
+  LikelihoodDirections directions_;  // derivatives()'s, sized once
   const bool noise_estimated_;
   int evaluations_ = 0;
 };
@@ -336,6 +389,147 @@ Status hessian(Likelihood& likelihood, const Unknowns& unknowns, const Eigen::Ve
   return Status::ok();
 }
 
+// L's Hessian from forward differences of its exact gradient: n runs of the
+// sensitivities (the gradient at v is known) instead of 2n^2 of the filter.
+// Step 1e-6 of each unknown's scale: truncation and rounding (the gradient
+// is exact to about 1e-12 of its size) both near 1e-6 of the Hessian, far
+// below what a standard error needs.
+Status hessian_from_gradient(Likelihood& likelihood, LikelihoodSensitivity& sensitivity, const Unknowns& unknowns,
+                             const Eigen::VectorXd& v, Eigen::MatrixXd* H) {
+  const Eigen::Index n = v.size();
+  H->setZero(n, n);
+  LikelihoodDerivatives at, moved_point;
+  RICCATI_RETURN_IF_ERROR(likelihood.derivatives(sensitivity, v, true, &at));
+  for (Eigen::Index j = 0; j < n; ++j) {
+    const double h = 1e-6 * std::max(std::abs(v[j]), unknowns.typical[j]);
+    Eigen::VectorXd moved = v;
+    moved[j] = v[j] + h;
+    RICCATI_RETURN_IF_ERROR(likelihood.derivatives(sensitivity, moved, true, &moved_point));
+    H->col(j) = (moved_point.gradient - at.gradient) / h;
+  }
+  *H = (0.5 * (*H + H->transpose())).eval();
+  return Status::ok();
+}
+
+// What a minimisation did, for the result.
+struct Minimisation {
+  int iterations = 0;
+  int derivative_evaluations = 0;
+  bool converged = false;
+  std::string termination;
+};
+
+// Minimises L over the unknowns from v within [lower, upper] by Fisher
+// scoring (likelihood_sensitivity.hpp) with Levenberg-Marquardt damping:
+// the step solves (F + lambda diag F) d = -g on the unknowns not held at a
+// bound, projected into the bounds; a step is taken when L decreases, and
+// lambda follows how well F predicted the decrease. The criteria are Ceres'
+// (relative change of L, of v, the projected gradient), so that the
+// settings mean what they mean for output error.
+Result<Minimisation> fisher_scoring(Likelihood& likelihood, LikelihoodSensitivity& sensitivity,
+                                    const Eigen::VectorXd& lower, const Eigen::VectorXd& upper,
+                                    const std::vector<bool>& noise_level,
+                                    const OptimizerSettings& settings, const EstimationHooks& hooks,
+                                    std::vector<double>* history, Eigen::VectorXd* v) {
+  Minimisation out;
+  const Eigen::Index n = v->size();
+  const auto project = [&](Eigen::VectorXd x) { return x.cwiseMax(lower).cwiseMin(upper).eval(); };
+  *v = project(*v);
+  LikelihoodDerivatives at, trial;
+  RICCATI_RETURN_IF_ERROR(likelihood.derivatives(sensitivity, *v, true, &at).with_context("the likelihood at the start"));
+  ++out.derivative_evaluations;
+  history->push_back(at.value());
+  if (hooks.progress) hooks.progress(EstimationProgress{0, at.value()});
+  double lambda = 1e-3;
+  double noise_radius = kLn10;
+  Status last_failure;
+  for (int iteration = 1; iteration <= settings.max_iterations; ++iteration) {
+    if (hooks.stop.stop_requested()) return cancelled("maximum likelihood cancelled after iteration " + std::to_string(iteration - 1));
+    const double projected_gradient = (*v - project(*v - at.gradient)).cwiseAbs().maxCoeff();
+    if (projected_gradient <= settings.gradient_tolerance) {
+      out.converged = true;
+      out.termination = "the projected gradient is within the gradient tolerance";
+      return out;
+    }
+    // Unknowns held at a bound that the gradient pushes against stay there.
+    std::vector<Eigen::Index> free;
+    for (Eigen::Index i = 0; i < n; ++i) {
+      const bool held = ((*v)[i] <= lower[i] && at.gradient[i] > 0.0) || ((*v)[i] >= upper[i] && at.gradient[i] < 0.0);
+      if (!held) free.push_back(i);
+    }
+    const Eigen::Index nf = static_cast<Eigen::Index>(free.size());
+    Eigen::MatrixXd F(nf, nf);
+    Eigen::VectorXd g(nf);
+    for (Eigen::Index a = 0; a < nf; ++a) {
+      g[a] = at.gradient[free[static_cast<std::size_t>(a)]];
+      for (Eigen::Index b = 0; b < nf; ++b) F(a, b) = at.fisher(free[static_cast<std::size_t>(a)], free[static_cast<std::size_t>(b)]);
+    }
+    const Eigen::VectorXd scale = F.diagonal().cwiseMax(1e-12 * std::max(F.diagonal().maxCoeff(), 1e-300));
+    bool stepped = false;
+    while (!stepped) {
+      if (lambda > 1e16) {
+        // No step decreases L any more: it is at its minimum to rounding.
+        out.converged = last_failure.is_ok();
+        out.termination = last_failure.is_ok() ? "no step decreases the likelihood further"
+                                                : "no step could be taken: " + last_failure.message();
+        return out;
+      }
+      Eigen::MatrixXd damped = F;
+      damped.diagonal() += lambda * scale;
+      const Eigen::VectorXd step_free = damped.ldlt().solve(-g);
+      // A noise level moves at most `noise_radius` in ln a step: far from the
+      // optimum (residuals much larger than R) F's curvature in ln R is much
+      // smaller than L's, and its step would overshoot by decades. The radius
+      // starts at a decade and grows while F predicts L well.
+      double shrink = 1.0;
+      for (Eigen::Index a = 0; a < nf; ++a) {
+        const double longest =
+            noise_level[static_cast<std::size_t>(free[static_cast<std::size_t>(a)])] ? noise_radius : kInfinity;
+        if (std::abs(step_free[a]) > longest) shrink = std::min(shrink, longest / std::abs(step_free[a]));
+      }
+      Eigen::VectorXd candidate = *v;
+      for (Eigen::Index a = 0; a < nf; ++a) candidate[free[static_cast<std::size_t>(a)]] += shrink * step_free[a];
+      candidate = project(candidate);
+      const Eigen::VectorXd step = candidate - *v;
+      if (step.cwiseAbs().maxCoeff() <= settings.parameter_tolerance * (v->cwiseAbs().maxCoeff() + settings.parameter_tolerance)) {
+        out.converged = true;
+        out.termination = "the step is within the parameter tolerance";
+        return out;
+      }
+      const double predicted = -(at.gradient.dot(step) + 0.5 * step.dot(at.fisher * step));
+      const Status evaluated = likelihood.derivatives(sensitivity, candidate, true, &trial);
+      ++out.derivative_evaluations;
+      if (hooks.stop.stop_requested()) return cancelled("maximum likelihood cancelled after iteration " + std::to_string(iteration - 1));
+      const double decrease = at.value() - trial.value();
+      const double ratio = predicted > 0.0 ? decrease / predicted : 0.0;
+      if (!evaluated.is_ok() || !(decrease > 0.0) || ratio < 1e-3) {
+        if (!evaluated.is_ok()) last_failure = evaluated;
+        lambda *= 4.0;
+        noise_radius = std::max(0.5 * noise_radius, 0.1);
+        continue;
+      }
+      if (shrink < 1.0 && ratio > 0.75) noise_radius = std::min(4.0 * noise_radius, 30.0);
+      lambda *= ratio > 0.75 ? 1.0 / 3.0 : (ratio < 0.25 ? 2.0 : 1.0);
+      lambda = std::max(lambda, 1e-12);
+      const bool small_change = decrease <= settings.function_tolerance * std::abs(at.value());
+      *v = candidate;
+      std::swap(at, trial);
+      last_failure = Status::ok();
+      out.iterations = iteration;
+      history->push_back(at.value());
+      if (hooks.progress) hooks.progress(EstimationProgress{iteration, at.value()});
+      if (small_change) {
+        out.converged = true;
+        out.termination = "the change of the likelihood is within the function tolerance";
+        return out;
+      }
+      stepped = true;
+    }
+  }
+  out.termination = "the iteration limit (" + std::to_string(settings.max_iterations) + ") was reached";
+  return out;
+}
+
 }  // namespace
 
 Result<MaxLikelihoodResult> max_likelihood(ModelPtr model, const std::vector<Experiment>& experiments,
@@ -399,99 +593,141 @@ Result<MaxLikelihoodResult> max_likelihood(ModelPtr model, const std::vector<Exp
   MaxLikelihoodResult out;
   EstimationResult& result = out.estimate;
   result.param_names = model->param_names();
-  result.gradient = "central differences of the likelihood's residuals";
+  // Exact derivatives where the model and the predictor have them; else
+  // central differences of the filter's residuals, saying why.
+  std::optional<LikelihoodSensitivity> sensitivity;
+  const Status exact = settings.differenced_gradient ? failed_precondition("asked for")
+                                                     : LikelihoodSensitivity::available(*model, settings.filter);
+  if (exact.is_ok()) {
+    RICCATI_ASSIGN_OR_RETURN(LikelihoodSensitivity made, LikelihoodSensitivity::create(model, settings.filter, settings.P0x));
+    sensitivity.emplace(std::move(made));
+    result.gradient = "exact: forward sensitivities of the EKF's state and covariance (Fisher scoring)";
+  } else {
+    result.gradient = "central differences of the likelihood's residuals (" + exact.message() + ")";
+  }
 
-  // Ceres' least squares over the parameters, the initial states and the log
-  // noise levels: 1/2 |residuals|^2 is L less a constant (see residuals()).
-  LeastSquaresUnknowns blocks(p, experiments);
-  // The log noise levels, Q's diagonal and R's, as two blocks: one that is
-  // not estimated is constant, and so not differenced.
-  Eigen::VectorXd log_q = settings.filter.Q.diagonal().head(nx).cwiseMax(std::numeric_limits<double>::min()).array().log();
-  Eigen::VectorXd log_r = settings.filter.R.diagonal().array().log();
-  ceres::Problem::Options problem_options;
-  problem_options.manifold_ownership = ceres::TAKE_OWNERSHIP;
-  problem_options.cost_function_ownership = ceres::TAKE_OWNERSHIP;
-  ceres::Problem problem(problem_options);
-  std::vector<ExperimentResiduals*> functors;
-  for (std::size_t e = 0; e < experiments.size(); ++e) {
-    const Eigen::Index residual_count = experiments[e].data.size() * (ny + 1);
-    auto* functor = new ExperimentResiduals(likelihood, e, p, nx, ny, experiments.size(), residual_count);
-    functors.push_back(functor);
-    auto* cost = new ceres::DynamicNumericDiffCostFunction<ExperimentResiduals, ceres::CENTRAL>(functor);
-    cost->AddParameterBlock(ntheta);
-    cost->AddParameterBlock(nx);
-    cost->AddParameterBlock(nx);
-    cost->AddParameterBlock(ny);
-    cost->SetNumResiduals(static_cast<int>(residual_count));
-    problem.AddResidualBlock(cost, nullptr, blocks.phi.data(), blocks.x0[e].data(), log_q.data(), log_r.data());
-  }
-  blocks.constrain(problem, p, experiments);
-  // Estimated noise levels within 13 decades of their start below (R's floor
-  // makes rho_0 real), the others constant.
-  const Eigen::VectorXd log_r_floor = log_r.array() - 30.0;
-  for (const auto& [levels, estimated] : {std::pair{&log_q, settings.estimate_process_noise},
-                                          std::pair{&log_r, settings.estimate_measurement_noise}}) {
-    if (!estimated) {
-      problem.SetParameterBlockConstant(levels->data());
-      continue;
-    }
-    for (Eigen::Index j = 0; j < levels->size(); ++j) {
-      problem.SetParameterLowerBound(levels->data(), static_cast<int>(j), (*levels)[j] - 30.0);
-    }
-  }
-  if (settings.estimate_measurement_noise) {
-    problem.AddResidualBlock(new NoiseLevelResidual(likelihood.used_samples(), log_r_floor), nullptr, log_r.data());
-  }
-  // The unknowns as one vector (the likelihood's and the Hessian's coordinates).
-  const auto unknowns_now = [&] {
-    Eigen::VectorXd v(unknowns.size());
-    for (int j = 0; j < ntheta; ++j) {
-      if (unknowns.theta[static_cast<std::size_t>(j)] >= 0) v[unknowns.theta[static_cast<std::size_t>(j)]] = blocks.phi[j];
-    }
+  // The minimisation: Fisher scoring with the exact derivatives, else Ceres'
+  // Levenberg-Marquardt on the residuals with central differences.
+  const auto by_differences = [&]() -> Result<Eigen::VectorXd> {
+    // Ceres' least squares over the parameters, the initial states and the log
+    // noise levels: 1/2 |residuals|^2 is L less a constant (see residuals()).
+    LeastSquaresUnknowns blocks(p, experiments);
+    // The log noise levels, Q's diagonal and R's, as two blocks: one that is
+    // not estimated is constant, and so not differenced.
+    Eigen::VectorXd log_q = settings.filter.Q.diagonal().head(nx).cwiseMax(std::numeric_limits<double>::min()).array().log();
+    Eigen::VectorXd log_r = settings.filter.R.diagonal().array().log();
+    ceres::Problem::Options problem_options;
+    problem_options.manifold_ownership = ceres::TAKE_OWNERSHIP;
+    problem_options.cost_function_ownership = ceres::TAKE_OWNERSHIP;
+    ceres::Problem problem(problem_options);
+    std::vector<const Status*> predictor_status;  // each residual block's last evaluation
     for (std::size_t e = 0; e < experiments.size(); ++e) {
-      for (int j = 0; j < nx; ++j) {
-        if (unknowns.x0[e][static_cast<std::size_t>(j)] >= 0) v[unknowns.x0[e][static_cast<std::size_t>(j)]] = blocks.x0[e][j];
+      const Eigen::Index residual_count = experiments[e].data.size() * (ny + 1);
+      auto* functor = new ExperimentResiduals(likelihood, e, p, nx, ny, experiments.size(), residual_count);
+      predictor_status.push_back(&functor->last());
+      auto* cost = new ceres::DynamicNumericDiffCostFunction<ExperimentResiduals, ceres::CENTRAL>(functor);
+      cost->AddParameterBlock(ntheta);
+      cost->AddParameterBlock(nx);
+      cost->AddParameterBlock(nx);
+      cost->AddParameterBlock(ny);
+      cost->SetNumResiduals(static_cast<int>(residual_count));
+      problem.AddResidualBlock(cost, nullptr, blocks.phi.data(), blocks.x0[e].data(), log_q.data(), log_r.data());
+    }
+    blocks.constrain(problem, p, experiments);
+    // Estimated noise levels within 13 decades of their start below (R's floor
+    // makes rho_0 real), the others constant.
+    const Eigen::VectorXd log_r_floor = log_r.array() - 30.0;
+    for (const auto& [levels, estimated] : {std::pair{&log_q, settings.estimate_process_noise},
+                                            std::pair{&log_r, settings.estimate_measurement_noise}}) {
+      if (!estimated) {
+        problem.SetParameterBlockConstant(levels->data());
+        continue;
+      }
+      for (Eigen::Index j = 0; j < levels->size(); ++j) {
+        problem.SetParameterLowerBound(levels->data(), static_cast<int>(j), (*levels)[j] - 30.0);
       }
     }
-    for (int j = 0; j < nx; ++j) {
-      if (unknowns.q[static_cast<std::size_t>(j)] >= 0) v[unknowns.q[static_cast<std::size_t>(j)]] = log_q[j];
+    if (settings.estimate_measurement_noise) {
+      problem.AddResidualBlock(new NoiseLevelResidual(likelihood.used_samples(), log_r_floor), nullptr, log_r.data());
     }
-    for (int j = 0; j < ny; ++j) {
-      if (unknowns.r[static_cast<std::size_t>(j)] >= 0) v[unknowns.r[static_cast<std::size_t>(j)]] = log_r[j];
+    // The unknowns as one vector (the likelihood's and the Hessian's coordinates).
+    const auto unknowns_now = [&] {
+      Eigen::VectorXd v(unknowns.size());
+      for (int j = 0; j < ntheta; ++j) {
+        if (unknowns.theta[static_cast<std::size_t>(j)] >= 0) v[unknowns.theta[static_cast<std::size_t>(j)]] = blocks.phi[j];
+      }
+      for (std::size_t e = 0; e < experiments.size(); ++e) {
+        for (int j = 0; j < nx; ++j) {
+          if (unknowns.x0[e][static_cast<std::size_t>(j)] >= 0) v[unknowns.x0[e][static_cast<std::size_t>(j)]] = blocks.x0[e][j];
+        }
+      }
+      for (int j = 0; j < nx; ++j) {
+        if (unknowns.q[static_cast<std::size_t>(j)] >= 0) v[unknowns.q[static_cast<std::size_t>(j)]] = log_q[j];
+      }
+      for (int j = 0; j < ny; ++j) {
+        if (unknowns.r[static_cast<std::size_t>(j)] >= 0) v[unknowns.r[static_cast<std::size_t>(j)]] = log_r[j];
+      }
+      return v;
+    };
+    // Progress and the cost history say L itself, not the optimiser's cost:
+    // the two differ by a constant (see residuals()), measured once at the start.
+    Sums at_start;
+    RICCATI_RETURN_IF_ERROR(likelihood.evaluate(unknowns_now(), &at_start).with_context("the likelihood at the start"));
+    double solver_cost_at_start = 0.0;
+    problem.Evaluate(ceres::Problem::EvaluateOptions(), &solver_cost_at_start, nullptr, nullptr, nullptr);
+    IterationWatcher watcher(hooks, &result.cost_history, at_start.total() - solver_cost_at_start);
+    // The line search's trials by their cost alone: a gradient is 2n more
+    // filter runs. (Bisection, not a quadratic fit: on two-tank that took twice
+    // the iterations.)
+    const ceres::Solver::Options options = solver_options(settings.optimizer, &watcher, ceres::BISECTION);
+    ceres::Solver::Summary summary;
+    ceres::Solve(options, &problem, &summary);
+    if (hooks.stop.stop_requested()) {
+      return cancelled("maximum likelihood cancelled after iteration " + std::to_string(summary.iterations.size()));
     }
-    return v;
-  };
-  // Progress and the cost history say L itself, not the optimiser's cost:
-  // the two differ by a constant (see residuals()), measured once at the start.
-  Sums at_start;
-  RICCATI_RETURN_IF_ERROR(likelihood.evaluate(unknowns_now(), &at_start).with_context("the likelihood at the start"));
-  double solver_cost_at_start = 0.0;
-  problem.Evaluate(ceres::Problem::EvaluateOptions(), &solver_cost_at_start, nullptr, nullptr, nullptr);
-  IterationWatcher watcher(hooks, &result.cost_history, at_start.total() - solver_cost_at_start);
-  // The line search's trials by their cost alone: a gradient is 2n more
-  // filter runs. (Bisection, not a quadratic fit: on two-tank that took twice
-  // the iterations.)
-  const ceres::Solver::Options options = solver_options(settings.optimizer, &watcher, ceres::BISECTION);
-  ceres::Solver::Summary summary;
-  ceres::Solve(options, &problem, &summary);
-  if (hooks.stop.stop_requested()) {
-    return cancelled("maximum likelihood cancelled after iteration " + std::to_string(summary.iterations.size()));
-  }
-  if (summary.termination_type == ceres::FAILURE || !summary.IsSolutionUsable()) {
-    std::string why = summary.message;
-    for (const ExperimentResiduals* f : functors) {
-      if (!f->last().is_ok()) why += "; the predictor failed: " + f->last().message();
+    if (summary.termination_type == ceres::FAILURE || !summary.IsSolutionUsable()) {
+      std::string why = summary.message;
+      for (const Status* last : predictor_status) {
+        if (!last->is_ok()) why += "; the predictor failed: " + last->message();
+      }
+      return failed_precondition("maximum likelihood found no step it could take: " + why);
     }
-    return failed_precondition("maximum likelihood found no step it could take: " + why);
-  }
-  // Ceres lists the start as iteration 0; with every unknown held it runs
-  // none and lists nothing (not -1: unsigned in the API, 4294967295).
-  result.iterations = std::max(0, static_cast<int>(summary.iterations.size()) - 1);
-  result.jacobian_evaluations = summary.num_jacobian_evaluations;
-  result.converged = summary.termination_type == ceres::CONVERGENCE;
-  result.termination = summary.message;
+    // Ceres lists the start as iteration 0; with every unknown held it runs
+    // none and lists nothing (not -1: unsigned in the API, 4294967295).
+    result.iterations = std::max(0, static_cast<int>(summary.iterations.size()) - 1);
+    result.jacobian_evaluations = summary.num_jacobian_evaluations;
+    result.converged = summary.termination_type == ceres::CONVERGENCE;
+    result.termination = summary.message;
 
-  const Eigen::VectorXd v = unknowns_now();
+    return unknowns_now();
+};
+  Eigen::VectorXd v;
+  if (sensitivity.has_value()) {
+    // The bounds in the unknowns' coordinates; estimated noise levels within
+    // 13 decades (30 in ln) of their start below, as the differenced path's.
+    Eigen::VectorXd lower = unknowns.lower, upper = unknowns.upper;
+    for (const std::vector<Eigen::Index>* levels : {&unknowns.q, &unknowns.r}) {
+      for (const Eigen::Index i : *levels) {
+        if (i >= 0) lower[i] = unknowns.start[i] - 30.0;
+      }
+    }
+    v = unknowns.start;
+    std::vector<bool> noise_level(static_cast<std::size_t>(unknowns.size()), false);
+    for (const std::vector<Eigen::Index>* levels : {&unknowns.q, &unknowns.r}) {
+      for (const Eigen::Index i : *levels) {
+        if (i >= 0) noise_level[static_cast<std::size_t>(i)] = true;
+      }
+    }
+    RICCATI_ASSIGN_OR_RETURN(const Minimisation done,
+                             fisher_scoring(likelihood, *sensitivity, lower, upper, noise_level, settings.optimizer, hooks,
+                                            &result.cost_history, &v));
+    result.iterations = done.iterations;
+    result.jacobian_evaluations = done.derivative_evaluations;
+    result.converged = done.converged;
+    result.termination = done.termination;
+  } else {
+    RICCATI_ASSIGN_OR_RETURN(v, by_differences());
+  }
 
   // The estimate and what the run shows there.
   Sums sums;
@@ -507,7 +743,9 @@ Result<MaxLikelihoodResult> max_likelihood(ModelPtr model, const std::vector<Exp
   // Covariance: the inverse of L's Hessian, in natural coordinates (log
   // coordinates scaled back: H_natural = D^-1 H D^-1, D = d natural / d v).
   Eigen::MatrixXd H;
-  RICCATI_RETURN_IF_ERROR(hessian(likelihood, unknowns, v, &H).with_context("the likelihood's Hessian"));
+  RICCATI_RETURN_IF_ERROR((sensitivity.has_value() ? hessian_from_gradient(likelihood, *sensitivity, unknowns, v, &H)
+                                                   : hessian(likelihood, unknowns, v, &H))
+                              .with_context("the likelihood's Hessian"));
   result.evaluations = likelihood.evaluations();
   Eigen::VectorXd natural(unknowns.size()), d(unknowns.size());
   for (Eigen::Index i = 0; i < unknowns.size(); ++i) {

@@ -16,13 +16,18 @@
 // L is minimised as a sum of squares: with S_k >= R, L = 1/2 sum |S_k^-1/2
 // e_k|^2 + 1/2 sum rho_k^2 + 1/2 N ln det R + const, rho_k = sqrt(ln det S_k -
 // ln det R + 1), so Ceres' Levenberg-Marquardt takes it (bounds as box
-// constraints, as output error), with a Jacobian of central differences of
-// the filter's residuals, as CTSM differences L (the result says so). Noise
-// levels, when estimated, are on a log scale, at most 13 decades below their
-// start. The covariance of the estimate is the inverse of L's Hessian
-// (central second differences of L's two sums, each differenced apart so that
-// neither's size spoils the other's precision), not the Gauss-Newton
-// approximation.
+// constraints, as output error). Noise levels, when estimated, are on a log
+// scale, at most 13 decades below their start.
+//
+// The residuals' Jacobian is exact where it can be (likelihood_sensitivity.hpp:
+// the EKF predictor, the Cholesky gain and a model with second derivatives,
+// as the SDK's plugins and text models written with der: have): forward
+// sensitivities of the filter's state and covariance. Otherwise it is
+// central differences of the filter's residuals, and the result says why.
+// The covariance of the estimate is the inverse of L's Hessian, not the
+// Gauss-Newton approximation: central differences of the exact gradient, or
+// (without it) central second differences of L's two sums, each differenced
+// apart so that neither's size spoils the other's precision.
 #pragma once
 
 #include "engine/estimation/estimate.hpp"
@@ -39,6 +44,9 @@ struct MaxLikelihoodSettings {
   bool estimate_process_noise = false;      // the diagonal of Q's states' block, from filter.Q's
   bool estimate_measurement_noise = false;  // the diagonal of R, from filter.R's
   OptimizerSettings optimizer;
+  // Central differences even where the exact gradient is at hand: the
+  // baseline of bench/ and of the tests that compare the two.
+  bool differenced_gradient = false;
 };
 
 // Noise levels at the estimate, when estimated (else as given).

@@ -148,6 +148,12 @@ Result<ModelPtr> Model::create(const riccati_model_v1* t, std::shared_ptr<void> 
   m->with_context_ = with_context;
   m->mech_ = ndof > 0 && !with_context ? t->mech : nullptr;
   m->mech_ctx_ = ndof > 0 && with_context ? t->mech_ctx : nullptr;
+  if (t->struct_size >= offsetof(riccati_model_v1, g_hess_ctx) + sizeof(t->g_hess_ctx)) {
+    m->f_hess_ = t->f_hess;
+    m->g_hess_ = t->g_hess;
+    m->f_hess_ctx_ = t->f_hess_ctx;
+    m->g_hess_ctx_ = t->g_hess_ctx;
+  }
 
   const std::string who = "model " + m->name_ + ": ";
   Status s = read_names(t->state_names, t->nx, "state", &m->state_names_);
@@ -276,6 +282,38 @@ Status Model::f_jacobian(double t, const double* u, const double* x, const doubl
 Status Model::g_jacobian(double t, const double* u, const double* x, const double* theta, double* out,
                          double* jac) const {
   return jacobian(false, t, u, x, theta, out, jac);
+}
+
+Status Model::hessian(bool is_f, double t, const double* u, const double* x, const double* theta, double* out,
+                      double* jac, double* hess) const {
+  if (!has_second_derivatives()) {
+    return failed_precondition("model " + name_ + " gives no second derivatives");
+  }
+  std::array<char, kErrorBufferSize> err;  // not zeroed: written only on failure
+  err[0] = '\0';
+  const int failed = with_context_ ? (is_f ? f_hess_ctx_ : g_hess_ctx_)(table_->user_data, t, u, x, theta, out, jac,
+                                                                        hess, err.data(), err.size())
+                                   : (is_f ? f_hess_ : g_hess_)(t, u, x, theta, out, jac, hess, err.data(), err.size());
+  if (failed != 0) {
+    return internal_error("model " + name_ + ": second derivatives of " + (is_f ? "f" : "g") + " failed at t = " +
+                          std::to_string(t) + ": " + err.data());
+  }
+  const std::size_t rows = static_cast<std::size_t>(is_f ? nx_ : ny_), nz2 = std::size_t(nz()) * std::size_t(nz());
+  if (!all_finite(out, rows) || !all_finite(jac, rows * nz()) || !all_finite(hess, rows * nz2)) {
+    return failed_precondition("model " + name_ + ": the second derivatives of " + (is_f ? "f" : "g") +
+                               " are not finite at t = " + std::to_string(t));
+  }
+  return Status::ok();
+}
+
+Status Model::f_hessian(double t, const double* u, const double* x, const double* theta, double* out, double* jac,
+                        double* hess) const {
+  return hessian(true, t, u, x, theta, out, jac, hess);
+}
+
+Status Model::g_hessian(double t, const double* u, const double* x, const double* theta, double* out, double* jac,
+                        double* hess) const {
+  return hessian(false, t, u, x, theta, out, jac, hess);
 }
 
 Status Model::mechanical(double t, const double* x, const double* theta, double* c, double* Fc, double* c_jac,

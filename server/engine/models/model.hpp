@@ -54,6 +54,12 @@ class Model {
   bool has_f_jacobian() const { return with_context_ ? table_->f_jac_ctx != nullptr : table_->f_jac != nullptr; }
   bool has_g_jacobian() const { return with_context_ ? table_->g_jac_ctx != nullptr : table_->g_jac != nullptr; }
 
+  // Whether the plugin gives exact second derivatives of f and of g (both:
+  // maximum likelihood's exact gradient needs the two).
+  bool has_second_derivatives() const {
+    return with_context_ ? f_hess_ctx_ != nullptr && g_hess_ctx_ != nullptr : f_hess_ != nullptr && g_hess_ != nullptr;
+  }
+
   // f or g at n points stored variable-major with leading dimension ld (see
   // model_abi.h): x [nx * ld], theta [ntheta * ld], out [nx or ny * ld].
   Status f(double t, const double* u, int n, std::size_t ld, const double* x, const double* theta,
@@ -67,6 +73,15 @@ class Model {
                     double* jac) const;
   Status g_jacobian(double t, const double* u, const double* x, const double* theta, double* out,
                     double* jac) const;
+
+  // Value, Jacobian and second derivatives with respect to [x; theta] at one
+  // point (model_abi.h, riccati_hess_fn): hess is rows x nz x nz, entry
+  // d^2 out_i / d z_a d z_b at hess[i + rows (a + nz b)]. Only when
+  // has_second_derivatives().
+  Status f_hessian(double t, const double* u, const double* x, const double* theta, double* out, double* jac,
+                   double* hess) const;
+  Status g_hessian(double t, const double* u, const double* x, const double* theta, double* out, double* jac,
+                   double* hess) const;
 
   // The mechanical form at one point (model_abi.h, riccati_mech_fn): with
   // n = ndof, c [n + ny] = [h; g], Fc [(n + ny) x (nu + n)] = [-H M; R G],
@@ -90,6 +105,8 @@ class Model {
   Status finite_difference_jacobian(bool is_f, double t, const double* u, const double* x, const double* theta,
                                     double* out, double* jac) const;
   Status non_finite_error(bool is_f, double t, int row) const;
+  Status hessian(bool is_f, double t, const double* u, const double* x, const double* theta, double* out,
+                 double* jac, double* hess) const;
 
   const riccati_model_v1* table_ = nullptr;
   std::shared_ptr<void> library_;
@@ -100,6 +117,9 @@ class Model {
   // gives f_ctx and g_ctx, and then used instead of the plain ones.
   bool with_context_ = false;
   riccati_mech_ctx_fn mech_ctx_ = nullptr;
+  // The second derivatives' functions (the table's, when it reaches them).
+  riccati_hess_fn f_hess_ = nullptr, g_hess_ = nullptr;
+  riccati_hess_ctx_fn f_hess_ctx_ = nullptr, g_hess_ctx_ = nullptr;
   std::vector<std::string> state_names_, param_names_, input_names_, output_names_;
   std::vector<std::string> state_units_, param_units_, input_units_, output_units_;
   Eigen::VectorXd theta_default_, theta_lower_, theta_upper_;

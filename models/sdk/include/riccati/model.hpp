@@ -459,6 +459,32 @@ struct Plugin {
     });
   }
 
+  // Value, Jacobian and second derivatives (model_abi.h, riccati_hess_fn)
+  // with second-order dual numbers.
+  template <bool which_f>
+  static int hess(double t, const double* u, const double* x, const double* theta, double* out, double* jac,
+                  double* hessian, char* err, size_t err_len) {
+    constexpr int rows = which_f ? nx : ny;
+    using Jet2 = Dual2<nz>;
+    return guarded(err, err_len, [&] {
+      std::array<Jet2, nx> xj{};
+      std::array<Jet2, (ntheta > 0 ? ntheta : 1)> tj{};
+      std::array<Jet2, rows> oj;
+      for (int i = 0; i < nx; ++i) xj[i] = Jet2::variable(x[i], i);
+      for (int j = 0; j < ntheta; ++j) tj[j] = Jet2::variable(theta[j], nx + j);
+      call<which_f, Jet2>(xj.data(), tj.data(), u, t, oj.data());
+      for (int i = 0; i < rows; ++i) {
+        out[i] = oj[i].v;
+        for (int j = 0; j < nz; ++j) jac[i + j * rows] = oj[i].d[j];
+        for (int b = 0, k = 0; b < nz; ++b) {  // the packed lower triangle, mirrored
+          for (int a = b; a < nz; ++a, ++k) {
+            hessian[i + rows * (a + nz * b)] = hessian[i + rows * (b + nz * a)] = oj[i].h[k];
+          }
+        }
+      }
+    });
+  }
+
   static const riccati_model_v1* table() {
     static const riccati_model_v1 t = {
         RICCATI_MODEL_ABI_VERSION,
@@ -493,6 +519,10 @@ struct Plugin {
         ntheta > 0 ? spec.param_units.data() : nullptr,
         nu > 0 ? spec.input_units.data() : nullptr,
         spec.output_units.data(),
+        &hess<true>,
+        &hess<false>,
+        nullptr,  // the *_ctx forms: a plugin of the SDK needs no context
+        nullptr,
     };
     return &t;
   }

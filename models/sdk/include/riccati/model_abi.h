@@ -74,6 +74,13 @@ typedef int (*riccati_jac_fn)(double t, const double* u, const double* x, const 
  * and their Jacobians with respect to z = [x; theta], column-major:
  * c_jac is (n + ny) x nz, Fc_jac is ((n + ny)(nu + n)) x nz with row k the
  * derivative of Fc's column-major element k. */
+/* One point: the value, the Jacobian as riccati_jac_fn gives it, and the
+ * second derivatives with respect to [x; theta] (hess, rows x nz x nz):
+ * d^2 out_i / d z_a d z_b at hess[i + rows * (a + nz * b)], symmetric in a
+ * and b. */
+typedef int (*riccati_hess_fn)(double t, const double* u, const double* x, const double* theta, double* out,
+                               double* jac, double* hess, char* err, size_t err_len);
+
 typedef int (*riccati_mech_fn)(double t, const double* x, const double* theta, double* c, double* Fc,
                                double* c_jac, double* Fc_jac, char* err, size_t err_len);
 
@@ -84,6 +91,9 @@ typedef int (*riccati_eval_ctx_fn)(void* user_data, uint32_t n, size_t ld, doubl
                                    const double* x, const double* theta, double* out, char* err, size_t err_len);
 typedef int (*riccati_jac_ctx_fn)(void* user_data, double t, const double* u, const double* x,
                                   const double* theta, double* out, double* jac, char* err, size_t err_len);
+typedef int (*riccati_hess_ctx_fn)(void* user_data, double t, const double* u, const double* x,
+                                   const double* theta, double* out, double* jac, double* hess, char* err,
+                                   size_t err_len);
 typedef int (*riccati_mech_ctx_fn)(void* user_data, double t, const double* x, const double* theta, double* c,
                                    double* Fc, double* c_jac, double* Fc_jac, char* err, size_t err_len);
 
@@ -137,6 +147,16 @@ typedef struct riccati_model_v1 {
   const char* const* param_units;  /* [ntheta] or NULL */
   const char* const* input_units;  /* [nu] or NULL */
   const char* const* output_units; /* [ny] or NULL */
+
+  /* Appended: exact second derivatives (optional, NULL for none). Maximum
+   * likelihood's exact gradient needs them for f and for g; without them it
+   * differences the likelihood. The *_ctx forms are used when f_ctx and g_ctx
+   * are set, as above. The SDK fills f_hess and g_hess with second-order dual
+   * numbers. */
+  riccati_hess_fn f_hess;
+  riccati_hess_fn g_hess;
+  riccati_hess_ctx_fn f_hess_ctx;
+  riccati_hess_ctx_fn g_hess_ctx;
 } riccati_model_v1;
 
 /* The size of the table before any field was appended: the least a plugin's

@@ -308,6 +308,18 @@ class Compiler {
                                       std::to_string(text::kMaxGraphNodes) + " operations");
     }
 
+    // Second derivatives, d(df/dz_a)/dz_b at i + rows (a + nz b) (model_abi.h):
+    // the Jacobians differentiated again. A model too large for them keeps
+    // its Jacobians and goes without (maximum likelihood then differences).
+    std::vector<int> f_hess, g_hess;
+    for (int b = 0; b < nz && !graph_.overflowed(); ++b) {
+      const std::vector<int> df = graph_.derivative(f_jac, b);
+      const std::vector<int> dg = graph_.derivative(g_jac, b);
+      f_hess.insert(f_hess.end(), df.begin(), df.end());
+      g_hess.insert(g_hess.end(), dg.begin(), dg.end());
+    }
+    m->has_second_derivatives = !graph_.overflowed();
+
     // Tapes.
     const int num_inputs = nz + m->nu + 1;
     std::vector<int> f_all = f_roots, g_all = g_roots;
@@ -317,7 +329,13 @@ class Compiler {
     m->g = Tape::compile(graph_, g_roots, num_inputs);
     m->f_jac = Tape::compile(graph_, f_all, num_inputs);
     m->g_jac = Tape::compile(graph_, g_all, num_inputs);
-    for (const Tape* tape : {&m->f, &m->g, &m->f_jac, &m->g_jac}) {
+    if (m->has_second_derivatives) {
+      f_all.insert(f_all.end(), f_hess.begin(), f_hess.end());
+      g_all.insert(g_all.end(), g_hess.begin(), g_hess.end());
+      m->f_hess = Tape::compile(graph_, f_all, num_inputs);
+      m->g_hess = Tape::compile(graph_, g_all, num_inputs);
+    }
+    for (const Tape* tape : {&m->f, &m->g, &m->f_jac, &m->g_jac, &m->f_hess, &m->g_hess}) {
       m->registers = std::max(m->registers, tape->registers() + tape->outputs());
     }
     m->fill_table();

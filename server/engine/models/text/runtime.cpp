@@ -285,6 +285,29 @@ struct Runtime : CompiledModel {
       return 1;
     }
   }
+
+  template <bool is_f>
+  static int hess(void* self, double t, const double* u, const double* x, const double* theta, double* out,
+                  double* jacobian, double* hessian, char* err, size_t err_len) {
+    try {
+      const auto* m = static_cast<const Runtime*>(self);
+      const Tape& tape = is_f ? m->f_hess : m->g_hess;
+      double* r = scratch(m->registers);
+      m->load(r, t, u, x, theta, 1, 0);
+      tape.load_constants(r);
+      double* all = r + tape.registers();  // the room for outputs after the registers
+      tape.run(r, all, 1);
+      const std::size_t rows = static_cast<std::size_t>(is_f ? m->nx : m->ny);
+      const std::size_t nz = static_cast<std::size_t>(m->nx + m->ntheta);
+      std::copy(all, all + rows, out);
+      std::copy(all + rows, all + rows + rows * nz, jacobian);
+      std::copy(all + rows + rows * nz, all + rows + rows * nz + rows * nz * nz, hessian);
+      return 0;
+    } catch (const std::exception& e) {
+      write_error(err, err_len, e.what());
+      return 1;
+    }
+  }
 };
 
 }  // namespace
@@ -329,6 +352,10 @@ void CompiledModel::fill_table() {
   table.g_ctx = &Runtime::eval<false>;
   table.f_jac_ctx = &Runtime::jac<true>;
   table.g_jac_ctx = &Runtime::jac<false>;
+  if (has_second_derivatives) {
+    table.f_hess_ctx = &Runtime::hess<true>;
+    table.g_hess_ctx = &Runtime::hess<false>;
+  }
   if (ndof > 0) {
     table.ndof = static_cast<uint32_t>(ndof);
     table.f_ctx = &Runtime::mech_eval<true>;

@@ -26,6 +26,10 @@ struct CompiledModel {
   std::vector<const char*> state_unit_ptrs, param_unit_ptrs, input_unit_ptrs, output_unit_ptrs;
   std::vector<double> theta_default, theta_lower, theta_upper;
   Tape f, g, f_jac, g_jac;  // f_jac: f then df/dz column-major; g_jac likewise
+  // f, df/dz, then d^2 f/dz^2 (model_abi.h's layout); g_hess likewise. Only
+  // for a model written with der: (and small enough for the graph).
+  Tape f_hess, g_hess;
+  bool has_second_derivatives = false;
   int nx = 0, ntheta = 0, nu = 0, ny = 0;
   // The mechanical form (ndof > 0): f and g come from M, h, H, g, G, R,
   // whose values (mech) and derivatives (mech_jac: the values, then entry e

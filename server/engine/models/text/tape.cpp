@@ -234,8 +234,10 @@ std::vector<int> Graph::derivative(const std::vector<int>& roots, int slot) {
         r = make(Op::kIf, make(Op::kGt, n.a, one), zero, make(Op::kIf, make(Op::kLt, n.a, constant(-1.0)), zero, da));
         break;
       case Op::kIf: r = make(Op::kIf, n.a, db, dc); break;
+      // A derivative differentiated again (second derivatives): f' d' + d f'',
+      // each term zero where its factor of d is.
+      case Op::kChain: r = add(chain(da, n.b), chain(n.a, db)); break;
       case Op::kSign: case Op::kLt: case Op::kLe: case Op::kGt: case Op::kGe: case Op::kEq: case Op::kNe:
-      case Op::kChain:  // derivatives are not differentiated again
       case Op::kNegMul:   // made by Tape::compile, never in a graph
         break;
     }

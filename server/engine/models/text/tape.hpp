@@ -9,7 +9,8 @@
 // simplified as they are built. Nodes are created children first, so their
 // indices are a topological order.
 //
-// Derivatives are symbolic, into the same graph (derivative()): forward-mode
+// Derivatives are symbolic, into the same graph (derivative()), and
+// differentiate again for second derivatives: forward-mode
 // dual numbers over the tape would carry nz derivatives through every
 // instruction, most of them zero (df/dtheta_j is zero in all rows but a
 // few), while symbolic derivatives are folded to the structural zeros and
