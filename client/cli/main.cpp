@@ -193,12 +193,20 @@ int main(int argc, char** argv) {
                          "Trace, X, Ymod, ...; validations T, Y, Ymod)")
       ->excludes("--output");
 
-  std::vector<std::string> compare_ids;
+  CompareOptions compare_options;
   auto* compare_cmd = app.add_subcommand(
       "compare",
       "Output-error and likelihood fits side by side: log-likelihood, AIC, AICc, BIC, fit per output; a "
-      "likelihood-ratio test for each nested pair");
-  compare_cmd->add_option("jobs", compare_ids, "Two or more jobs of --method oe or ml")->required()->expected(2, -1);
+      "likelihood-ratio test for each nested pair; with --data, each fit also on one common validation record");
+  compare_cmd->add_option("jobs", compare_options.ids, "Two or more jobs of --method oe or ml")->required()->expected(2, -1);
+  compare_cmd->add_option("--data", compare_options.data,
+                          "A common validation record (a dataset id, or a file to upload): each job's model is "
+                          "simulated on it at its estimate (riccati validate), the fits side by side");
+  compare_cmd->add_option("--horizon", compare_options.horizon,
+                          "With --data: predict each sample K samples ahead with each job's filter and noise model "
+                          "instead of simulating (as nlgreyest's compare(data, m1, m2, K))")
+      ->check(CLI::Range(1u, 4294967295u))
+      ->needs("--data");
 
   ValidateOptions val;
   auto* validate_cmd = app.add_subcommand("validate", "Simulate a model against measured data: the fit table");
@@ -332,7 +340,7 @@ int main(int argc, char** argv) {
     if (!export_path.empty()) return result_export(client, job_id, export_path);
     return result(client, job_id, json && format == "table" ? "json" : format, output, truth);
   }
-  if (*compare_cmd) return compare(client, compare_ids);
+  if (*compare_cmd) return compare(client, compare_options);
   if (*validate_cmd) {
     if (!settings_from("", val_flags, &val.settings)) return kExitUsage;
     return validate(client, val);

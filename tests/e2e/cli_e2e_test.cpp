@@ -523,6 +523,26 @@ TEST_F(CliTest, CompareRanksFitsAndTestsANestedPair) {
   ASSERT_GE(row.size(), 7u) << r.out;
   EXPECT_EQ(row[6].back(), '*') << r.out;
 
+  // On a common validation record (the noise-free one, uploaded): each job
+  // validated there, the true model fitting it better than k2 held wrong.
+  r = riccati("--json compare " + all_free + " " + k2_held + " --data " + kData + "/two_tank.csv");
+  ASSERT_EQ(r.exit_code, 0) << last_stderr();
+  const auto validated = nlohmann::json::parse(r.out);
+  ASSERT_TRUE(validated.contains("validation")) << r.out;
+  EXPECT_EQ(validated["validation"]["horizon"].get<int>(), 0);
+  const auto& free_row = validated["jobs"][0]["validation"];
+  const auto& held_row = validated["jobs"][1]["validation"];
+  EXPECT_GT(free_row["fit_percent"]["h2"].get<double>(), held_row["fit_percent"]["h2"].get<double>()) << r.out;
+  EXPECT_GT(free_row["fit_percent"]["h2"].get<double>(), 99.0) << r.out;
+  // The table says what the extra columns are.
+  r = riccati("compare " + all_free + " " + k2_held + " --data " + kData + "/two_tank.csv --horizon 3");
+  ASSERT_EQ(r.exit_code, 0) << last_stderr();
+  EXPECT_NE(r.out.find("valid. % h2"), std::string::npos) << r.out;
+  EXPECT_NE(r.out.find("each model 3-step on the common record"), std::string::npos) << r.out;
+  // A horizon below 1, or without a record: usage errors.
+  EXPECT_EQ(riccati("compare " + all_free + " " + k2_held + " --data " + kData + "/two_tank.csv --horizon 0").exit_code, 2);
+  EXPECT_EQ(riccati("compare " + all_free + " " + k2_held + " --horizon 3").exit_code, 2);
+
   // An iterated-filter job has no likelihood; jobs on other outputs do not compare.
   r = riccati("identify --model two_tank --data " + data + " --r 1e-4 --passes 1");
   ASSERT_EQ(r.exit_code, 0) << last_stderr();

@@ -11,6 +11,7 @@ import pytest
 
 import riccati
 from conftest import CLI, DATA
+from riccati.v1 import jobs_pb2
 
 # Hensen's settings (examples/two_tank_hensen.yaml), keyword for flag.
 HENSEN = dict(filter="ekf", passes=10, x0="first", theta0=[20, 20, 1, 1], p0=[0, 0, 10, 10, 10, 10], q=0,
@@ -181,6 +182,43 @@ def test_compare_ranks_fits_and_tests_a_nested_pair_as_the_cli_does(client, daem
     assert cli["likelihood_ratio_tests"][0]["p"] == test["p"]
     with pytest.raises(riccati.InvalidArgument, match="compare takes at most 20 jobs"):
         client.compare(*([free.id] * 21))
+
+
+def test_compare_on_a_common_validation_record(client):
+    """Each fit validated on the noise-free record: the fits riccatid sets side by
+    side are those of each job's own validation, and the true model (all four
+    free) fits it better than the one with k2 held wrong; the record is common to
+    all, and validations that are not are refused, naming them."""
+    noisy = client.upload(os.path.join(DATA, "two_tank_noisy.csv"), **IO)
+    clean = client.upload(os.path.join(DATA, "two_tank.csv"), **IO)
+    free = client.submit_identification("two_tank", noisy, method="oe", theta0=[11, 6, 0.09, 0.15])
+    held = client.submit_identification("two_tank", noisy, method="oe", theta0=[11, 6, 0.09, 0.15], fix=["k2=0.12"])
+    free.result(), held.result()
+    c = client.compare(free, held, data=clean)
+    assert c.validation_dataset == clean.id and c.validation_horizon == 0
+    for job in (free, held):
+        alone = client.validate("two_tank", clean, job)
+        for output in ("h1", "h2"):
+            assert c.table.loc[job.id, "validation_fit_percent." + output] == alone.fits.loc[output, "fit_percent"]
+    assert c.table.loc[free.id, "validation_fit_percent.h2"] > c.table.loc[held.id, "validation_fit_percent.h2"]
+    # K steps ahead: output error's noise model has no process noise (Q = 0, P0 = 0),
+    # so its filter never corrects the states and its predictions are its simulation.
+    k1 = client.compare(free, held, data=clean, horizon=1)
+    assert k1.validation_horizon == 1
+    np.testing.assert_allclose(k1.table["validation_fit_percent.h2"], c.table["validation_fit_percent.h2"], rtol=1e-9)
+    assert set(k1.table["validation_job"]).isdisjoint(c.table["validation_job"])
+    # Validations not on one record, or of a job not compared: refused.
+    on_noisy = client.submit_validation("two_tank", noisy, held)
+    on_noisy.result()
+    request = jobs_pb2.CompareJobsRequest(
+        job_ids=[free.id, held.id], validation_job_ids=[c.table.loc[free.id, "validation_job"], on_noisy.id])
+    with pytest.raises(riccati.InvalidArgument, match="not on one common record"):
+        client._call("comparing", client._jobs.CompareJobs, request)
+    request = jobs_pb2.CompareJobsRequest(job_ids=[free.id], validation_job_ids=[on_noisy.id])
+    with pytest.raises(riccati.InvalidArgument, match=f"is of job {held.id}, which is not among the jobs compared"):
+        client._call("comparing", client._jobs.CompareJobs, request)
+    with pytest.raises(TypeError, match="horizon needs data"):
+        client.compare(free, held, horizon=3)
 
 
 def test_output_error_with_intervals(client, truth):

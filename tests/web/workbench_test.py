@@ -44,6 +44,7 @@ from selenium.common.exceptions import NoAlertPresentException, StaleElementRefe
 from selenium.webdriver.chrome.service import Service
 from selenium.webdriver.common.by import By
 from selenium.webdriver.support import expected_conditions as EC
+from selenium.webdriver.support.ui import Select
 from selenium.webdriver.support.select import Select
 from selenium.webdriver.support.ui import WebDriverWait
 
@@ -584,6 +585,8 @@ class Workbench(WorkbenchCase):
         # list, compared as riccatid compares them (POST /api/v1/jobs/compare).
         dataset = self.upload_raw(os.path.join(ARGS.source_dir, "tests/data/two_tank_noisy.csv"), "compare.csv",
                                   ["F1", "F2"], ["h1", "h2"])
+        clean = self.upload_raw(os.path.join(ARGS.source_dir, "tests/data/two_tank.csv"), "compare-clean.csv",
+                                ["F1", "F2"], ["h1", "h2"])
         spec = {"model": "two_tank", "datasetId": dataset, "method": "IDENTIFICATION_METHOD_OE",
                 "theta0": [11, 6, 0.09, 0.15]}
         free = self.api("/jobs/identification", spec)["id"]
@@ -604,6 +607,20 @@ class Workbench(WorkbenchCase):
         test = self.find(f'#ratio-tests li[data-smaller="{held}"][data-larger="{free}"]')
         self.assertIn("the larger model fits significantly better", test.text)
         self.assertTrue(expected["tests"][0]["significant"])
+        # Both fits on a common record (the noise-free one, uploaded above): each
+        # validated there, its fits beside the others, as riccatid's validations say.
+        Select(self.find("#compare-dataset")).select_by_value(clean)
+        self.find("#compare-validate").click()
+        cell = self.find(f'#comparison tr[data-id="{free}"] td.validation[data-output="h2"]')
+        validations = dict(kv.split("=", 1) for kv in self.driver.current_url.split("?", 1)[1].split("&"))["validations"]
+        again = self.api("/jobs/compare", {"jobIds": [free, held], "validationJobIds": validations.split(",")})
+        self.assertEqual(again["validationDatasetId"], clean)
+        by_job = {j["jobId"]: j for j in again["jobs"]}
+        fit = {f["name"]: f["fitPercent"] for f in by_job[free]["validationFits"]}
+        self.assertAlmostEqual(float(cell.text), fit["h2"], places=2)
+        held_fit = {f["name"]: f["fitPercent"] for f in by_job[held]["validationFits"]}
+        self.assertGreater(fit["h2"], held_fit["h2"])  # the true model fits the clean record better
+        self.assertIn("simulated on compare-clean.csv", self.find("#comparison").find_element(By.XPATH, "..").text)
         self.shot("compare")
 
     def test_6b_write_a_model(self):

@@ -56,7 +56,12 @@ int identify(Client& c, const RunSettings& s, bool wait);
 // (the same model, records and method; a parameter free in one and fixed in
 // the other), as riccatid's CompareJobs answers. Jobs of other kinds, or fits
 // of different outputs: riccatid refuses them (INVALID_ARGUMENT, exit 1).
-int compare(Client& c, const std::vector<std::string>& ids);
+struct CompareOptions {
+  std::vector<std::string> ids;
+  std::string data;             // a common validation record (dataset id or file): each job validated on it
+  std::optional<unsigned> horizon;  // with data: K steps ahead instead of the simulation
+};
+int compare(Client& c, const CompareOptions& o);
 // `riccati settings`: every request's settings from the proto's schema, as
 // `format` says: table, json (GET /api/v1/schema's) or markdown (docs/settings.md).
 int settings_reference(const std::string& format);

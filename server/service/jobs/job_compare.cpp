@@ -34,6 +34,66 @@ std::string listed(const std::vector<std::string>& names) {
   return out;
 }
 
+// The validations on a common record (CompareJobsRequest.validation_job_ids),
+// each set beside the job it validates: finished validations of these jobs,
+// one a job, one dataset and one horizon among them.
+Status add_validations(JobManager& jobs, const std::string& tenant, const v1::CompareJobsRequest& request,
+                       std::vector<Fitted>* fits, v1::CompareJobsResponse* out) {
+  if (request.validation_job_ids_size() > request.job_ids_size()) {
+    return invalid_argument("validation_job_ids: at most one validation a compared job (" +
+                            std::to_string(request.job_ids_size()) + "), got " +
+                            std::to_string(request.validation_job_ids_size()));
+  }
+  for (int v = 0; v < request.validation_job_ids_size(); ++v) {
+    const std::string& id = request.validation_job_ids(v);
+    RICCATI_RETURN_IF_ERROR(check_client_string("validation_job_ids", id, kMaxNameBytes));
+    RICCATI_ASSIGN_OR_RETURN(const JobRecord job, jobs.get(tenant, id));
+    v1::ValidationSpec spec;
+    if (job.kind != JobKind::kValidation || !spec.ParseFromString(job.spec)) {
+      return invalid_argument("validation_job_ids: job " + id + " is not a validation");
+    }
+    if (spec.identification_job_id().empty()) {
+      return invalid_argument("validation_job_ids: validation " + id +
+                              " simulates given parameters, not a compared job's estimate");
+    }
+    const auto validated = std::find_if(fits->begin(), fits->end(), [&](const Fitted& f) {
+      return f.summary.job_id() == spec.identification_job_id();
+    });
+    if (validated == fits->end()) {
+      return invalid_argument("validation_job_ids: validation " + id + " is of job " + spec.identification_job_id() +
+                              ", which is not among the jobs compared");
+    }
+    if (!validated->summary.validation_job_id().empty()) {
+      return invalid_argument("validation_job_ids: job " + spec.identification_job_id() + " has two validations (" +
+                              validated->summary.validation_job_id() + " and " + id + ")");
+    }
+    RICCATI_ASSIGN_OR_RETURN(const JobManager::StoredResult stored, jobs.result(tenant, id));
+    v1::JobResult result;
+    if (!result.ParseFromString(stored.encoded) || !result.has_validation()) {
+      return internal_error("stored result of validation " + id + " is unreadable");
+    }
+    const v1::ValidationResult& r = result.validation();
+    if (v == 0) {
+      out->set_validation_dataset_id(spec.dataset_id());
+      out->set_validation_horizon(r.horizon());
+    } else if (spec.dataset_id() != out->validation_dataset_id() || r.horizon() != out->validation_horizon()) {
+      return invalid_argument("validation_job_ids: validations " + request.validation_job_ids(0) + " and " + id +
+                              " are not on one common record (datasets " + out->validation_dataset_id() + " and " +
+                              spec.dataset_id() + ", horizons " + std::to_string(out->validation_horizon()) + " and " +
+                              std::to_string(r.horizon()) + ")");
+    }
+    std::vector<std::string> outputs;
+    for (const v1::OutputFit& fit : r.fits()) outputs.push_back(fit.name());
+    if (outputs != validated->outputs) {
+      return invalid_argument("validation " + id + " fits outputs " + listed(outputs) + ", its job " +
+                              validated->summary.job_id() + " " + listed(validated->outputs));
+    }
+    validated->summary.set_validation_job_id(id);
+    *validated->summary.mutable_validation_fits() = r.fits();
+  }
+  return Status::ok();
+}
+
 }  // namespace
 
 Result<v1::CompareJobsResponse> compare_jobs(JobManager& jobs, const std::string& tenant,
@@ -94,6 +154,7 @@ Result<v1::CompareJobsResponse> compare_jobs(JobManager& jobs, const std::string
     }
   }
   v1::CompareJobsResponse out;
+  RICCATI_RETURN_IF_ERROR(add_validations(jobs, tenant, request, &fits, &out));
   // Lower is better among fits to the same data: the first lowest marked.
   std::size_t lowest_aic = 0, lowest_bic = 0;
   for (std::size_t j = 1; j < fits.size(); ++j) {

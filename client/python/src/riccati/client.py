@@ -261,14 +261,31 @@ class Client:
                              jobs_pb2.GetResultRequest(job_id=job_id))
         return results.from_proto(message, self.model(model))
 
-    def compare(self, *jobs):
+    def compare(self, *jobs, data=None, horizon=None, inputs=None, outputs=None):
         """Output-error and likelihood fits side by side, as `riccati compare` (riccatid
         compares: CompareJobs). jobs: Jobs, results or job ids. A Comparison: .table by job
         (model, method, k, n, log_likelihood, aic, aicc, bic, lowest_aic, lowest_bic and
         fit_percent.<output>), .tests the likelihood-ratio test of each nested pair
-        (smaller, larger, statistic, dof, p, significant)."""
+        (smaller, larger, statistic, dof, p, significant).
+
+        data: a common validation record (a Dataset, its id, or data to upload, with
+        inputs and outputs naming its columns): each job is validated on it
+        (simulated, or with horizon=K predicted K samples ahead with its filter and
+        noise model) and .table has validation_fit_percent.<output> too, as
+        `riccati compare --data`."""
+        if horizon is not None and data is None:
+            raise TypeError("compare(): horizon needs data, the common validation record")
         ids = [j.id if isinstance(j, Job) else j.job_id if isinstance(j, results._Result) else j for j in jobs]
-        message = self._call("comparing the jobs", self._jobs.CompareJobs, jobs_pb2.CompareJobsRequest(job_ids=ids))
+        request = jobs_pb2.CompareJobsRequest(job_ids=ids)
+        message = self._call("comparing the jobs", self._jobs.CompareJobs, request)
+        if data is not None:
+            dataset = self._dataset_id(data, inputs, outputs, message.jobs[0].model if message.jobs else None)
+            extra = {} if horizon is None else {"horizon": horizon}
+            for j in message.jobs:
+                validation = self.submit_validation(j.model, dataset, j.job_id, **extra)
+                validation.result()
+                request.validation_job_ids.append(validation.id)
+            message = self._call("comparing the jobs", self._jobs.CompareJobs, request)
         return results.Comparison(message)
 
     def submit_identification(self, model, ds, inputs=None, outputs=None, request_id=None, **settings):

@@ -544,7 +544,9 @@ class Comparison:
     - table: a DataFrame by job: model, method, k, n, log_likelihood, aic, aicc, bic,
       lowest_aic, lowest_bic (the best of these fits by that criterion; lower is
       better among fits to the same data) and fit_percent.<output> (the first
-      record's: oe's simulated, ml's one step ahead)
+      record's: oe's simulated, ml's one step ahead); with a common validation
+      record (compare(data=...)), validation_job and validation_fit_percent.<output>
+    - validation_dataset, validation_horizon: that record, and 0 (simulation) or K
     - tests: a DataFrame, a row per nested pair (the smaller model the larger with
       some parameters held): smaller, larger, statistic = 2 (ln L_larger -
       ln L_smaller), dof, p, significant (p < 0.05: the larger fits significantly better)
@@ -560,7 +562,13 @@ class Comparison:
                    "aicc": j.aicc, "bic": j.bic, "lowest_aic": j.lowest_aic, "lowest_bic": j.lowest_bic}
             for f in j.fits:
                 row[column("fit_percent", f.name)] = f.fit_percent
+            if message.validation_dataset_id:
+                row["validation_job"] = j.validation_job_id
+                for f in j.validation_fits:
+                    row[column("validation_fit_percent", f.name)] = f.fit_percent
             rows.append(row)
+        self.validation_dataset = message.validation_dataset_id or None
+        self.validation_horizon = message.validation_horizon if message.validation_dataset_id else None
         self.table = pd.DataFrame(rows).set_index("job") if rows else pd.DataFrame()
         self.tests = pd.DataFrame([{"smaller": t.smaller, "larger": t.larger, "statistic": t.statistic, "dof": t.dof,
                                     "p": t.p, "significant": t.significant} for t in message.tests],

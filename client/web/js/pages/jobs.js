@@ -45,7 +45,10 @@ const comparable = (job) => stateOf(job) === 'SUCCEEDED' &&
 
 export async function show(main, r, signal) {
   if (r.id) return showJob(main, r.id, signal);
-  if (r.query.get('compare')) return showComparison(main, r.query.get('compare').split(','), signal);
+  if (r.query.get('compare')) {
+    const validations = r.query.get('validations') ? r.query.get('validations').split(',') : [];
+    return showComparison(main, r.query.get('compare').split(','), validations, signal);
+  }
   const picked = new Set();  // kept across the list's redraws
   const compareButton = h('button', {id: 'compare-jobs', disabled: true,
     onclick: () => { location.hash = '#/jobs?compare=' + [...picked].map(encodeURIComponent).join(','); }}, 'Compare fits');
@@ -158,20 +161,49 @@ async function showJob(main, id, signal) {
   }
 }
 
+// Each compared job validated on one record (POST /jobs/validation, as
+// `riccati compare --data`), waited for; their ids in the jobs' order.
+async function validateEach(jobs, datasetId, horizon, signal) {
+  const ids = [];
+  for (const j of jobs) {
+    const spec = {model: j.model, datasetId, identificationJobId: j.jobId, initialState: {firstMeasurement: true}};
+    if (horizon) spec.horizon = horizon;
+    const job = await api('POST', '/jobs/validation', spec, {signal});
+    for (;;) {
+      const now = await api('GET', `/jobs/${encodeURIComponent(job.id)}`, undefined, {signal});
+      if (now.state === 'JOB_STATE_SUCCEEDED') break;
+      if (['JOB_STATE_FAILED', 'JOB_STATE_CANCELLED'].includes(now.state)) {
+        throw new Error(`the validation of job ${j.jobId}: ${(now.error && now.error.message) || now.state}`);
+      }
+      await new Promise((done) => setTimeout(done, 300));
+    }
+    ids.push(job.id);
+  }
+  return ids;
+}
+
 // riccatid's comparison of the fits (CompareJobs): the criteria, the lowest
-// marked, each output's fit, and the likelihood-ratio tests.
-async function showComparison(main, ids, signal) {
+// marked, each output's fit, and the likelihood-ratio tests; with
+// validations of the jobs on one record, their fits there too, and a form to
+// make them.
+async function showComparison(main, ids, validations, signal) {
   clear(main, h('h1', {}, 'Fits compared'));
-  let r;
+  let r, datasets;
   try {
-    r = await api('POST', '/jobs/compare', {jobIds: ids}, {signal});
+    [r, datasets] = await Promise.all([
+      api('POST', '/jobs/compare', {jobIds: ids, validationJobIds: validations}, {signal}),
+      api('GET', '/datasets', undefined, {signal})]);
   } catch (err) {
     return main.append(errorBox(err), h('p', {}, h('a', {href: '#/jobs'}, 'Jobs')));
   }
   const outputs = r.outputs || [];
+  const validated = Boolean(r.validationDatasetId);
+  const record = (datasets.datasets || []).find((d) => d.id === r.validationDatasetId);
+  const on = validated ? `${r.validationHorizon ? `${num(r.validationHorizon)}-step` : 'simulated'} on ${record ? record.name : r.validationDatasetId}` : '';
   const mark = (v, lowest) => `${fmt(v, 10)}${lowest ? ' *' : ''}`;
   main.append(h('table', {class: 'wide', id: 'comparison'},
-    h('thead', {}, h('tr', {}, ['Job', 'Model', 'Method', 'k', 'n', 'Log-likelihood', 'AIC', 'AICc', 'BIC', ...outputs.map((o) => `Fit % ${o}`)]
+    h('thead', {}, h('tr', {}, ['Job', 'Model', 'Method', 'k', 'n', 'Log-likelihood', 'AIC', 'AICc', 'BIC', ...outputs.map((o) => `Fit % ${o}`),
+      ...(validated ? outputs.map((o) => `Fit % ${o}, ${on}`) : [])]
       .map((c, i) => h('th', {class: i >= 3 ? 'num' : ''}, c)))),
     h('tbody', {}, (r.jobs || []).map((j) => h('tr', {'data-id': j.jobId},
       h('td', {}, h('a', {href: '#/jobs/' + encodeURIComponent(j.jobId)}, j.jobId)), h('td', {}, j.model),
@@ -181,8 +213,37 @@ async function showComparison(main, ids, signal) {
       h('td', {class: 'num aic' + (j.lowestAic ? ' best' : '')}, mark(j.aic, j.lowestAic)),
       h('td', {class: 'num'}, fmt(j.aicc, 10)),
       h('td', {class: 'num bic' + (j.lowestBic ? ' best' : '')}, mark(j.bic, j.lowestBic)),
-      ...(j.fits || []).map((f) => h('td', {class: 'num'}, fmt(f.fitPercent, 4))))))),
-  h('p', {class: 'muted'}, '* the lowest: the best of these fits by that criterion (lower is better among fits to the same data); fit %: the first record\'s, output error\'s simulated, likelihood\'s one step ahead.'));
+      ...(j.fits || []).map((f) => h('td', {class: 'num'}, fmt(f.fitPercent, 4))),
+      ...(j.validationFits || []).map((f) => h('td', {class: 'num validation', 'data-output': f.name}, fmt(f.fitPercent, 4))))))),
+  h('p', {class: 'muted'}, '* the lowest: the best of these fits by that criterion (lower is better among fits to the same data); fit %: the first record\'s, output error\'s simulated, likelihood\'s one step ahead' +
+    (validated ? `; on the common record: each model at its estimate, ${on}.` : '.')));
+  // Every fit on one record of the user's choice, simulated or K steps ahead.
+  const datasetSelect = h('select', {id: 'compare-dataset'}, (datasets.datasets || []).map((d) =>
+    h('option', {value: d.id, selected: d.id === r.validationDatasetId}, d.name)));
+  const horizon = h('input', {type: 'number', min: '1', step: '1', id: 'compare-horizon', placeholder: 'simulation',
+    value: r.validationHorizon ? String(r.validationHorizon) : ''});
+  const status = h('div', {id: 'compare-status'});
+  const go = h('button', {class: 'primary', id: 'compare-validate', type: 'submit'}, 'Validate each and compare');
+  const form = h('form', {class: 'panel', id: 'compare-record'},
+    h('div', {class: 'row'}, h('label', {}, 'Common validation record', datasetSelect),
+      h('label', {}, 'Horizon (samples ahead; empty: simulation)', horizon)), h('p', {}, go), status);
+  form.addEventListener('submit', async (e) => {
+    e.preventDefault();
+    const k = horizon.value === '' ? 0 : Number(horizon.value);
+    if (horizon.value !== '' && !(Number.isInteger(k) && k >= 1)) {
+      return clear(status, errorBox(new Error('horizon: a whole number of samples, at least 1 (empty: the simulation)')));
+    }
+    go.disabled = true;
+    clear(status, h('p', {class: 'muted'}, 'validating each fit on the record ...'));
+    try {
+      const made = await validateEach(r.jobs || [], datasetSelect.value, k, signal);
+      location.hash = '#/jobs?compare=' + ids.map(encodeURIComponent).join(',') + '&validations=' + made.map(encodeURIComponent).join(',');
+    } catch (err) {
+      clear(status, errorBox(err));
+      go.disabled = false;
+    }
+  });
+  main.append(form);
   const tests = r.tests || [];
   if (tests.length) {
     main.append(h('h2', {}, 'Likelihood-ratio tests'), h('ul', {id: 'ratio-tests'}, tests.map((t) => h('li', {'data-smaller': t.smaller, 'data-larger': t.larger},
