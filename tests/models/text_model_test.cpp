@@ -329,6 +329,45 @@ TEST(TextModel, TwoTankIdentificationEqualsThePlugins) {
   }
 }
 
+// Second derivatives are compiled for a model of a size that maximum
+// likelihood handles, and left out (the model still compiles, with its
+// Jacobians) when (nx + ny) nz^2 passes 65,536: a chain of 40 tanks with 10
+// parameters has 41 x 50^2 = 102,500. The small one's are exact: for
+// h' = F - k h^2, d2f/dh2 = -2k and d2f/dh dk = -2h.
+TEST(TextModel, SecondDerivativesAreCompiledUpToTheirBound) {
+  auto small = compile_text_model(R"(model: leak
+states: {h: {}}
+inputs: {F: {}}
+parameters: {k: {value: 0.3}}
+der: {h: F - k * h^2}
+outputs: {h: h}
+)", "leak.yaml");
+  ASSERT_TRUE(small.is_ok()) << small.status().to_string();
+  ASSERT_TRUE(small->model->has_second_derivatives());
+  const double u = 1.0, h = 2.0, k = 0.3;
+  double f = 0, jac[2] = {0, 0}, hess[4] = {0, 0, 0, 0};
+  ASSERT_TRUE(small->model->f_hessian(0.0, &u, &h, &k, &f, jac, hess).is_ok());
+  EXPECT_DOUBLE_EQ(hess[0], -2.0 * k);  // d2f/dh2
+  EXPECT_DOUBLE_EQ(hess[1], -2.0 * h);  // d2f/dk dh
+  EXPECT_DOUBLE_EQ(hess[2], -2.0 * h);  // d2f/dh dk
+  EXPECT_DOUBLE_EQ(hess[3], 0.0);       // d2f/dk2
+
+  std::string yaml = "model: chain\nstates: {";
+  for (int i = 0; i < 40; ++i) yaml += (i ? ", " : "") + std::string("h") + std::to_string(i) + ": {}";
+  yaml += "}\ninputs: {F: {}}\nparameters: {";
+  for (int j = 0; j < 10; ++j) yaml += (j ? ", " : "") + std::string("k") + std::to_string(j) + ": {value: 0.1}";
+  yaml += "}\nder:\n";
+  for (int i = 0; i < 40; ++i) {
+    yaml += "  h" + std::to_string(i) + ": " + (i ? "k" + std::to_string((i - 1) % 10) + " * h" + std::to_string(i - 1) : std::string("F")) +
+            " - k" + std::to_string(i % 10) + " * h" + std::to_string(i) + "\n";
+  }
+  yaml += "outputs: {y: h39}\n";
+  auto large = compile_text_model(yaml, "chain.yaml");
+  ASSERT_TRUE(large.is_ok()) << large.status().to_string();
+  EXPECT_FALSE(large->model->has_second_derivatives());
+  EXPECT_TRUE(large->model->has_f_jacobian());
+}
+
 // The issue's example, with sqrt(max(h, 0)): an empty tank has outflow 0 and
 // derivative 0 (the chain rule gives 0 where max(h, 0) does not move).
 TEST(TextModel, SqrtOfMaxIsDifferentiableBelowZero) {

@@ -309,16 +309,22 @@ class Compiler {
     }
 
     // Second derivatives, d(df/dz_a)/dz_b at i + rows (a + nz b) (model_abi.h):
-    // the Jacobians differentiated again. A model too large for them keeps
-    // its Jacobians and goes without (maximum likelihood then differences).
+    // the Jacobians differentiated again. A model too large for them (more
+    // than kMaxSecondDerivatives entries, or a graph past its bound) keeps its
+    // Jacobians and goes without: maximum likelihood then differences, and
+    // compiling an upload costs what it did.
+    constexpr std::size_t kMaxSecondDerivatives = std::size_t{1} << 16;
+    const bool second_derivatives_fit =
+        static_cast<std::size_t>(m->nx + m->ny) * static_cast<std::size_t>(nz) * static_cast<std::size_t>(nz) <=
+        kMaxSecondDerivatives;
     std::vector<int> f_hess, g_hess;
-    for (int b = 0; b < nz && !graph_.overflowed(); ++b) {
+    for (int b = 0; b < nz && second_derivatives_fit && !graph_.overflowed(); ++b) {
       const std::vector<int> df = graph_.derivative(f_jac, b);
       const std::vector<int> dg = graph_.derivative(g_jac, b);
       f_hess.insert(f_hess.end(), df.begin(), df.end());
       g_hess.insert(g_hess.end(), dg.begin(), dg.end());
     }
-    m->has_second_derivatives = !graph_.overflowed();
+    m->has_second_derivatives = second_derivatives_fit && !graph_.overflowed();
 
     // Tapes.
     const int num_inputs = nz + m->nu + 1;
