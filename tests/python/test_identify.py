@@ -338,6 +338,8 @@ def test_an_output_error_result_explains_itself_and_plots(client, daemon, tmp_pa
     text = repr(res)
     assert text.startswith(f"<EstimationResult of job {job.id}, model two_tank: oe, converged after ")
     assert f"A1 = {res.theta['A1']:.6g}" in text
+    assert res.gradient == res.proto.gradient and "forward sensitivities" in res.gradient
+    assert f"gradient: {res.gradient}" in str(res)
     summary = res.summary()
     assert list(summary.columns) == ["estimate", "std", "lower", "upper", "rel_std_percent", "fixed"]
     assert list(summary.index) == ["A1", "A2", "k1", "k2"]

@@ -317,6 +317,8 @@ class EstimationResult(_Result):
     - ci: the 95 % intervals (columns lower, upper); fixed: a boolean Series
     - covariance_method: which covariance std comes from (white residuals, or robust
       to autocorrelated ones), in words
+    - gradient: how the optimiser had its gradient (exact sensitivities, or central
+      differences and why), in words
     - covariance, correlation: DataFrames by parameter
     - traces: the criterion after each iteration (a DataFrame indexed by iteration)
     - experiments: an ExperimentFit per record; fits: their fits, by (experiment, output)
@@ -345,6 +347,7 @@ class EstimationResult(_Result):
         self.converged = r.converged
         self.iterations = r.iterations
         self.termination = r.termination
+        self.gradient = r.gradient
         self.criteria = pd.Series({"log_likelihood": r.log_likelihood, "aic": r.aic, "aicc": r.aicc, "bic": r.bic,
                                    "k": r.estimated_quantities, "n": r.samples}, name="criteria", dtype=float)
         self.traces = pd.DataFrame({"cost": list(r.cost_history)},
@@ -407,7 +410,7 @@ class EstimationResult(_Result):
     def __str__(self):
         lines = [f"{self.method} estimate of {self.model.name}, job {self.job_id}: "
                  f"{'converged' if self.converged else 'not converged'} after {self.iterations} iterations "
-                 f"({self.termination}), cost {self.cost:.6g}"]
+                 f"({self.termination}), cost {self.cost:.6g}; gradient: {self.gradient}"]
         c = self.criteria
         if c["n"] > 0:
             lines.append(f"log-likelihood {c['log_likelihood']:.10g}; AIC {c['aic']:.10g}, AICc {c['aicc']:.10g}, "
