@@ -42,7 +42,7 @@ struct LikelihoodSensitivity::Work {
   Eigen::LLT<Eigen::MatrixXd> llt;
   Eigen::VectorXd e, white, de, white_d, dG_all;  // e, w = L^-1 e, de, a = L^-1 de, dG as a vector
   Eigen::MatrixXd A, X;  // per sample: a_c and vec(X_c) of each direction (likelihood_sensitivity.hpp)
-  Eigen::MatrixXd PGt, S, Kt, dGPGt, dPGt, dS, Phi, dKt, SKt, dKSKt, dSKt, IKG, IKGP, P_new, RKt;
+  Eigen::MatrixXd PGt, S, Kt, dGPGt, dPGt, dS, Xc, dKt, SKt, dKSKt, dSKt, IKG, IKGP, P_new, RKt;
 };
 
 namespace {
@@ -202,6 +202,7 @@ Status LikelihoodSensitivity::pass(const Experiment& ex, const LikelihoodPoint& 
   const Eigen::Index N = d.size();
   k.m = m;
   k.second_order = m > 0 && !(P0x_.isZero(0.0) && at.Q.isZero(0.0) && directions.q.isZero(0.0));
+  if (!k.second_order) k.Hg.setZero();  // dG then multiplies P and dP, both zero: no second derivatives
   k.theta = at.theta;
   k.Q = at.Q;
   k.R = at.R;
@@ -270,7 +271,6 @@ Status LikelihoodSensitivity::update(double t, const double* u, const double* y,
   double* w = k.w.data();
   if (!k.second_order) {
     RICCATI_RETURN_IF_ERROR(model_->g_jacobian(t, u, w, k.theta.data(), k.y_pred.data(), k.Gfull.data()));
-    k.Hg.setZero();  // dG multiplies P and dP, both zero
   } else {
     RICCATI_RETURN_IF_ERROR(model_->g_hessian(t, u, w, k.theta.data(), k.y_pred.data(), k.Gfull.data(), k.Hg.data()));
   }
@@ -296,6 +296,7 @@ Status LikelihoodSensitivity::update(double t, const double* u, const double* y,
   k.Kt = k.PGt.transpose();  // K^T = S^-1 G P
   k.llt.solveInPlace(k.Kt);
   if (m > 0) {
+    k.SKt.noalias() = k.S * k.Kt;
     double* dx_all = w + nx + nx * nx;
     double* dP_all = dx_all + nx * m;
     const Eigen::Index nz = model_->nz();
@@ -314,17 +315,17 @@ Status LikelihoodSensitivity::update(double t, const double* u, const double* y,
       k.dS.noalias() = G * k.dPGt;
       k.dS += k.dGPGt + k.dGPGt.transpose();
       k.dS.diagonal() += k.directions->r.col(c);
-      // X = L^-1 dS L^-T (kept in Phi), a = L^-1 de.
-      k.Phi = k.dS;
-      L.solveInPlace(k.Phi);
-      k.Phi.transposeInPlace();
-      L.solveInPlace(k.Phi);
+      // X_c = L^-1 dS L^-T, a_c = L^-1 de.
+      k.Xc = k.dS;
+      L.solveInPlace(k.Xc);
+      k.Xc.transposeInPlace();
+      L.solveInPlace(k.Xc);
       k.white_d = k.de;
       L.solveInPlace(k.white_d);
       // dL = a' w - 1/2 w' X w + 1/2 tr X  (d ln det S = tr(S^-1 dS) = tr X).
       k.A.col(c) = k.white_d;
-      k.X.col(c) = Eigen::Map<const Eigen::VectorXd>(k.Phi.data(), ny * ny);
-      sums->gradient[c] += k.white_d.dot(k.white) - 0.5 * k.white.dot(k.Phi * k.white) + 0.5 * k.Phi.trace();
+      k.X.col(c) = Eigen::Map<const Eigen::VectorXd>(k.Xc.data(), ny * ny);
+      sums->gradient[c] += k.white_d.dot(k.white) - 0.5 * k.white.dot(k.Xc * k.white) + 0.5 * k.Xc.trace();
       // dK = (dP G^T + P dG^T - K dS) S^-1, as dK^T = S^-1 (G dP + dG P - dS K^T).
       k.dPGt.noalias() += P * dG.transpose();
       k.dKt = k.dPGt.transpose();
@@ -333,7 +334,6 @@ Status LikelihoodSensitivity::update(double t, const double* u, const double* y,
       // dx+ = dx + dK e + K de;  dP+ = dP - dK S K^T - K S dK^T - K dS K^T.
       dx.noalias() += k.dKt.transpose() * k.e;
       dx.noalias() += k.Kt.transpose() * k.de;
-      k.SKt.noalias() = k.S * k.Kt;
       k.dKSKt.noalias() = k.dKt.transpose() * k.SKt;
       dP -= k.dKSKt;
       dP -= k.dKSKt.transpose();

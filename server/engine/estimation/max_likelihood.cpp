@@ -138,7 +138,9 @@ class Likelihood {
     return n;
   }
 
-  // The predictor of experiment e at `at` as the exact sensitivities take it.
+  // The predictor of experiment e at `at`: its initial states, and the
+  // noise with the diagonals of the point (the filter's and the exact
+  // sensitivities' alike).
   LikelihoodPoint predictor_point(std::size_t e, const Point& at) const {
     const int nx = model_->nx();
     LikelihoodPoint out;
@@ -205,11 +207,11 @@ class Likelihood {
       RICCATI_RETURN_IF_ERROR(runners_[e]->restart(std::move(initial)));
       return &*runners_[e];
     }
+    const LikelihoodPoint noise = predictor_point(e, at);
     FilterSettings filter = settings_.filter;
     filter.Q = Eigen::MatrixXd::Zero(nz, nz);
-    filter.Q.topLeftCorner(nx, nx) = settings_.filter.Q.topLeftCorner(nx, nx);
-    filter.Q.diagonal().head(nx) = at.q;
-    filter.R.diagonal() = at.r;
+    filter.Q.topLeftCorner(nx, nx) = noise.Q;
+    filter.R = noise.R;
     runners_[e].reset();
     RICCATI_ASSIGN_OR_RETURN(OnlineRunner made, OnlineRunner::create(model_, filter, std::move(initial)));
     runners_[e].emplace(std::move(made));
@@ -395,17 +397,16 @@ Status hessian(Likelihood& likelihood, const Unknowns& unknowns, const Eigen::Ve
 // is exact to about 1e-12 of its size) both near 1e-6 of the Hessian, far
 // below what a standard error needs.
 Status hessian_from_gradient(Likelihood& likelihood, LikelihoodSensitivity& sensitivity, const Unknowns& unknowns,
-                             const Eigen::VectorXd& v, Eigen::MatrixXd* H) {
+                             const Eigen::VectorXd& v, const Eigen::VectorXd& gradient, Eigen::MatrixXd* H) {
   const Eigen::Index n = v.size();
   H->setZero(n, n);
-  LikelihoodDerivatives at, moved_point;
-  RICCATI_RETURN_IF_ERROR(likelihood.derivatives(sensitivity, v, true, &at));
+  LikelihoodDerivatives moved_point;
   for (Eigen::Index j = 0; j < n; ++j) {
     const double h = 1e-6 * std::max(std::abs(v[j]), unknowns.typical[j]);
     Eigen::VectorXd moved = v;
     moved[j] = v[j] + h;
     RICCATI_RETURN_IF_ERROR(likelihood.derivatives(sensitivity, moved, true, &moved_point));
-    H->col(j) = (moved_point.gradient - at.gradient) / h;
+    H->col(j) = (moved_point.gradient - gradient) / h;
   }
   *H = (0.5 * (*H + H->transpose())).eval();
   return Status::ok();
@@ -417,6 +418,7 @@ struct Minimisation {
   int derivative_evaluations = 0;
   bool converged = false;
   std::string termination;
+  Eigen::VectorXd gradient;  // L's at the end
 };
 
 // Minimises L over the unknowns from v within [lower, upper] by Fisher
@@ -440,6 +442,13 @@ Result<Minimisation> fisher_scoring(Likelihood& likelihood, LikelihoodSensitivit
   ++out.derivative_evaluations;
   history->push_back(at.value());
   if (hooks.progress) hooks.progress(EstimationProgress{0, at.value()});
+  // Ends the minimisation at v, whose derivatives `at` holds.
+  const auto finish = [&](bool converged, std::string termination) {
+    out.converged = converged;
+    out.termination = std::move(termination);
+    out.gradient = at.gradient;
+    return out;
+  };
   double lambda = 1e-3;
   double noise_radius = kLn10;
   Status last_failure;
@@ -447,9 +456,7 @@ Result<Minimisation> fisher_scoring(Likelihood& likelihood, LikelihoodSensitivit
     if (hooks.stop.stop_requested()) return cancelled("maximum likelihood cancelled after iteration " + std::to_string(iteration - 1));
     const double projected_gradient = (*v - project(*v - at.gradient)).cwiseAbs().maxCoeff();
     if (projected_gradient <= settings.gradient_tolerance) {
-      out.converged = true;
-      out.termination = "the projected gradient is within the gradient tolerance";
-      return out;
+      return finish(true, "the projected gradient is within the gradient tolerance");
     }
     // Unknowns held at a bound that the gradient pushes against stay there.
     std::vector<Eigen::Index> free;
@@ -469,10 +476,9 @@ Result<Minimisation> fisher_scoring(Likelihood& likelihood, LikelihoodSensitivit
     while (!stepped) {
       if (lambda > 1e16) {
         // No step decreases L any more: it is at its minimum to rounding.
-        out.converged = last_failure.is_ok();
-        out.termination = last_failure.is_ok() ? "no step decreases the likelihood further"
-                                                : "no step could be taken: " + last_failure.message();
-        return out;
+        return finish(last_failure.is_ok(), last_failure.is_ok()
+                                                ? "no step decreases the likelihood further"
+                                                : "no step could be taken: " + last_failure.message());
       }
       Eigen::MatrixXd damped = F;
       damped.diagonal() += lambda * scale;
@@ -492,9 +498,7 @@ Result<Minimisation> fisher_scoring(Likelihood& likelihood, LikelihoodSensitivit
       candidate = project(candidate);
       const Eigen::VectorXd step = candidate - *v;
       if (step.cwiseAbs().maxCoeff() <= settings.parameter_tolerance * (v->cwiseAbs().maxCoeff() + settings.parameter_tolerance)) {
-        out.converged = true;
-        out.termination = "the step is within the parameter tolerance";
-        return out;
+        return finish(true, "the step is within the parameter tolerance");
       }
       const double predicted = -(at.gradient.dot(step) + 0.5 * step.dot(at.fisher * step));
       const Status evaluated = likelihood.derivatives(sensitivity, candidate, true, &trial);
@@ -519,15 +523,12 @@ Result<Minimisation> fisher_scoring(Likelihood& likelihood, LikelihoodSensitivit
       history->push_back(at.value());
       if (hooks.progress) hooks.progress(EstimationProgress{iteration, at.value()});
       if (small_change) {
-        out.converged = true;
-        out.termination = "the change of the likelihood is within the function tolerance";
-        return out;
+        return finish(true, "the change of the likelihood is within the function tolerance");
       }
       stepped = true;
     }
   }
-  out.termination = "the iteration limit (" + std::to_string(settings.max_iterations) + ") was reached";
-  return out;
+  return finish(false, "the iteration limit (" + std::to_string(settings.max_iterations) + ") was reached");
 }
 
 }  // namespace
@@ -701,23 +702,20 @@ Result<MaxLikelihoodResult> max_likelihood(ModelPtr model, const std::vector<Exp
 
     return unknowns_now();
 };
-  Eigen::VectorXd v;
+  Eigen::VectorXd v, gradient_at_estimate;
   if (sensitivity.has_value()) {
     // The bounds in the unknowns' coordinates; estimated noise levels within
     // 13 decades (30 in ln) of their start below, as the differenced path's.
     Eigen::VectorXd lower = unknowns.lower, upper = unknowns.upper;
-    for (const std::vector<Eigen::Index>* levels : {&unknowns.q, &unknowns.r}) {
-      for (const Eigen::Index i : *levels) {
-        if (i >= 0) lower[i] = unknowns.start[i] - 30.0;
-      }
-    }
-    v = unknowns.start;
     std::vector<bool> noise_level(static_cast<std::size_t>(unknowns.size()), false);
     for (const std::vector<Eigen::Index>* levels : {&unknowns.q, &unknowns.r}) {
       for (const Eigen::Index i : *levels) {
-        if (i >= 0) noise_level[static_cast<std::size_t>(i)] = true;
+        if (i < 0) continue;
+        lower[i] = unknowns.start[i] - 30.0;
+        noise_level[static_cast<std::size_t>(i)] = true;
       }
     }
+    v = unknowns.start;
     RICCATI_ASSIGN_OR_RETURN(const Minimisation done,
                              fisher_scoring(likelihood, *sensitivity, lower, upper, noise_level, settings.optimizer, hooks,
                                             &result.cost_history, &v));
@@ -725,6 +723,7 @@ Result<MaxLikelihoodResult> max_likelihood(ModelPtr model, const std::vector<Exp
     result.jacobian_evaluations = done.derivative_evaluations;
     result.converged = done.converged;
     result.termination = done.termination;
+    gradient_at_estimate = done.gradient;
   } else {
     RICCATI_ASSIGN_OR_RETURN(v, by_differences());
   }
@@ -743,7 +742,7 @@ Result<MaxLikelihoodResult> max_likelihood(ModelPtr model, const std::vector<Exp
   // Covariance: the inverse of L's Hessian, in natural coordinates (log
   // coordinates scaled back: H_natural = D^-1 H D^-1, D = d natural / d v).
   Eigen::MatrixXd H;
-  RICCATI_RETURN_IF_ERROR((sensitivity.has_value() ? hessian_from_gradient(likelihood, *sensitivity, unknowns, v, &H)
+  RICCATI_RETURN_IF_ERROR((sensitivity.has_value() ? hessian_from_gradient(likelihood, *sensitivity, unknowns, v, gradient_at_estimate, &H)
                                                    : hessian(likelihood, unknowns, v, &H))
                               .with_context("the likelihood's Hessian"));
   result.evaluations = likelihood.evaluations();
