@@ -44,7 +44,6 @@ from selenium.common.exceptions import NoAlertPresentException, StaleElementRefe
 from selenium.webdriver.chrome.service import Service
 from selenium.webdriver.common.by import By
 from selenium.webdriver.support import expected_conditions as EC
-from selenium.webdriver.support.ui import Select
 from selenium.webdriver.support.select import Select
 from selenium.webdriver.support.ui import WebDriverWait
 
@@ -533,10 +532,12 @@ class Workbench(WorkbenchCase):
         self.assertEqual(model.first_selected_option.get_attribute("value"), listed[0]["identification"]["model"])
         self.assertEqual(model.first_selected_option.get_attribute("value"), "two_tank")
         self.assertFalse(self.find("#validate-theta").is_displayed())
-        # Another model: its own parameters, typed in; the job again: its model again.
+        self.assertTrue(self.find("#validate-horizon").is_displayed())  # a job's estimate: K steps ahead too
+        # Another model: its own parameters, typed in (no horizon: no job's filter); the job again: its model again.
         model.select_by_value("flexible_manipulator")
         self.assertEqual(source.first_selected_option.get_attribute("value"), "")
         self.assertTrue(self.find("#validate-theta").is_displayed())
+        self.assertFalse(self.find("#validate-horizon").is_displayed())
         source.select_by_value(identified)
         self.assertEqual(model.first_selected_option.get_attribute("value"), "two_tank")
         self.go(f"jobs/{identified}")
@@ -552,6 +553,16 @@ class Workbench(WorkbenchCase):
         self.assertGreater(fits[0]["fitPercent"], 90)
         self.assert_plots_drawn("#overlay", 2)
         self.shot("validate-result")
+        # Three samples ahead: the job's filter predicts; the result says so.
+        self.go(f"jobs/{identified}")
+        self.find("#validate-link").click()
+        self.find("#validate-horizon").send_keys("3")
+        self.find("#validate-submit").click()
+        ahead = self.wait_job()
+        self.assertNotEqual(ahead, job)
+        result = self.api(f"/jobs/{ahead}/result")["validation"]
+        self.assertEqual(result["horizon"], 3)
+        self.assertIn("3 samples ahead", result["predictor"])
 
     def test_6_jobs_and_models(self):
         self.sign_in()

@@ -45,13 +45,20 @@ export async function show(main, r, signal) {
   };
   modelSelect.addEventListener('change', drawTheta);
   source.addEventListener('change', drawTheta);
+  // K samples ahead with the job's filter and noise model (jobs.proto
+  // ValidationSpec.horizon): an estimate of a job only; empty is the simulation.
+  const horizon = h('input', {type: 'number', min: '1', step: '1', id: 'validate-horizon', placeholder: 'simulation'});
+  const horizonLabel = h('label', {}, 'Horizon (samples ahead; empty: simulation)', horizon);
+  const drawHorizon = () => { horizonLabel.style.display = source.value ? '' : 'none'; };
+  source.addEventListener('change', drawHorizon);
+  modelSelect.addEventListener('change', drawHorizon);
   const first = h('input', {type: 'checkbox', id: 'validate-x0-first', checked: true});
   const status = h('div', {id: 'validate-status'});
   const submit = h('button', {class: 'primary', id: 'validate-submit', type: 'submit'}, 'Validate');
   const form = h('form', {class: 'panel', id: 'validate'},
     h('div', {class: 'row'}, h('label', {}, 'Model', modelSelect), h('label', {}, 'Dataset', datasetSelect),
       h('label', {}, 'Parameters', source)),
-    thetaBox,
+    thetaBox, h('div', {class: 'row'}, horizonLabel),
     h('label', {class: 'inline'}, first, 'Start each state with an output of its name at its first measurement'),
     h('p', {}, submit), status);
   form.addEventListener('submit', async (e) => {
@@ -59,6 +66,13 @@ export async function show(main, r, signal) {
     const m = modelList.find((x) => x.name === modelSelect.value) || {};
     const spec = {model: m.name, datasetId: datasetSelect.value,
       initialState: first.checked ? {firstMeasurement: true} : {x0: (m.stateNames || []).map(() => 0)}};
+    if (source.value && horizon.value !== '') {
+      const k = Number(horizon.value);
+      if (!(Number.isInteger(k) && k >= 1)) {
+        return clear(status, errorBox(new Error('horizon: a whole number of samples, at least 1 (empty: the simulation)')));
+      }
+      spec.horizon = k;
+    }
     if (source.value) spec.identificationJobId = source.value;
     else spec.theta = {values: (m.paramNames || []).map((p) => Number(document.getElementById('vtheta-' + p).value))};
     submit.disabled = true;
@@ -70,6 +84,7 @@ export async function show(main, r, signal) {
       submit.disabled = false;
     }
   });
-  clear(main, h('h1', {}, 'Validate'), h('p', {class: 'muted'}, 'Simulate the model open loop over the dataset\'s inputs and compare with its outputs (fit % as MATLAB\'s compare: 100 is perfect).'), form);
+  clear(main, h('h1', {}, 'Validate'), h('p', {class: 'muted'}, 'Simulate the model open loop over the dataset\'s inputs (or, with a job\'s estimate and a horizon, predict each sample K samples ahead with the job\'s filter) and compare with its outputs (fit % as MATLAB\'s compare: 100 is perfect).'), form);
   drawTheta();
+  drawHorizon();
 }
